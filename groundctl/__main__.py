@@ -1,0 +1,5 @@
+import sys
+
+from groundctl.cli import main
+
+sys.exit(main())

@@ -1,0 +1,62 @@
+"""The ``groundctl`` command: parses, dispatches to groundctl.commands.<verb>.
+
+Every :class:`~groundctl.errors.GroundctlError` becomes one line on stderr and
+its exit code; Ctrl-C exits with EXIT_ABORTED after the command's own cleanup
+(``finally`` blocks flush logs and recordings) has run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+
+from groundctl import __version__
+from groundctl.errors import EXIT_ABORTED, GroundctlError
+
+#: Verb modules under groundctl.commands, in the order ``--help`` lists them.
+COMMANDS = ("plan", "check", "sim", "dry_run", "fly")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="groundctl",
+        description="Ground station for formation drone light shows.",
+    )
+    parser.add_argument("--version", action="version", version=f"groundctl {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0,
+                        help="more log output on stderr (-vv for debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"groundctl.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"groundctl.commands.{name}":
+                raise
+            continue  # verb not built yet in this checkout
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        return int(args.func(args))
+    except GroundctlError as exc:
+        print(f"groundctl {args.command}: error: {exc}", file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print(f"groundctl {args.command}: interrupted", file=sys.stderr)
+        return EXIT_ABORTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,179 @@
+"""groundctl's exceptions: one root, subclasses that keep their data.
+
+The tree::
+
+    GroundctlError                      every error groundctl raises on purpose
+    ├── ShowFileError                   a show file that cannot be used (path, where, message)
+    ├── InfeasibleTransition            a transition the limits cannot fly (index, needed_time)
+    ├── PlanningError                   the optimiser failed (transition, status)
+    ├── PlanFileError                   a plan file that cannot be read (path, message)
+    ├── UnsafePlan                      verification found violations (violations)
+    ├── LinkError                       MAVLink transport and protocol
+    │   ├── CommandRefused              a vehicle answered a command with a refusal
+    │   ├── CommandTimeout              no answer after every retry
+    │   └── VehicleLost                 a vehicle stopped talking
+    ├── PreflightFailed                 pre-flight checks did not pass (failures)
+    ├── FlightError                     the flight could not go on (reason)
+    └── SimulatorError                  the built-in simulator was misused
+
+Third-party errors (OSError from sockets, ValueError from TOML, OSQP statuses)
+are translated at the boundary with ``raise Ours(...) from exc``.  The CLI
+turns any :class:`GroundctlError` into one line on stderr and ``exit_code``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+#: Exit codes the CLI uses.  Stable: scripts rely on them.
+EXIT_OK = 0
+EXIT_UNSAFE = 1  # the command ran but the result is not safe
+EXIT_USAGE = 2  # bad input: show file, plan file, arguments
+EXIT_INFEASIBLE = 3  # the show cannot be planned within its limits
+EXIT_LINK = 4  # the vehicles could not be reached or controlled
+EXIT_ABORTED = 5  # the operator (or Ctrl-C) stopped the command
+
+
+class GroundctlError(Exception):
+    """Root of every error groundctl raises on purpose."""
+
+    exit_code: int = EXIT_UNSAFE
+
+
+class ShowFileError(GroundctlError):
+    """A show file that cannot be used.
+
+    ``where`` names the place inside the file (``formation 3 'star': size``);
+    the message says the rule, the value and, where there is one, the fix.
+    """
+
+    exit_code = EXIT_USAGE
+
+    def __init__(self, path: str | Path, where: str, message: str) -> None:
+        self.path = str(path)
+        self.where = where
+        self.message = message
+        super().__init__(f"{self.path}: {where}: {message}" if where else f"{self.path}: {message}")
+
+
+class InfeasibleTransition(GroundctlError):
+    """A transition that the show's limits cannot fly in the time given."""
+
+    exit_code = EXIT_INFEASIBLE
+
+    def __init__(self, index: int, name: str, needed_time: float, given_time: float,
+                 reason: str) -> None:
+        self.index = index
+        self.name = name
+        self.needed_time = needed_time
+        self.given_time = given_time
+        self.reason = reason
+        super().__init__(
+            f"transition {index} into '{name}': {reason}; it needs at least "
+            f"{needed_time:.1f} s but has {given_time:.1f} s"
+        )
+
+
+class PlanningError(GroundctlError):
+    """The optimiser could not produce a plan (OSQP status, no convergence)."""
+
+    exit_code = EXIT_INFEASIBLE
+
+    def __init__(self, transition: int, status: str, detail: str = "") -> None:
+        self.transition = transition
+        self.status = status
+        self.detail = detail
+        msg = f"transition {transition}: planner failed: {status}"
+        super().__init__(f"{msg} ({detail})" if detail else msg)
+
+
+class PlanFileError(GroundctlError):
+    """A plan file that cannot be read or is not a groundctl plan."""
+
+    exit_code = EXIT_USAGE
+
+    def __init__(self, path: str | Path, message: str) -> None:
+        self.path = str(path)
+        self.message = message
+        super().__init__(f"{self.path}: {message}")
+
+
+class UnsafePlan(GroundctlError):
+    """Verification found at least one violated limit."""
+
+    exit_code = EXIT_UNSAFE
+
+    def __init__(self, violations: Sequence[str]) -> None:
+        self.violations = list(violations)
+        first = self.violations[0] if self.violations else "unknown violation"
+        more = f" (and {len(self.violations) - 1} more)" if len(self.violations) > 1 else ""
+        super().__init__(f"plan is unsafe: {first}{more}")
+
+
+class LinkError(GroundctlError):
+    """MAVLink transport or protocol failure."""
+
+    exit_code = EXIT_LINK
+
+
+class CommandRefused(LinkError):
+    """A vehicle answered a command with a refusal (COMMAND_ACK result != ACCEPTED)."""
+
+    def __init__(self, system_id: int, command: str, result: str, reason: str = "") -> None:
+        self.system_id = system_id
+        self.command = command
+        self.result = result
+        self.reason = reason
+        why = f": {reason}" if reason else ""
+        super().__init__(f"vehicle {system_id}: {command} refused ({result}){why}")
+
+
+class CommandTimeout(LinkError):
+    """A command got no answer after every retry."""
+
+    def __init__(self, system_id: int, command: str, attempts: int, timeout_s: float) -> None:
+        self.system_id = system_id
+        self.command = command
+        self.attempts = attempts
+        self.timeout_s = timeout_s
+        super().__init__(
+            f"vehicle {system_id}: no answer to {command} after {attempts} attempts "
+            f"({timeout_s:.1f} s each)"
+        )
+
+
+class VehicleLost(LinkError):
+    """A vehicle stopped talking for longer than the link timeout."""
+
+    def __init__(self, system_id: int, silent_for_s: float) -> None:
+        self.system_id = system_id
+        self.silent_for_s = silent_for_s
+        super().__init__(f"vehicle {system_id}: lost (silent for {silent_for_s:.1f} s)")
+
+
+class PreflightFailed(GroundctlError):
+    """Pre-flight checks failed; ``failures`` maps system id to the failed checks."""
+
+    exit_code = EXIT_UNSAFE
+
+    def __init__(self, failures: dict[int, list[str]]) -> None:
+        self.failures = failures
+        parts = [f"vehicle {sid}: {', '.join(why)}" for sid, why in sorted(failures.items())]
+        super().__init__("pre-flight checks failed: " + "; ".join(parts))
+
+
+class FlightError(GroundctlError):
+    """The flight could not go on."""
+
+    exit_code = EXIT_UNSAFE
+
+    def __init__(self, reason: str) -> None:
+        self.reason = reason
+        super().__init__(reason)
+
+
+class SimulatorError(GroundctlError):
+    """The built-in simulator was given something it cannot do."""
+
+    exit_code = EXIT_USAGE

@@ -1,0 +1,1 @@
+"""Offline planner: assignment, SCP on OSQP, splines, continuous-time verification."""

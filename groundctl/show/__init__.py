@@ -1,0 +1,1 @@
+"""Show model, show-file loader and formation shapes."""
