@@ -1,0 +1,29 @@
+"""MAVLink link layer: one UDP endpoint for the fleet, per-vehicle state, commands.
+
+Pure protocol modules (no I/O): :mod:`.messages` (what we send),
+:mod:`.state` (what we know), :mod:`.command` (COMMAND_LONG/ACK exchange),
+:mod:`.timesync`, :mod:`.quality`, :mod:`.codec`, :mod:`.signing`,
+:mod:`.flavours`.  I/O: :mod:`.transport` (socket) and :mod:`.fleet`
+(:class:`FleetLink`, the asyncio API).
+"""
+
+from groundctl.link.command import CommandExchange
+from groundctl.link.flavours import Flavour
+from groundctl.link.fleet import DEFAULT_STREAMS, FleetLink, LinkStats
+from groundctl.link.fleetfile import Endpoint, FleetFileError, load_fleet
+from groundctl.link.signing import SigningConfig
+from groundctl.link.state import VehicleState, apply
+
+__all__ = [
+    "DEFAULT_STREAMS",
+    "CommandExchange",
+    "Endpoint",
+    "Flavour",
+    "FleetFileError",
+    "FleetLink",
+    "LinkStats",
+    "SigningConfig",
+    "VehicleState",
+    "apply",
+    "load_fleet",
+]

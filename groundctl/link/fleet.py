@@ -1,0 +1,589 @@
+"""FleetLink: the asyncio MAVLink endpoint for a whole fleet.
+
+One UDP socket serves every vehicle.  Vehicles are told apart by system id;
+each one's address is learnt from its first packet (or given by a fleet
+file).  The protocol logic lives in pure modules (:mod:`.state`,
+:mod:`.command`, :mod:`.timesync`, :mod:`.messages`); this module only routes
+bytes between them and the socket, and runs the periodic duties: ground
+station HEARTBEAT, TIMESYNC requests, lost-vehicle detection.
+
+Anything odd on the wire (garbage, a truncated or badly signed packet, an
+unexpected system id, a known vehicle talking from a new address) is counted,
+logged and ignored; it never raises out of the receive path.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from types import TracebackType
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from groundctl.clock import Clock
+from groundctl.errors import LinkError
+from groundctl.link import messages
+from groundctl.link.codec import (
+    GCS_COMPONENT_ID,
+    GCS_SYSTEM_ID,
+    DatagramParser,
+    Encoder,
+    new_codec,
+)
+from groundctl.link.command import CommandExchange
+from groundctl.link.flavours import Flavour, mode_request
+from groundctl.link.fleetfile import Endpoint
+from groundctl.link.signing import SigningConfig
+from groundctl.link.state import VehicleState, apply
+from groundctl.link.timesync import answer as timesync_answer
+from groundctl.link.transport import UdpTransport
+from groundctl.record.events import EventSink
+from groundctl.record.tlog import TlogWriter
+
+log = logging.getLogger(__name__)
+
+Address = tuple[str, int]
+Vec3 = Sequence[float]
+
+#: Telemetry a show needs, in Hz, for :meth:`FleetLink.request_streams`.
+DEFAULT_STREAMS: dict[int, float] = {
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 10.0,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 5.0,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
+}
+
+#: MAV_CMD_COMPONENT_ARM_DISARM param2 that overrides pre-arm/disarm checks.
+FORCE_MAGIC = 21196
+
+
+@dataclass
+class LinkStats:
+    """Link-wide counters (per-vehicle ones live in :class:`VehicleState`)."""
+
+    datagrams: int = 0
+    """Datagrams received."""
+    packets: int = 0
+    """Well-formed packets received (including ignored ones)."""
+    bad_packets: int = 0
+    """Malformed, truncated or badly signed pieces."""
+    unknown_system_packets: int = 0
+    """Packets from system ids outside ``expected_ids``."""
+    address_conflicts: int = 0
+    """Packets from a known system id arriving from an unexpected address."""
+    foreign_packets: int = 0
+    """Packets from other ground stations (or our own system id), ignored."""
+    sent: int = 0
+    """Packets sent."""
+    socket_errors: int = 0
+    """Errors the socket reported (ICMP unreachable, send failures)."""
+
+
+def _log_worthy(count: int) -> bool:
+    # Log the 1st, 2nd, 4th, 8th... occurrence: a flood of garbage must not
+    # flood the event log, yet its existence and scale stay visible.
+    return count & (count - 1) == 0
+
+
+class FleetLink:
+    """MAVLink link to a fleet over one UDP socket.
+
+    ``listen`` is the local (host, port) to bind; port 0 picks a free one
+    (see :attr:`local_address`).  ``endpoints`` lists vehicles at known
+    addresses (a fleet file); their first packet confirms or corrects the
+    address.  ``expected_ids``, when given, restricts the fleet: other system
+    ids are counted and ignored.  All times (timeouts, periods) are in
+    seconds of ``clock``.
+    """
+
+    def __init__(
+        self,
+        listen: Address = ("0.0.0.0", 14550),
+        *,
+        clock: Clock,
+        endpoints: Iterable[Endpoint] = (),
+        expected_ids: Iterable[int] | None = None,
+        system_id: int = GCS_SYSTEM_ID,
+        component_id: int = GCS_COMPONENT_ID,
+        signing_key: bytes | None = None,
+        signing_link_id: int = 0,
+        allow_unsigned: bool = False,
+        tlog: TlogWriter | None = None,
+        events: EventSink | None = None,
+        lost_timeout: float = 3.0,
+        heartbeat_period: float = 1.0,
+        timesync_period: float = 1.0,
+        tick: float = 0.05,
+        allow_address_change: bool = False,
+        command_reason_grace: float = 0.2,
+        wall: Callable[[], float] = time.time,
+    ) -> None:
+        if not lost_timeout > 0:
+            raise ValueError(f"`lost_timeout` must be positive, got {lost_timeout}")
+        if not heartbeat_period > 0:
+            raise ValueError(f"`heartbeat_period` must be positive, got {heartbeat_period}")
+        if timesync_period < 0:
+            raise ValueError(f"`timesync_period` must be non-negative, got {timesync_period}")
+        if not tick > 0:
+            raise ValueError(f"`tick` must be positive, got {tick}")
+        self.listen = listen
+        self.clock = clock
+        self.endpoints = list(endpoints)
+        self.expected_ids = None if expected_ids is None else frozenset(expected_ids)
+        self.system_id = system_id
+        self.component_id = component_id
+        self.signing = (
+            None if signing_key is None
+            else SigningConfig(signing_key, signing_link_id, allow_unsigned)
+        )  # fmt: skip
+        self.tlog = tlog
+        self.events = events
+        self.lost_timeout = lost_timeout
+        self.heartbeat_period = heartbeat_period
+        self.timesync_period = timesync_period
+        self.tick = tick
+        self.allow_address_change = allow_address_change
+        self.command_reason_grace = command_reason_grace
+        self._wall = wall
+        new_codec(system_id, component_id)  # validates the ids now, not on first packet
+
+        self.vehicles: dict[int, VehicleState] = {}
+        """Vehicles heard from, by system id."""
+        self.stats = LinkStats()
+        self._addresses: dict[int, Address] = {e.system_id: e.address for e in self.endpoints}
+        self._provisional: set[int] = set(self._addresses)
+        self._parsers: dict[Address, DatagramParser] = {}
+        self._encoders: dict[int, Encoder] = {}
+        self._bad_by_address: dict[Address, int] = {}
+        self._conflicts_by_id: dict[int, int] = {}
+        self._unknown_ids: dict[int, int] = {}
+        self._exchanges: dict[tuple[int, int], tuple[CommandExchange, asyncio.Event]] = {}
+        self._command_locks: dict[tuple[int, int], asyncio.Lock] = {}
+        self._heard = asyncio.Event()
+        self._transport: UdpTransport | None = None
+        self._task: asyncio.Task[None] | None = None
+        self.local_address: Address | None = None
+        """The bound (host, port), once started."""
+
+    # -- lifecycle -------------------------------------------------------
+
+    async def start(self) -> None:
+        """Bind the socket and start the periodic duties."""
+        if self._transport is not None:
+            raise LinkError("link already started")
+        self._transport = UdpTransport(self._on_datagram, self._on_socket_error)
+        self.local_address = await self._transport.open(self.listen)
+        self._task = asyncio.create_task(self._run_periodic(), name="fleetlink-periodic")
+        self._emit("link_started", address=f"{self.local_address[0]}:{self.local_address[1]}")
+
+    async def close(self) -> None:
+        """Stop, close the socket, flush the tlog and the event sink (the caller closes them)."""
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+        if self._transport is not None:
+            self._transport.close()
+            self._transport = None
+            self._emit("link_closed", **{k: v for k, v in vars(self.stats).items()})
+        if self.tlog is not None:
+            self.tlog.flush()
+        flush = getattr(self.events, "flush", None)
+        if callable(flush):
+            flush()
+
+    async def __aenter__(self) -> FleetLink:
+        await self.start()
+        return self
+
+    async def __aexit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                        tb: TracebackType | None) -> None:
+        await self.close()
+
+    # -- receive path ----------------------------------------------------
+
+    def _parser(self, addr: Address) -> DatagramParser:
+        parser = self._parsers.get(addr)
+        if parser is None:
+            parser = DatagramParser(
+                new_codec(self.system_id, self.component_id, self.signing, self._wall)
+            )
+            self._parsers[addr] = parser
+        return parser
+
+    def _on_socket_error(self, exc: Exception) -> None:
+        self.stats.socket_errors += 1
+        log.debug("socket error: %s", exc)
+
+    def _on_datagram(self, data: bytes, addr: Address) -> None:
+        now = self.clock.now()
+        self.stats.datagrams += 1
+        result = self._parser(addr).feed(data)
+        for reason in result.bad:
+            self._bad_packet(addr, reason)
+        for msg in result.messages:
+            self.stats.packets += 1
+            if self.tlog is not None:
+                self.tlog.write(msg.get_msgbuf())
+            try:
+                self._handle(msg, addr, now)
+            except Exception:  # a bug here must cost one packet, not the link
+                log.exception("error handling %s from %s:%s", msg.get_type(), *addr)
+
+    def _bad_packet(self, addr: Address, reason: str) -> None:
+        self.stats.bad_packets += 1
+        for sysid, known in self._addresses.items():
+            if known == addr and sysid in self.vehicles:
+                self.vehicles[sysid].bad_packets += 1
+        n = self._bad_by_address.get(addr, 0) + 1
+        self._bad_by_address[addr] = n
+        log.debug("bad packet from %s:%s: %s", addr[0], addr[1], reason)
+        if _log_worthy(n):
+            self._emit("bad_packet", address=f"{addr[0]}:{addr[1]}", reason=reason, count=n)
+
+    def _handle(self, msg: mavlink.MAVLink_message, addr: Address, now: float) -> None:
+        sysid = msg.get_srcSystem()
+        if sysid == self.system_id or (
+            msg.get_type() == "HEARTBEAT" and msg.type == mavlink.MAV_TYPE_GCS
+        ):
+            self.stats.foreign_packets += 1
+            return
+        if self.expected_ids is not None and sysid not in self.expected_ids:
+            self.stats.unknown_system_packets += 1
+            n = self._unknown_ids.get(sysid, 0) + 1
+            self._unknown_ids[sysid] = n
+            if _log_worthy(n):
+                log.warning("ignoring unknown system id %d from %s:%s", sysid, *addr)
+                self._emit("unknown_vehicle", system_id=sysid, address=f"{addr[0]}:{addr[1]}",
+                           count=n)
+            return
+        if not self._accept_address(sysid, addr):
+            return
+
+        state = self.vehicles.get(sysid)
+        if state is None:
+            state = self.vehicles[sysid] = VehicleState(sysid)
+            self._emit("vehicle_appeared", system_id=sysid, address=f"{addr[0]}:{addr[1]}")
+        if state.lost:
+            state.lost = False
+            self._emit("vehicle_found", system_id=sysid,
+                       silent_for_s=round(state.silent_for(now), 3))
+        for change in apply(state, msg, now):
+            self._emit(change.event, system_id=sysid, **change.fields)
+        self._heard.set()
+
+        kind = msg.get_type()
+        if kind == "TIMESYNC":
+            reply = timesync_answer(msg.tc1, msg.ts1, now)
+            if reply is not None:
+                self._send(sysid, messages.timesync(*reply))
+        elif kind == "STATUSTEXT":
+            text = state.statustexts[-1].text
+            for (target, _), (exchange, wake) in self._exchanges.items():
+                if target == sysid:
+                    exchange.note_statustext(text, now)
+                    wake.set()
+        elif kind == "COMMAND_ACK":
+            entry = self._exchanges.get((sysid, msg.command))
+            if entry is not None and entry[0].matches(msg, self.system_id):
+                entry[0].receive(msg, now)
+                entry[1].set()
+
+    def _accept_address(self, sysid: int, addr: Address) -> bool:
+        known = self._addresses.get(sysid)
+        if known == addr:
+            return True
+        if known is None or sysid in self._provisional:
+            # First packet: learn the address (a fleet file's address is only
+            # where to send until the vehicle shows where it really talks from).
+            self._provisional.discard(sysid)
+            self._addresses[sysid] = addr
+            if known is not None:
+                self._emit("address_learnt", system_id=sysid, address=f"{addr[0]}:{addr[1]}",
+                           configured=f"{known[0]}:{known[1]}")
+            return True
+        if self.allow_address_change:
+            self._addresses[sysid] = addr
+            self._emit("address_changed", system_id=sysid, old=f"{known[0]}:{known[1]}",
+                       new=f"{addr[0]}:{addr[1]}")
+            return True
+        # Someone else claims this system id (a duplicate id, a spoofer, or a
+        # vehicle that rebooted onto a new port): never hijack the vehicle.
+        self.stats.address_conflicts += 1
+        n = self._conflicts_by_id.get(sysid, 0) + 1
+        self._conflicts_by_id[sysid] = n
+        if _log_worthy(n):
+            log.warning("vehicle %d: ignoring packets from %s:%s (known at %s:%s)",
+                        sysid, addr[0], addr[1], known[0], known[1])
+            self._emit("address_conflict", system_id=sysid, address=f"{addr[0]}:{addr[1]}",
+                       known=f"{known[0]}:{known[1]}", count=n)
+        return False
+
+    # -- send path -------------------------------------------------------
+
+    def _encoder(self, sysid: int) -> Encoder:
+        enc = self._encoders.get(sysid)
+        if enc is None:
+            enc = Encoder(new_codec(self.system_id, self.component_id, self.signing, self._wall))
+            self._encoders[sysid] = enc
+        return enc
+
+    def _send(self, sysid: int, msg: mavlink.MAVLink_message) -> None:
+        addr = self._addresses.get(sysid)
+        if addr is None:
+            raise LinkError(f"vehicle {sysid}: address unknown (never heard from it)")
+        if self._transport is None:
+            raise LinkError("link is not open: call `await link.start()` first")
+        data = self._encoder(sysid).encode(msg)
+        self._transport.send(data, addr)
+        self.stats.sent += 1
+        if self.tlog is not None:
+            self.tlog.write(data)
+
+    def address_of(self, sysid: int) -> Address | None:
+        """Where packets for vehicle ``sysid`` go, if known."""
+        return self._addresses.get(sysid)
+
+    # -- periodic duties -------------------------------------------------
+
+    async def _run_periodic(self) -> None:
+        next_heartbeat = -math.inf
+        next_timesync = -math.inf
+        while True:
+            now = self.clock.now()
+            try:
+                if now >= next_heartbeat:
+                    next_heartbeat = now + self.heartbeat_period
+                    self._broadcast(messages.gcs_heartbeat())
+                if self.timesync_period > 0 and now >= next_timesync:
+                    next_timesync = now + self.timesync_period
+                    for sysid, state in self.vehicles.items():
+                        if not state.lost:
+                            self._send(sysid, messages.timesync(0, state.timesync.request(now)))
+                self.check_lost(now)
+            except LinkError as exc:
+                log.warning("periodic duty failed: %s", exc)
+            await asyncio.sleep(max(self.clock.wall_interval(self.tick), 0.001))
+
+    def _broadcast(self, msg: mavlink.MAVLink_message) -> None:
+        # One copy per vehicle: each vehicle's stream has its own sequence numbers.
+        for sysid in list(self._addresses):
+            self._send(sysid, msg)
+
+    def check_lost(self, now: float) -> list[int]:
+        """Mark vehicles silent for longer than ``lost_timeout``; returns newly lost ids."""
+        newly = []
+        for sysid, state in self.vehicles.items():
+            if not state.lost and state.silent_for(now) > self.lost_timeout:
+                state.lost = True
+                newly.append(sysid)
+                self._emit("vehicle_lost", system_id=sysid,
+                           silent_for_s=round(state.silent_for(now), 3))
+        return newly
+
+    def _emit(self, event: str, **fields: Any) -> None:
+        log.info("%s %s", event, fields)
+        if self.events is not None:
+            try:
+                self.events.emit(event, **fields)
+            except Exception:  # a broken sink must not break the link
+                log.exception("event sink failed on %s", event)
+
+    # -- waiting ---------------------------------------------------------
+
+    async def wait_for_vehicles(
+        self, ids: Iterable[int] | int, timeout: float = 10.0
+    ) -> dict[int, VehicleState]:
+        """Wait until the given system ids (or this many vehicles) sent an autopilot HEARTBEAT.
+
+        Raises :class:`LinkError` naming the missing vehicles after ``timeout``.
+        """
+        want_count = ids if isinstance(ids, int) else None
+        want_ids = None if isinstance(ids, int) else set(ids)
+        deadline = self.clock.now() + timeout
+
+        def ready() -> dict[int, VehicleState]:
+            return {s: v for s, v in self.vehicles.items() if v.last_heartbeat is not None}
+
+        while True:
+            have = ready()
+            if want_ids is not None and want_ids <= set(have):
+                return {s: have[s] for s in sorted(want_ids)}
+            if want_count is not None and len(have) >= want_count:
+                return have
+            remaining = deadline - self.clock.now()
+            if remaining <= 0:
+                heard = sorted(have)
+                if want_ids is not None:
+                    missing = sorted(want_ids - set(have))
+                    raise LinkError(f"no HEARTBEAT from vehicles {missing} within {timeout} s "
+                                    f"(heard from {heard})")
+                raise LinkError(f"only {len(heard)} of {want_count} vehicles sent a HEARTBEAT "
+                                f"within {timeout} s (heard from {heard})")
+            self._heard.clear()
+            wait = min(max(self.clock.wall_interval(remaining), 0.001), 0.1)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._heard.wait(), wait)
+
+    # -- commands ----------------------------------------------------------
+
+    async def command_long(
+        self,
+        sysid: int,
+        command: int,
+        *params: float,
+        timeout: float = 1.0,
+        retries: int = 2,
+        target_component: int = 1,
+    ) -> mavlink.MAVLink_command_ack_message:
+        """Send COMMAND_LONG and wait for its ACCEPTED ACK.
+
+        Resends after ``timeout`` up to ``retries`` times; raises
+        :class:`CommandRefused` (with the vehicle's STATUSTEXT as reason) or
+        :class:`CommandTimeout`.  Commands with the same number to the same
+        vehicle run one after the other: an ACK names only the command.
+        """
+        if retries < 0:
+            raise ValueError(f"`retries` must be non-negative, got {retries}")
+        key = (sysid, command)
+        lock = self._command_locks.setdefault(key, asyncio.Lock())
+        async with lock:
+            exchange = CommandExchange(
+                sysid, command, params, timeout=timeout, attempts=retries + 1,
+                reason_grace=self.command_reason_grace, target_component=target_component,
+            )  # fmt: skip
+            wake = asyncio.Event()
+            self._exchanges[key] = (exchange, wake)
+            try:
+                for msg in exchange.start(self.clock.now()):
+                    self._send(sysid, msg)
+                while not exchange.done:
+                    remaining = exchange.deadline - self.clock.now()
+                    if remaining > 0:
+                        wait = max(self.clock.wall_interval(remaining), 0.001)
+                        with contextlib.suppress(TimeoutError):
+                            await asyncio.wait_for(wake.wait(), wait)
+                    wake.clear()
+                    for msg in exchange.poll(self.clock.now()):
+                        self._send(sysid, msg)
+            finally:
+                del self._exchanges[key]
+        if exchange.error is not None:
+            event = "command_refused" if exchange.ack is not None else "command_timeout"
+            self._emit(event, system_id=sysid, command=exchange.name, error=str(exchange.error))
+            raise exchange.error
+        return exchange.result()
+
+    def _flavour(self, sysid: int) -> Flavour:
+        state = self.vehicles.get(sysid)
+        if state is None or state.flavour is None:
+            raise LinkError(f"vehicle {sysid}: autopilot unknown (no HEARTBEAT yet)")
+        return state.flavour
+
+    async def set_mode(self, sysid: int, name: str, **kw: Any) -> None:
+        """Switch vehicle ``sysid`` to mode ``name`` (``GUIDED``, ``OFFBOARD``, ``LAND``...)."""
+        req = mode_request(self._flavour(sysid), name)
+        await self.command_long(sysid, mavlink.MAV_CMD_DO_SET_MODE,
+                                req.param1, req.param2, req.param3, **kw)
+
+    async def arm(self, sysid: int, force: bool = False, **kw: Any) -> None:
+        """Arm; ``force`` overrides the pre-arm checks (never in a show)."""
+        await self.command_long(sysid, mavlink.MAV_CMD_COMPONENT_ARM_DISARM,
+                                1, FORCE_MAGIC if force else 0, **kw)
+
+    async def disarm(self, sysid: int, force: bool = False, **kw: Any) -> None:
+        """Disarm; ``force`` disarms even in flight (an emergency stop)."""
+        await self.command_long(sysid, mavlink.MAV_CMD_COMPONENT_ARM_DISARM,
+                                0, FORCE_MAGIC if force else 0, **kw)
+
+    async def takeoff(self, sysid: int, alt_m: float, **kw: Any) -> None:
+        """MAV_CMD_NAV_TAKEOFF to ``alt_m`` metres above home.
+
+        ArduPilot reads param7 as altitude above home; PX4 reads it as AMSL
+        and takes NaN latitude/longitude/yaw as "here", so for PX4 the home
+        altitude is added.
+        """
+        if self._flavour(sysid) is Flavour.PX4:
+            home = self.vehicles[sysid].home
+            if home is None:
+                raise LinkError(f"vehicle {sysid}: PX4 takeoff needs HOME_POSITION first")
+            nan = math.nan
+            await self.command_long(sysid, mavlink.MAV_CMD_NAV_TAKEOFF,
+                                    -1, 0, 0, nan, nan, nan, home.alt_m + alt_m, **kw)
+        else:
+            await self.command_long(sysid, mavlink.MAV_CMD_NAV_TAKEOFF,
+                                    0, 0, 0, 0, 0, 0, alt_m, **kw)
+
+    async def land(self, sysid: int, **kw: Any) -> None:
+        """Land where the vehicle is, via the flavour's land mode."""
+        name = "LAND" if self._flavour(sysid) is Flavour.ARDUPILOT else "AUTO.LAND"
+        await self.set_mode(sysid, name, **kw)
+
+    async def request_message(self, sysid: int, msg_id: int, **kw: Any) -> None:
+        """MAV_CMD_REQUEST_MESSAGE: have the vehicle send ``msg_id`` once."""
+        await self.command_long(sysid, mavlink.MAV_CMD_REQUEST_MESSAGE, msg_id, **kw)
+
+    async def set_message_interval(self, sysid: int, msg_id: int, hz: float, **kw: Any) -> None:
+        """MAV_CMD_SET_MESSAGE_INTERVAL: stream ``msg_id`` at ``hz`` (0 stops it)."""
+        await self.command_long(sysid, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL,
+                                msg_id, messages.message_interval_us(hz), **kw)
+
+    async def request_streams(
+        self, sysid: int, rates: Mapping[int, float] | None = None, **kw: Any
+    ) -> None:
+        """Ask for every stream in ``rates`` (message id -> Hz; default :data:`DEFAULT_STREAMS`)."""
+        for msg_id, hz in (DEFAULT_STREAMS if rates is None else rates).items():
+            await self.set_message_interval(sysid, msg_id, hz, **kw)
+
+    # -- streaming senders (non-blocking, fire and forget) -------------------
+
+    def send_position_target_local_ned(
+        self,
+        sysid: int,
+        time_boot_ms: int,
+        pos_ned: Vec3,
+        vel_ned: Vec3 | None = None,
+        acc_ned: Vec3 | None = None,
+        yaw: float | None = None,
+        yaw_rate: float | None = None,
+    ) -> None:
+        """SET_POSITION_TARGET_LOCAL_NED to vehicle ``sysid`` (type_mask from what is given)."""
+        self._send(sysid, messages.position_target_local_ned(
+            sysid, time_boot_ms, pos_ned, vel_ned, acc_ned, yaw, yaw_rate))
+
+    def send_position_target_global_int(
+        self,
+        sysid: int,
+        time_boot_ms: int,
+        lat_deg: float,
+        lon_deg: float,
+        alt_m: float,
+        vel_ned: Vec3 | None = None,
+        acc_ned: Vec3 | None = None,
+        yaw: float | None = None,
+        yaw_rate: float | None = None,
+        frame: int = mavlink.MAV_FRAME_GLOBAL_INT,
+    ) -> None:
+        """SET_POSITION_TARGET_GLOBAL_INT to vehicle ``sysid``."""
+        self._send(sysid, messages.position_target_global_int(
+            sysid, time_boot_ms, lat_deg, lon_deg, alt_m, vel_ned, acc_ned, yaw, yaw_rate, frame))
+
+    def send_led_rgb(self, sysid: int, r: int, g: int, b: int,
+                     blink_hz: int | None = None) -> None:
+        """LED_CONTROL colour to ``sysid``; 0 sends a broadcast copy to every vehicle."""
+        msg = messages.led_rgb(sysid, r, g, b, blink_hz)
+        if sysid == 0:
+            self._broadcast(msg)
+        else:
+            self._send(sysid, msg)
+
+    def send_message(self, sysid: int, msg: mavlink.MAVLink_message) -> None:
+        """Send any message object to vehicle ``sysid`` (escape hatch)."""
+        self._send(sysid, msg)

@@ -1,0 +1,297 @@
+"""What the ground station knows about one vehicle, updated by a pure :func:`apply`.
+
+:func:`apply` takes a decoded message and the time it arrived and updates a
+:class:`VehicleState`; it returns the notable changes (mode changed, armed,
+STATUSTEXT...) so the caller can log them.  No I/O here.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from groundctl.link.flavours import Flavour, decode_mode
+from groundctl.link.quality import SequenceTracker
+from groundctl.link.timesync import TimesyncEstimator, TimesyncSample
+
+Vec3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class GlobalPosition:
+    """GLOBAL_POSITION_INT, in SI units."""
+
+    lat_deg: float
+    """Latitude, degrees."""
+    lon_deg: float
+    """Longitude, degrees."""
+    alt_m: float
+    """Altitude above mean sea level, metres."""
+    relative_alt_m: float
+    """Altitude above home, metres."""
+    vel_ned: Vec3
+    """Ground speed north, east, down, m/s."""
+    heading_deg: float | None
+    """Heading, degrees, or None when unknown."""
+
+
+@dataclass(frozen=True)
+class GeoPoint:
+    """A geodetic point (EKF origin, home)."""
+
+    lat_deg: float
+    """Latitude, degrees."""
+    lon_deg: float
+    """Longitude, degrees."""
+    alt_m: float
+    """Altitude above mean sea level, metres."""
+
+
+@dataclass(frozen=True)
+class StatusText:
+    """A STATUSTEXT line from the vehicle."""
+
+    text: str
+    """The text, as sent."""
+    severity: int
+    """MAV_SEVERITY (0 emergency .. 7 debug)."""
+    at: float
+    """Our time when it arrived."""
+
+
+@dataclass(frozen=True)
+class StateChange:
+    """A notable change worth an event-log line."""
+
+    event: str
+    """Event name: ``mode_changed``, ``armed``, ``disarmed``, ``statustext``, ..."""
+    fields: dict[str, Any]
+    """Event details."""
+
+
+@dataclass
+class VehicleState:
+    """Everything known about one vehicle.  Fields are None until first reported."""
+
+    system_id: int
+    """MAVLink system id."""
+    flavour: Flavour | None = None
+    """Autopilot family from HEARTBEAT.autopilot."""
+    vehicle_type: int | None = None
+    """HEARTBEAT.type (MAV_TYPE)."""
+    mode: str = "UNKNOWN"
+    """Flight mode name decoded the way the flavour encodes it."""
+    armed: bool = False
+    """MAV_MODE_FLAG_SAFETY_ARMED from HEARTBEAT.base_mode."""
+    system_status: int | None = None
+    """HEARTBEAT.system_status (MAV_STATE)."""
+    position_ned: Vec3 | None = None
+    """LOCAL_POSITION_NED x, y, z in metres from the EKF origin."""
+    velocity_ned: Vec3 | None = None
+    """LOCAL_POSITION_NED vx, vy, vz in m/s."""
+    local_time_boot_ms: int | None = None
+    """time_boot_ms of the last LOCAL_POSITION_NED."""
+    global_position: GlobalPosition | None = None
+    """Last GLOBAL_POSITION_INT."""
+    battery_remaining_pct: float | None = None
+    """Remaining battery, percent (SYS_STATUS or BATTERY_STATUS)."""
+    battery_voltage_v: float | None = None
+    """Battery voltage, volts."""
+    gps_fix_type: int | None = None
+    """GPS_RAW_INT.fix_type (GPS_FIX_TYPE; 3 = 3D fix)."""
+    gps_satellites: int | None = None
+    """GPS_RAW_INT.satellites_visible."""
+    ekf_origin: GeoPoint | None = None
+    """GPS_GLOBAL_ORIGIN: where the vehicle's local NED frame is anchored."""
+    home: GeoPoint | None = None
+    """HOME_POSITION."""
+    first_heard: float | None = None
+    """Our time of the first packet."""
+    last_heard: float | None = None
+    """Our time of the last packet."""
+    last_heartbeat: float | None = None
+    """Our time of the last autopilot HEARTBEAT."""
+    lost: bool = False
+    """Silent for longer than the link timeout (set by the link, cleared by any packet)."""
+    packets: int = 0
+    """Packets received from this vehicle."""
+    bad_packets: int = 0
+    """Malformed or rejected packets attributed to this vehicle's address."""
+    quality: SequenceTracker = field(default_factory=SequenceTracker)
+    """Sequence-number based loss estimate."""
+    timesync: TimesyncEstimator = field(default_factory=TimesyncEstimator)
+    """Clock offset and RTT from TIMESYNC."""
+    statustexts: deque[StatusText] = field(default_factory=lambda: deque(maxlen=20))
+    """The most recent STATUSTEXTs, oldest first."""
+    acks: deque[mavlink.MAVLink_command_ack_message] = field(
+        default_factory=lambda: deque(maxlen=20)
+    )
+    """The most recent COMMAND_ACKs, oldest first."""
+
+    @property
+    def loss_ratio(self) -> float:
+        """Fraction of this vehicle's packets lost on the way (sequence gaps)."""
+        return self.quality.loss_ratio
+
+    @property
+    def rtt_s(self) -> float | None:
+        """Latest TIMESYNC round-trip time in seconds."""
+        return self.timesync.rtt_s
+
+    @property
+    def clock_offset_s(self) -> float | None:
+        """Vehicle boot clock minus our clock, seconds (best TIMESYNC sample)."""
+        return self.timesync.offset_s
+
+    @property
+    def last_statustext(self) -> StatusText | None:
+        return self.statustexts[-1] if self.statustexts else None
+
+    def vehicle_time_boot_ms(self, now: float) -> int | None:
+        """The vehicle's time_boot_ms at our time ``now``, from TIMESYNC, if known."""
+        t = self.timesync.vehicle_time_s(now)
+        return None if t is None else max(int(t * 1000), 0)
+
+    def silent_for(self, now: float) -> float:
+        """Seconds since the last packet (infinite if never heard)."""
+        return float("inf") if self.last_heard is None else now - self.last_heard
+
+
+def _is_autopilot_heartbeat(msg: mavlink.MAVLink_heartbeat_message) -> bool:
+    # Gimbals, cameras and companion computers send HEARTBEATs too, under the
+    # same system id; only the autopilot's carries the vehicle's mode and
+    # armed state.
+    return (
+        msg.autopilot != mavlink.MAV_AUTOPILOT_INVALID
+        and msg.type not in (mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER)
+    )
+
+
+def apply(state: VehicleState, msg: mavlink.MAVLink_message, now: float) -> list[StateChange]:
+    """Update ``state`` from ``msg`` received at ``now``; returns notable changes."""
+    changes: list[StateChange] = []
+    state.packets += 1
+    if state.first_heard is None:
+        state.first_heard = now
+    state.last_heard = now
+    header = msg.get_header()
+    state.quality.update(header.srcComponent, header.seq)
+
+    kind = msg.get_type()
+    handler = _HANDLERS.get(kind)
+    if handler is not None:
+        handler(state, msg, now, changes)
+    return changes
+
+
+def _heartbeat(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
+    if not _is_autopilot_heartbeat(msg):
+        return
+    state.last_heartbeat = now
+    flavour = Flavour.from_heartbeat(msg.autopilot)
+    if flavour is not state.flavour:
+        state.flavour = flavour
+        changes.append(StateChange("flavour", {"flavour": str(flavour) if flavour else None}))
+    state.vehicle_type = msg.type
+    state.system_status = msg.system_status
+    mode = decode_mode(flavour, msg.base_mode, msg.custom_mode)
+    if mode != state.mode:
+        changes.append(StateChange("mode_changed", {"old": state.mode, "new": mode}))
+        state.mode = mode
+    armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+    if armed != state.armed:
+        state.armed = armed
+        changes.append(StateChange("armed" if armed else "disarmed", {}))
+
+
+def _local_position(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
+    state.position_ned = (msg.x, msg.y, msg.z)
+    state.velocity_ned = (msg.vx, msg.vy, msg.vz)
+    state.local_time_boot_ms = msg.time_boot_ms
+
+
+def _global_position(
+    state: VehicleState, msg: Any, now: float, changes: list[StateChange]
+) -> None:
+    state.global_position = GlobalPosition(
+        lat_deg=msg.lat / 1e7,
+        lon_deg=msg.lon / 1e7,
+        alt_m=msg.alt / 1000.0,
+        relative_alt_m=msg.relative_alt / 1000.0,
+        vel_ned=(msg.vx / 100.0, msg.vy / 100.0, msg.vz / 100.0),
+        heading_deg=None if msg.hdg == 65535 else msg.hdg / 100.0,
+    )
+
+
+def _sys_status(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
+    # -1 and UINT16_MAX mean "not measured": keep what BATTERY_STATUS may have said.
+    if msg.battery_remaining >= 0:
+        state.battery_remaining_pct = float(msg.battery_remaining)
+    if msg.voltage_battery != 65535:
+        state.battery_voltage_v = msg.voltage_battery / 1000.0
+
+
+def _battery_status(
+    state: VehicleState, msg: Any, now: float, changes: list[StateChange]
+) -> None:
+    if msg.id != 0:
+        return  # only the first (main) battery
+    if msg.battery_remaining >= 0:
+        state.battery_remaining_pct = float(msg.battery_remaining)
+    cells = [v for v in msg.voltages if v != 65535]
+    if cells:
+        state.battery_voltage_v = sum(cells) / 1000.0
+
+
+def _gps_raw(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
+    state.gps_fix_type = msg.fix_type
+    state.gps_satellites = None if msg.satellites_visible == 255 else msg.satellites_visible
+
+
+def _origin(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
+    origin = GeoPoint(msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1000.0)
+    if origin != state.ekf_origin:
+        state.ekf_origin = origin
+        changes.append(StateChange("ekf_origin", {"lat": origin.lat_deg, "lon": origin.lon_deg,
+                                                  "alt": origin.alt_m}))
+
+
+def _home(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
+    home = GeoPoint(msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1000.0)
+    if home != state.home:
+        state.home = home
+        changes.append(StateChange("home", {"lat": home.lat_deg, "lon": home.lon_deg,
+                                            "alt": home.alt_m}))
+
+
+def _statustext(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
+    text = msg.text.decode("utf-8", "replace") if isinstance(msg.text, bytes) else str(msg.text)
+    state.statustexts.append(StatusText(text, int(msg.severity), now))
+    changes.append(StateChange("statustext", {"text": text, "severity": int(msg.severity)}))
+
+
+def _ack(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
+    state.acks.append(msg)
+
+
+def _timesync(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
+    sample: TimesyncSample | None = state.timesync.receive(msg.tc1, msg.ts1, now)
+    del sample  # the estimator keeps it; nothing notable to log per sample
+
+
+_HANDLERS = {
+    "HEARTBEAT": _heartbeat,
+    "LOCAL_POSITION_NED": _local_position,
+    "GLOBAL_POSITION_INT": _global_position,
+    "SYS_STATUS": _sys_status,
+    "BATTERY_STATUS": _battery_status,
+    "GPS_RAW_INT": _gps_raw,
+    "GPS_GLOBAL_ORIGIN": _origin,
+    "HOME_POSITION": _home,
+    "STATUSTEXT": _statustext,
+    "COMMAND_ACK": _ack,
+    "TIMESYNC": _timesync,
+}

@@ -1,0 +1,74 @@
+"""JSON-lines event log: one object per line with ``t`` and ``event`` plus fields.
+
+Events are rare (a vehicle appeared, a mode changed, a command was refused)
+and are exactly what one reads after something went wrong, so every line is
+flushed as it is written: a crash loses nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections.abc import Callable
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Protocol, TextIO
+
+from groundctl.errors import GroundctlError
+
+
+class EventSink(Protocol):
+    """Anything that takes events: an :class:`EventLog`, a console, a test list."""
+
+    def emit(self, event: str, /, **fields: Any) -> None: ...
+
+
+class EventLog:
+    """Writes events to a JSON-lines file; ``t`` comes from the ``now`` callable."""
+
+    def __init__(self, path: str | Path, now: Callable[[], float]) -> None:
+        self.path = Path(path)
+        self._now = now
+        self._lock = threading.Lock()
+        try:
+            self._file: TextIO | None = open(self.path, "w", encoding="utf-8")  # noqa: SIM115
+        except OSError as exc:
+            raise GroundctlError(
+                f"{self.path}: cannot write event log: {exc.strerror or exc}"
+            ) from exc
+        self.count = 0
+
+    def emit(self, event: str, /, **fields: Any) -> None:
+        """Write one event line now (``t`` and ``event`` cannot be overridden by fields)."""
+        record: dict[str, Any] = {"t": round(self._now(), 6), "event": event}
+        record.update({k: v for k, v in fields.items() if k not in record})
+        line = json.dumps(record, default=str, separators=(",", ":"))
+        with self._lock:
+            if self._file is None:
+                return
+            self._file.write(line + "\n")
+            self._file.flush()
+            self.count += 1
+
+    def close(self) -> None:
+        """Flush and close; idempotent."""
+        with self._lock:
+            if self._file is not None:
+                try:
+                    self._file.flush()
+                finally:
+                    self._file.close()
+                    self._file = None
+
+    def __enter__(self) -> EventLog:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+def read_events(path: str | Path) -> list[dict[str, Any]]:
+    """All events in a JSON-lines log (for tests and post-flight tools)."""
+    with open(path, encoding="utf-8") as f:
+        return [json.loads(line) for line in f if line.strip()]

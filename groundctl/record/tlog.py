@@ -1,0 +1,79 @@
+"""MAVLink .tlog writer, in the format pymavlink and Mission Planner read.
+
+Each record is an 8-byte big-endian uint64 of microseconds since the Unix
+epoch followed by the raw bytes of exactly one MAVLink packet (the reader
+parses one packet after each timestamp, so a datagram holding several packets
+must be written as several records).  Both directions go in one file.
+"""
+
+from __future__ import annotations
+
+import struct
+import time
+from collections.abc import Callable
+from pathlib import Path
+from types import TracebackType
+from typing import BinaryIO
+
+from groundctl.errors import GroundctlError
+
+_STAMP = struct.Struct(">Q")
+
+
+class TlogWriter:
+    """Appends timestamped packets to a .tlog; flushes every ``flush_interval`` s and on close."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        wall: Callable[[], float] = time.time,
+        flush_interval: float = 1.0,
+    ) -> None:
+        if flush_interval < 0:
+            raise ValueError(f"`flush_interval` must be non-negative, got {flush_interval}")
+        self.path = Path(path)
+        # Wall time on purpose: tlog timestamps are absolute Unix times, not show time.
+        self._wall = wall
+        self._flush_interval = flush_interval
+        try:
+            self._file: BinaryIO | None = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        except OSError as exc:
+            raise GroundctlError(f"{self.path}: cannot write tlog: {exc.strerror or exc}") from exc
+        self._last_flush = wall()
+        self.packets = 0
+
+    def write(self, packet: bytes, unix_s: float | None = None) -> None:
+        """Record one MAVLink packet, stamped ``unix_s`` (default: now)."""
+        if self._file is None:
+            return  # closed: late packets during shutdown are dropped, not an error
+        t = self._wall() if unix_s is None else unix_s
+        self._file.write(_STAMP.pack(max(int(t * 1e6), 0)) + bytes(packet))
+        self.packets += 1
+        if t - self._last_flush >= self._flush_interval:
+            self.flush()
+
+    def flush(self) -> None:
+        if self._file is not None:
+            self._file.flush()
+            self._last_flush = self._wall()
+
+    def close(self) -> None:
+        """Flush and close; idempotent."""
+        if self._file is not None:
+            try:
+                self._file.flush()
+            finally:
+                self._file.close()
+                self._file = None
+
+    @property
+    def closed(self) -> bool:
+        return self._file is None
+
+    def __enter__(self) -> TlogWriter:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()

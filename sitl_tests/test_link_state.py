@@ -1,0 +1,169 @@
+"""Per-vehicle state decoding (both flavours), sequence-gap loss, TIMESYNC estimation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from groundctl.link.flavours import Flavour, encode_mode
+from groundctl.link.quality import SequenceTracker
+from groundctl.link.state import VehicleState, apply
+from groundctl.link.timesync import NS, TimesyncEstimator, answer
+
+
+class Vehicle:
+    """Encodes messages as a vehicle would and decodes them as the link does."""
+
+    def __init__(self, sysid: int = 3, comp: int = 1) -> None:
+        self.mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=comp)
+        self.rx = mavlink.MAVLink(None)
+
+    def __call__(self, msg: mavlink.MAVLink_message) -> mavlink.MAVLink_message:
+        data = msg.pack(self.mav)
+        self.mav.seq = (self.mav.seq + 1) % 256
+        (out,) = self.rx.parse_buffer(data)
+        return out
+
+    def heartbeat(self, flavour: Flavour, mode: str, armed: bool = False,
+                  autopilot: int | None = None) -> mavlink.MAVLink_message:
+        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if armed:
+            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        return self(self.mav.heartbeat_encode(
+            mavlink.MAV_TYPE_QUADROTOR,
+            flavour.mav_autopilot if autopilot is None else autopilot,
+            base, encode_mode(flavour, mode), mavlink.MAV_STATE_ACTIVE))
+
+
+@pytest.mark.parametrize(
+    ("flavour", "mode"),
+    [(Flavour.ARDUPILOT, "GUIDED"), (Flavour.ARDUPILOT, "LAND"), (Flavour.PX4, "OFFBOARD"),
+     (Flavour.PX4, "AUTO.LAND"), (Flavour.PX4, "POSCTL")],
+)
+def test_heartbeat_mode_flavour_armed(flavour: Flavour, mode: str) -> None:
+    v = Vehicle()
+    state = VehicleState(3)
+    changes = apply(state, v.heartbeat(flavour, mode, armed=True), 1.0)
+    assert state.flavour is flavour and state.mode == mode and state.armed
+    assert state.system_status == mavlink.MAV_STATE_ACTIVE
+    assert [c.event for c in changes] == ["flavour", "mode_changed", "armed"]
+    assert apply(state, v.heartbeat(flavour, mode, armed=True), 2.0) == []
+    changes = apply(state, v.heartbeat(flavour, mode, armed=False), 3.0)
+    assert [c.event for c in changes] == ["disarmed"]
+    assert state.last_heard == 3.0 and state.first_heard == 1.0 and state.packets == 3
+
+
+def test_companion_heartbeat_does_not_override_autopilot() -> None:
+    v = Vehicle(comp=191)
+    state = VehicleState(3)
+    apply(state, v.heartbeat(Flavour.ARDUPILOT, "GUIDED", autopilot=mavlink.MAV_AUTOPILOT_INVALID),
+          1.0)
+    assert state.flavour is None and state.mode == "UNKNOWN" and state.last_heartbeat is None
+
+
+def test_telemetry_fields() -> None:
+    v = Vehicle()
+    m = v.mav
+    s = VehicleState(3)
+    apply(s, v(m.local_position_ned_encode(1000, 1.0, 2.0, -3.0, 0.1, 0.2, -0.3)), 0)
+    apply(s, v(m.global_position_int_encode(1000, 473977419, 85455938, 500_000, 12_000,
+                                            100, -50, 25, 9000)), 0)
+    apply(s, v(m.sys_status_encode(0, 0, 0, 0, 12600, 0, 87, 0, 0, 0, 0, 0, 0)), 0)
+    apply(s, v(m.gps_raw_int_encode(0, 3, 0, 0, 0, 0, 0, 0, 0, 14)), 0)
+    apply(s, v(m.gps_global_origin_encode(473977000, 85455000, 488_000)), 0)
+    changes = apply(s, v(m.home_position_encode(473977001, 85455001, 488_100, 0, 0, 0,
+                                                [1, 0, 0, 0], 0, 0, 0)), 0)
+    assert s.position_ned == (1.0, 2.0, -3.0)
+    assert s.velocity_ned == pytest.approx((0.1, 0.2, -0.3))
+    g = s.global_position
+    assert g is not None and g.lat_deg == pytest.approx(47.3977419) and g.alt_m == 500.0
+    assert g.relative_alt_m == 12.0 and g.vel_ned == (1.0, -0.5, 0.25) and g.heading_deg == 90
+    assert (s.battery_remaining_pct, s.battery_voltage_v) == (87, 12.6)
+    assert (s.gps_fix_type, s.gps_satellites) == (3, 14)
+    assert s.ekf_origin is not None and s.ekf_origin.alt_m == 488.0
+    assert s.home is not None and s.home.alt_m == pytest.approx(488.1)
+    assert [c.event for c in changes] == ["home"]
+    # BATTERY_STATUS overrides; "unknown" markers do not erase known values
+    apply(s, v(m.battery_status_encode(0, 0, 0, 0, [4000, 4000, 4000] + [65535] * 7,
+                                       0, 0, 0, 55)), 0)
+    assert (s.battery_remaining_pct, s.battery_voltage_v) == (55, 12.0)
+    apply(s, v(m.sys_status_encode(0, 0, 0, 0, 65535, 0, -1, 0, 0, 0, 0, 0, 0)), 0)
+    assert (s.battery_remaining_pct, s.battery_voltage_v) == (55, 12.0)
+
+
+def test_statustext_and_acks_are_kept() -> None:
+    v = Vehicle()
+    s = VehicleState(3)
+    changes = apply(s, v(v.mav.statustext_encode(2, b"Arm: Need Position Estimate")), 5.0)
+    assert changes[0].event == "statustext"
+    assert s.last_statustext is not None and s.last_statustext.text == "Arm: Need Position Estimate"
+    apply(s, v(v.mav.command_ack_encode(400, 4)), 5.0)
+    assert s.acks[-1].result == 4
+
+
+def test_sequence_gaps_give_loss_ratio() -> None:
+    t = SequenceTracker()
+    rng = np.random.default_rng(7)
+    sent = 2000
+    kept = rng.random(sent) > 0.1
+    kept[0] = True
+    for seq in np.flatnonzero(kept):
+        t.update(1, int(seq) % 256)
+    assert t.received == kept.sum()
+    assert t.lost == sent - kept.sum() - (0 if kept[-1] else np.argmax(kept[::-1]))
+    assert t.loss_ratio == pytest.approx(0.1, abs=0.02)
+
+
+def test_sequence_wrap_duplicates_and_components() -> None:
+    t = SequenceTracker()
+    for seq in (250, 251, 255, 0, 2):  # wraps: lost 252, 253, 254, 1
+        t.update(1, seq)
+    assert t.lost == 4
+    t.update(1, 2)  # duplicate
+    t.update(1, 1)  # late
+    assert t.lost == 4 and t.reordered == 2
+    t.update(2, 100)  # another component has its own counter
+    assert t.lost == 4
+
+
+def test_loss_seen_through_apply() -> None:
+    v = Vehicle()
+    s = VehicleState(3)
+    for i in range(10):
+        msg = v(v.mav.heartbeat_encode(2, 3, 0, 0, 3))
+        if i % 2 == 0:
+            apply(s, msg, float(i))
+    assert s.quality.lost == 4 and s.loss_ratio == pytest.approx(4 / 9)
+
+
+def test_timesync_offset_with_jitter_keeps_lowest_rtt_sample() -> None:
+    rng = np.random.default_rng(42)
+    est = TimesyncEstimator(window=16)
+    true_offset = 123.456789  # vehicle booted long before our clock's zero
+    now = 10.0
+    for _ in range(40):
+        ts1 = est.request(now)
+        up = 0.002 + rng.exponential(0.010)  # queueing delays, asymmetric per leg
+        down = 0.002 + rng.exponential(0.010)
+        tc1 = round((now + up + true_offset) * NS)
+        now += up + down
+        assert est.receive(tc1, ts1, now) is not None
+        now += 0.1
+    assert est.offset_s == pytest.approx(true_offset, abs=0.004)
+    best = est.best
+    assert best is not None and best.rtt_ns == min(s.rtt_ns for s in est.samples)
+    assert est.vehicle_time_s(now) == pytest.approx(now + true_offset, abs=0.004)
+
+
+def test_timesync_exact_without_jitter_and_ignores_foreign_answers() -> None:
+    est = TimesyncEstimator()
+    ts1 = est.request(1.0)
+    assert est.receive(5 * NS, 999, 1.02) is None  # not our request
+    assert est.receive(0, ts1, 1.02) is None  # a request, not an answer
+    sample = est.receive(round(6.01 * NS), ts1, 1.02)
+    assert sample is not None
+    assert sample.offset_ns == 5 * NS and sample.rtt_ns == round(0.02 * NS)
+    assert est.receive(round(6.01 * NS), ts1, 1.03) is None  # duplicate answer
+    assert answer(0, 77, 2.0) == (2 * NS, 77)
+    assert answer(5, 77, 2.0) is None
