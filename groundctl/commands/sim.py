@@ -1,0 +1,174 @@
+"""``groundctl sim``: run a simulated fleet until Ctrl-C, one status line per second."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections import Counter
+
+from groundctl.clock import ScaledClock
+from groundctl.errors import EXIT_OK, SimulatorError
+from groundctl.link.flavours import Flavour
+from groundctl.sim import LinkFaults, SimConfig, SimFleet, grid_layout
+
+
+def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{what} must be {n} comma-separated numbers, "
+                                         f"not {text!r}") from None
+    if len(values) != n:
+        raise argparse.ArgumentTypeError(f"{what} must be {n} comma-separated numbers, "
+                                         f"not {text!r}")
+    return values
+
+
+def _origin(text: str) -> tuple[float, ...]:
+    return _floats(text, 3, "--origin LAT,LON,ALT")
+
+
+def _wind(text: str) -> tuple[float, ...]:
+    return _floats(text, 3, "--wind EAST,NORTH,UP")
+
+
+def _endpoint(text: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise argparse.ArgumentTypeError(f"--gcs must be HOST:PORT, not {text!r}")
+    return host, int(port)
+
+
+def _layout(text: str) -> float:
+    kind, sep, spacing = text.partition(":")
+    if kind != "grid" or not sep:
+        raise argparse.ArgumentTypeError(f"--layout must be grid:SPACING, not {text!r}")
+    try:
+        value = float(spacing)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--layout spacing must be a number, not {spacing!r}")\
+            from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError("--layout spacing must be positive")
+    return value
+
+
+def _key(text: str) -> bytes:
+    try:
+        key = bytes.fromhex(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError("--signing-key must be 64 hex digits") from None
+    if len(key) != 32:
+        raise argparse.ArgumentTypeError("--signing-key must be 64 hex digits (32 bytes)")
+    return key
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:  # type: ignore[type-arg]
+    """Register ``groundctl sim``."""
+    p = subparsers.add_parser(
+        "sim", help="simulate a fleet of MAVLink vehicles on UDP",
+        description="Simulate N ArduCopter- or PX4-like vehicles, each on its own UDP socket, "
+                    "sending to the ground station. Runs until Ctrl-C.")
+    p.add_argument("--count", type=int, default=1, help="number of vehicles (default 1)")
+    p.add_argument("--autopilot", choices=[f.value for f in Flavour], default="ardupilot",
+                   help="autopilot flavour (default ardupilot)")
+    p.add_argument("--gcs", type=_endpoint, default=("127.0.0.1", 14550),
+                   help="ground station HOST:PORT (default 127.0.0.1:14550)")
+    p.add_argument("--origin", type=_origin, default=None,
+                   help="show origin LAT,LON,ALT (default ArduPilot SITL's home)")
+    p.add_argument("--layout", type=_layout, default=3.0, metavar="grid:SPACING",
+                   help="homes on a grid with this spacing in metres (default grid:3)")
+    p.add_argument("--sysid-base", type=int, default=1, help="first system id (default 1)")
+    p.add_argument("--bind", default="127.0.0.1", help="address vehicles bind to")
+    p.add_argument("--base-port", type=int, default=0,
+                   help="first vehicle UDP port, the others follow (default: ephemeral)")
+    p.add_argument("--speed", type=float, default=1.0, help="simulated seconds per second")
+    p.add_argument("--rate", type=float, default=50.0, help="physics rate, Hz (default 50)")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random process")
+    p.add_argument("--wind", type=_wind, default=(0.0, 0.0, 0.0),
+                   help="mean wind EAST,NORTH,UP in m/s")
+    p.add_argument("--gust", type=float, default=0.0, help="random gust std-dev, m/s")
+    p.add_argument("--gps-noise", type=float, default=0.01, help="position-estimate noise, m")
+    p.add_argument("--ekf-delay", type=float, default=20.0,
+                   help="seconds until the EKF origin is set (SITL: 20)")
+    p.add_argument("--ready-delay", type=float, default=40.0,
+                   help="seconds until arming is allowed (SITL: 40)")
+    p.add_argument("--loss", type=float, default=0.0, help="packet loss probability")
+    p.add_argument("--latency", type=float, default=0.0, help="one-way latency, ms")
+    p.add_argument("--jitter", type=float, default=0.0, help="latency std-dev, ms")
+    p.add_argument("--duplicate", type=float, default=0.0, help="packet duplication probability")
+    p.add_argument("--signing-key", type=_key, default=None,
+                   help="MAVLink 2 signing key as 64 hex digits")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="autopilot parameter at boot (repeatable), e.g. FS_GCS_ENABLE=1")
+    p.set_defaults(func=run)
+    return p
+
+
+def build_config(args: argparse.Namespace) -> SimConfig:
+    """The SimConfig the parsed arguments describe."""
+    params: dict[str, float] = {}
+    for item in args.param:
+        name, sep, value = item.partition("=")
+        try:
+            params[name.strip().upper()] = float(value)
+        except ValueError:
+            raise SimulatorError(f"--param {item!r}: expected NAME=NUMBER") from None
+        if not sep:
+            raise SimulatorError(f"--param {item!r}: expected NAME=NUMBER")
+    try:
+        ids = [args.sysid_base + i for i in range(args.count)] if args.count > 0 else None
+        kwargs: dict[str, object] = {}
+        if args.origin is not None:
+            kwargs["origin"] = args.origin
+        return SimConfig(
+            count=args.count, flavour=Flavour(args.autopilot), gcs=args.gcs,
+            positions=grid_layout(args.count, args.layout) if args.count > 0 else None,
+            system_ids=ids, bind_host=args.bind, base_port=args.base_port,
+            physics_rate_hz=args.rate, ekf_origin_delay_s=args.ekf_delay,
+            ready_delay_s=args.ready_delay, wind=args.wind, gust_std=args.gust,
+            gps_noise_m=args.gps_noise, seed=args.seed, signing_key=args.signing_key,
+            link_faults=LinkFaults(args.loss, args.latency, args.jitter, args.duplicate),
+            params=params, **kwargs)  # type: ignore[arg-type]
+    except ValueError as exc:
+        raise SimulatorError(str(exc)) from exc
+
+
+def status_line(fleet: SimFleet) -> str:
+    """One line: time, armed / flying counts, modes, packet counters."""
+    states = fleet.snapshot()
+    modes = Counter(s.mode for s in states)
+    armed = sum(s.armed for s in states)
+    flying = sum(not s.landed for s in states)
+    bad = sum(s.bad_packets for s in states)
+    rx = sum(s.packets_in for s in states)
+    tx = sum(s.packets_out for s in states)
+    mode_text = " ".join(f"{m}:{n}" for m, n in sorted(modes.items()))
+    return (f"t={fleet.time:7.1f}s vehicles={len(states)} armed={armed} flying={flying} "
+            f"modes[{mode_text}] rx={rx} tx={tx} bad={bad} overruns={fleet.overruns}")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the fleet until Ctrl-C."""
+    if args.speed <= 0:
+        raise SimulatorError("--speed must be positive")
+    config = build_config(args)
+    fleet = SimFleet(config, ScaledClock(args.speed))
+    ports = fleet.ports
+    port_text = ",".join(map(str, ports)) if len(ports) <= 8 else \
+        f"{ports[0]},{ports[1]},...,{ports[-1]}"
+    print(f"groundctl sim: {config.count} {config.flavour.value} vehicles, sysid "
+          f"{config.sysids()[0]}..{config.sysids()[-1]}, sending to "
+          f"{config.gcs[0]}:{config.gcs[1]}, ports {port_text}, "
+          f"speed x{args.speed:g}", flush=True)
+    try:
+        fleet.start()
+        while True:
+            time.sleep(1.0)
+            print(status_line(fleet), flush=True)
+    except KeyboardInterrupt:
+        print("groundctl sim: stopping", file=sys.stderr)
+    finally:
+        fleet.stop()
+    return EXIT_OK

@@ -1,0 +1,414 @@
+"""The simulated fleet: physics + one MAVLink endpoint and UDP socket per vehicle + the loop.
+
+Two ways to drive it:
+
+* real time (scaled): ``SimFleet(config, ScaledClock(speed)).start()`` runs a
+  background thread that owns the sockets; ``stop()`` joins it and closes
+  them.  ``with SimFleet(...) as fleet:`` does both.
+* deterministic: with a :class:`~groundctl.clock.ManualClock`, call
+  :meth:`SimFleet.step` / :meth:`SimFleet.run_until` from the test's thread;
+  the clock is advanced one physics tick at a time and sockets are polled
+  without blocking.
+
+Per physics tick: read every socket (link faults may drop, delay or duplicate
+each datagram), hand due packets to their vehicle, apply scheduled faults,
+step the physics, run every vehicle's timers, send what they produced
+(through the link faults again).  Everything is in simulated time, so with
+speed K the whole fleet, streams and timeouts included, runs K times faster.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import heapq
+import logging
+import selectors
+import socket
+import threading
+import time
+from collections.abc import Callable, Sequence
+from types import TracebackType
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from groundctl.clock import Clock, ManualClock, ScaledClock
+from groundctl.errors import SimulatorError
+from groundctl.link.flavours import Flavour
+from groundctl.sim.ardupilot import ArduPilotVehicle
+from groundctl.sim.codec import VehicleCodec
+from groundctl.sim.config import SimConfig
+from groundctl.sim.faults import FaultEvent, FaultKind, LinkFaults
+from groundctl.sim.frames import FleetFrames
+from groundctl.sim.physics import FleetPhysics
+from groundctl.sim.px4 import PX4Vehicle
+from groundctl.sim.state import VehicleState
+from groundctl.sim.vehicle import Vehicle
+
+log = logging.getLogger(__name__)
+
+#: Largest number of physics ticks run in one go when the loop falls behind; beyond
+#: that the loop is not keeping real time and skips ahead (counted in ``overruns``).
+MAX_CATCHUP_TICKS = 25
+
+
+class SimFleet:
+    """N simulated vehicles on loopback UDP, driven by an injected clock.
+
+    Sockets are bound on construction, so :attr:`ports` is known before
+    :meth:`start`.  All public methods are thread-safe.
+    """
+
+    def __init__(self, config: SimConfig, clock: Clock | None = None) -> None:
+        self.config = config
+        self.clock: Clock = clock if clock is not None else ScaledClock(1.0)
+        self.dt = 1.0 / config.physics_rate_hz
+        seeds = np.random.SeedSequence(config.seed).spawn(2)
+        self._link_rng = np.random.default_rng(seeds[1])
+        homes = config.homes_enu()
+        self.frames = FleetFrames.build(
+            config.origin, homes,
+            list(config.ekf_origins) if config.ekf_origins is not None else None)
+        self.physics = FleetPhysics(homes, config.resolved_dynamics(),
+                                    np.random.default_rng(seeds[0]), config.wind,
+                                    config.gust_std, config.gps_noise_m)
+        self.sysids = config.sysids()
+        self.t = self.clock.now()
+        self.boot_time = self.t
+        unix = time.time()
+        cls: type[Vehicle] = (ArduPilotVehicle if config.flavour is Flavour.ARDUPILOT
+                              else PX4Vehicle)
+        self.vehicles: list[Vehicle] = [
+            cls(i, sid, config, self.physics, self.frames, self.boot_time, unix)
+            for i, sid in enumerate(self.sysids)]
+        self.codecs = [VehicleCodec(sid, config.signing_key) for sid in self.sysids]
+        self._links: list[LinkFaults] = [config.link_faults] * config.count
+        self._gcs: list[tuple[str, int]] = [config.gcs] * config.count
+        self._lock = threading.RLock()
+        self._inbox: list[tuple[float, int, int, bytes, tuple[str, int]]] = []
+        self._outbox: list[tuple[float, int, int, bytes]] = []
+        self._timers: list[tuple[float, int, Callable[[], None]]] = []
+        self._seq = 0
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._error: BaseException | None = None
+        self.overruns = 0
+        """Times the loop fell more than MAX_CATCHUP_TICKS behind and skipped ahead."""
+        self.max_lag = 0.0
+        """Largest delay (simulated s) between the clock and the physics seen by the loop."""
+        self.send_errors = 0
+        """Datagrams the OS refused to send."""
+        self._sockets: list[socket.socket] = []
+        self._selector = selectors.DefaultSelector()
+        self._closed = False
+        try:
+            for i in range(config.count):
+                sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                self._sockets.append(sock)
+                sock.setblocking(False)
+                port = config.base_port + i if config.base_port else 0
+                sock.bind((config.bind_host, port))
+                self._selector.register(sock, selectors.EVENT_READ, i)
+        except OSError as exc:
+            self.close()
+            raise SimulatorError(
+                f"cannot bind vehicle socket {len(self._sockets)} on "
+                f"{config.bind_host}:{config.base_port or 0}: {exc}") from exc
+
+    # -- facts --------------------------------------------------------------------------------
+
+    @property
+    def ports(self) -> list[int]:
+        """UDP port of each vehicle's socket, in vehicle order."""
+        return [s.getsockname()[1] for s in self._sockets]
+
+    @property
+    def addresses(self) -> dict[int, tuple[str, int]]:
+        """System id -> (host, port) of the vehicle's socket."""
+        return {sid: s.getsockname() for sid, s in zip(self.sysids, self._sockets, strict=True)}
+
+    @property
+    def time(self) -> float:
+        """Simulated seconds since the fleet booted (as far as the physics got)."""
+        return self.t - self.boot_time
+
+    def snapshot(self) -> list[VehicleState]:
+        """Every vehicle's state now, as frozen values (safe from any thread)."""
+        with self._lock:
+            ph = self.physics
+            out = []
+            for i, v in enumerate(self.vehicles):
+                c = self.codecs[i].counters
+                out.append(VehicleState(
+                    sysid=v.sysid, port=self._sockets[i].getsockname()[1], time=self.time,
+                    position=_t3(ph.pos[i]), velocity=_t3(ph.vel[i]),
+                    estimated_position=_t3(ph.est_pos[i]), armed=v.armed, mode=v.mode,
+                    landed=bool(ph.on_ground[i]), crashed=bool(ph.crashed[i]), led=v.led,
+                    led_blink_hz=v.led_blink_hz, battery=float(ph.battery[i]),
+                    gcs_address=self._gcs[i], packets_in=c.packets_in,
+                    packets_out=c.packets_out, bad_packets=c.bad_packets,
+                    rejected_signature=c.rejected_signature,
+                    setpoints_dropped=v.setpoints_dropped))
+            return out
+
+    def state(self, sysid: int) -> VehicleState:
+        """Snapshot of the (first) vehicle with system id ``sysid``."""
+        i = int(self._indices(sysid)[0])
+        return self.snapshot()[i]
+
+    def _indices(self, sysid: int | None) -> np.ndarray:
+        if sysid is None:
+            return np.arange(len(self.vehicles))
+        idx = np.flatnonzero(np.asarray(self.sysids) == sysid)
+        if idx.size == 0:
+            raise SimulatorError(f"no simulated vehicle has system id {sysid}; "
+                                 f"the fleet has {self.sysids[0]}..{self.sysids[-1]}")
+        return idx
+
+    # -- faults -------------------------------------------------------------------------------
+
+    def set_link_faults(self, faults: LinkFaults, sysid: int | None = None) -> None:
+        """Apply ``faults`` to one vehicle's link (or every vehicle's)."""
+        with self._lock:
+            for i in self._indices(sysid):
+                self._links[i] = faults
+
+    def link_faults(self, sysid: int) -> LinkFaults:
+        """The link faults currently applied to vehicle ``sysid``."""
+        return self._links[int(self._indices(sysid)[0])]
+
+    def cut_link(self, sysid: int | None = None, at: float | None = None,
+                 restore_at: float | None = None) -> None:
+        """Cut the link both ways at simulated time ``at`` (None: now) until ``restore_at``."""
+        with self._lock:
+            start = self.time if at is None else at
+            for i in self._indices(sysid):
+                old = self._links[i]
+                self._links[i] = LinkFaults(old.loss, old.latency_ms, old.jitter_ms,
+                                            old.duplicate, start, restore_at)
+
+    def inject(self, event: FaultEvent) -> None:
+        """Schedule a physical fault (applied at ``event.at``, simulated s since boot)."""
+        with self._lock:
+            idx = self._indices(event.sysid)
+            self._add_timer(self.boot_time + event.at, lambda: self._apply(event, idx))
+
+    def gps_glitch(self, offset: Sequence[float], sysid: int | None = None,
+                   at: float | None = None, duration: float | None = None) -> None:
+        """The position estimate jumps by ``offset`` (ENU m); the vehicle flies off by -offset."""
+        self.inject(FaultEvent(FaultKind.GPS_GLITCH, self._at(at), sysid, _v3(offset), duration))
+
+    def motor_failure(self, sysid: int | None = None, at: float | None = None) -> None:
+        """Thrust lost: the vehicle falls (and is disarmed by its crash check on impact)."""
+        self.inject(FaultEvent(FaultKind.MOTOR_FAILURE, self._at(at), sysid))
+
+    def low_battery(self, remaining: float = 0.1, sysid: int | None = None,
+                    at: float | None = None) -> None:
+        """The battery drops to ``remaining`` (fraction) at once."""
+        self.inject(FaultEvent(FaultKind.LOW_BATTERY, self._at(at), sysid, value=remaining))
+
+    def gust(self, wind: Sequence[float], duration: float, sysid: int | None = None,
+             at: float | None = None) -> None:
+        """Extra wind ``wind`` (ENU m/s) for ``duration`` s."""
+        self.inject(FaultEvent(FaultKind.GUST, self._at(at), sysid, _v3(wind), duration))
+
+    def _at(self, at: float | None) -> float:
+        return self.time if at is None else float(at)
+
+    def _add_timer(self, when: float, fn: Callable[[], None]) -> None:
+        self._seq += 1
+        heapq.heappush(self._timers, (when, self._seq, fn))
+
+    def _apply(self, ev: FaultEvent, idx: np.ndarray) -> None:
+        ph = self.physics
+        vec = np.asarray(ev.vector, dtype=float)
+        if ev.kind is FaultKind.MOTOR_FAILURE:
+            ph.motor_failed[idx] = True
+        elif ev.kind is FaultKind.LOW_BATTERY:
+            ph.battery[idx] = np.minimum(ph.battery[idx], ev.value)
+        else:
+            target = ph.glitch if ev.kind is FaultKind.GPS_GLITCH else ph.gust_extra
+            target[idx] += vec
+            if ev.duration is not None:
+                end = self.boot_time + ev.at + ev.duration
+
+                def undo(target: np.ndarray = target) -> None:
+                    target[idx] -= vec
+                self._add_timer(end, undo)
+
+    # -- lifecycle ----------------------------------------------------------------------------
+
+    def start(self) -> SimFleet:
+        """Run the fleet in a background thread until :meth:`stop`."""
+        if isinstance(self.clock, ManualClock):
+            raise SimulatorError("a fleet on a ManualClock is driven by step()/run_until(), "
+                                 "not start()")
+        if self._closed:
+            raise SimulatorError("this fleet was stopped; build a new one")
+        if self._thread is not None:
+            raise SimulatorError("the fleet is already running")
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="groundctl-sim", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop the loop thread (if running), close every socket; idempotent."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=10.0)
+            self._thread = None
+        self.close()
+        if self._error is not None:
+            err, self._error = self._error, None
+            raise SimulatorError(f"the simulator loop failed: {err!r}") from err
+
+    def close(self) -> None:
+        """Close the sockets (the fleet cannot run afterwards)."""
+        if self._closed:
+            return
+        self._closed = True
+        with contextlib.suppress(OSError, RuntimeError, KeyError):
+            self._selector.close()
+        for sock in self._sockets:
+            sock.close()
+
+    @property
+    def running(self) -> bool:
+        """Whether the background loop is alive."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def __enter__(self) -> SimFleet:
+        if not isinstance(self.clock, ManualClock):
+            self.start()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop()
+
+    # -- deterministic driving ----------------------------------------------------------------
+
+    def step(self, dt: float) -> None:
+        """Advance ``dt`` simulated seconds now, in this thread (ManualClock fleets)."""
+        if dt < 0:
+            raise ValueError("`dt` must be non-negative")
+        if self.running:
+            raise SimulatorError("step() while the background loop runs; stop() it first")
+        if self._closed:
+            raise SimulatorError("this fleet was stopped; build a new one")
+        target = self.t + dt
+        with self._lock:
+            while self.t + self.dt <= target + 1e-9:
+                if isinstance(self.clock, ManualClock):
+                    self.clock.advance(max(0.0, self.t + self.dt - self.clock.now()))
+                self._tick()
+
+    def run_until(self, t: float) -> None:
+        """Advance until simulated time ``t`` (seconds since boot)."""
+        self.step(max(0.0, t - self.time))
+
+    # -- the loop -----------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                now = self.clock.now()
+                with self._lock:
+                    behind = int((now - self.t) / self.dt)
+                    if behind > MAX_CATCHUP_TICKS:
+                        self.overruns += 1
+                        self.t = now - MAX_CATCHUP_TICKS * self.dt
+                    while self.t + self.dt <= now:
+                        self._tick()
+                    self.max_lag = max(self.max_lag, self.clock.now() - self.t - self.dt)
+                wait = self.clock.wall_interval(self.t + self.dt - self.clock.now())
+                if wait > 0 and self._selector.select(wait):
+                    # Packets arrived between ticks: answer now rather than at the next tick.
+                    with self._lock:
+                        self._receive(self.t)
+        except Exception as exc:  # pragma: no cover - reported by stop()
+            log.exception("simulator loop failed")
+            self._error = exc
+
+    def _tick(self) -> None:
+        now = self.t
+        self._receive(now)
+        while self._timers and self._timers[0][0] <= now:
+            heapq.heappop(self._timers)[2]()
+        self.physics.step(self.dt)
+        self.t = now = now + self.dt
+        for i, v in enumerate(self.vehicles):
+            out = v.tick(now)
+            if out:
+                self._send(i, out, now)
+        self._flush_outbox(now)
+
+    def _receive(self, now: float) -> None:
+        rel = now - self.boot_time
+        for key, _ in self._selector.select(0):
+            i: int = key.data
+            sock = self._sockets[i]
+            link = self._links[i]
+            while True:
+                try:
+                    data, addr = sock.recvfrom(65535)
+                except (BlockingIOError, InterruptedError):
+                    break
+                except OSError:
+                    break  # e.g. an ICMP error reported on the socket: nothing to read
+                for delay in link.deliveries(rel, self._link_rng):
+                    if delay == 0:
+                        self._deliver(i, data, addr, now)
+                    else:
+                        self._seq += 1
+                        heapq.heappush(self._inbox, (now + delay, self._seq, i, data, addr))
+        while self._inbox and self._inbox[0][0] <= now:
+            _, _, i, data, addr = heapq.heappop(self._inbox)
+            self._deliver(i, data, addr, now)
+
+    def _deliver(self, i: int, data: bytes, addr: tuple[str, int], now: float) -> None:
+        msgs = self.codecs[i].decode(data)
+        if not msgs:
+            return
+        # Like a real autopilot's UDP link: reply to whoever last talked to us.
+        self._gcs[i] = addr
+        vehicle = self.vehicles[i]
+        for msg in msgs:
+            out = vehicle.handle(msg, now)
+            if out:
+                self._send(i, out, now)
+
+    def _send(self, i: int, msgs: list[mavlink.MAVLink_message], now: float) -> None:
+        codec = self.codecs[i]
+        link = self._links[i]
+        rel = now - self.boot_time
+        for msg in msgs:
+            data = codec.encode(msg)
+            for delay in link.deliveries(rel, self._link_rng):
+                if delay == 0:
+                    self._sendto(i, data)
+                else:
+                    self._seq += 1
+                    heapq.heappush(self._outbox, (now + delay, self._seq, i, data))
+
+    def _flush_outbox(self, now: float) -> None:
+        while self._outbox and self._outbox[0][0] <= now:
+            _, _, i, data = heapq.heappop(self._outbox)
+            self._sendto(i, data)
+
+    def _sendto(self, i: int, data: bytes) -> None:
+        try:
+            self._sockets[i].sendto(data, self._gcs[i])
+        except OSError:
+            self.send_errors += 1
+
+
+def _t3(a: np.ndarray) -> tuple[float, float, float]:
+    return (float(a[0]), float(a[1]), float(a[2]))
+
+
+def _v3(v: Sequence[float]) -> tuple[float, float, float]:
+    if len(v) != 3:
+        raise ValueError(f"expected 3 components (east, north, up), got {len(v)}")
+    return (float(v[0]), float(v[1]), float(v[2]))

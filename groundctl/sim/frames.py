@@ -1,0 +1,98 @@
+"""Frames: the show's ENU frame and every vehicle's own EKF-origin NED frame.
+
+Both are affine functions of ECEF, so the map from one vehicle's local NED to
+the show's ENU is exactly ``enu = M_i @ ned + b_i`` with a per-vehicle rotation
+and offset computed once (pymap3d gives the ECEF points, the rotations are the
+textbook tangent-plane ones).  Altitudes are treated as heights above the
+WGS-84 ellipsoid and reported as AMSL, i.e. the geoid is ignored on both sides.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pymap3d
+
+
+def _ecef_to_enu_rotation(lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:
+    """Rotations ``(n, 3, 3)`` taking ECEF vectors to local East-North-Up."""
+    lat, lon = np.radians(lat_deg), np.radians(lon_deg)
+    sl, cl, sp, cp = np.sin(lon), np.cos(lon), np.sin(lat), np.cos(lat)
+    zero = np.zeros_like(lat)
+    return np.stack([
+        np.stack([-sl, cl, zero], axis=-1),
+        np.stack([-sp * cl, -sp * sl, cp], axis=-1),
+        np.stack([cp * cl, cp * sl, sp], axis=-1),
+    ], axis=-2)
+
+
+#: ENU -> NED axis swap.
+_ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+
+
+@dataclass
+class FleetFrames:
+    """Per-vehicle conversions between the show frame, local NED and geodetic."""
+
+    origin: tuple[float, float, float]
+    """Show origin: lat, lon (deg), alt (m)."""
+    ekf_origins: np.ndarray
+    """``(n, 3)`` geodetic EKF origins of the vehicles."""
+    ned_to_enu: np.ndarray
+    """``(n, 3, 3)``: show ENU = ned_to_enu @ local NED + ekf_origin_enu."""
+    ekf_origin_enu: np.ndarray
+    """``(n, 3)``: each EKF origin in the show's ENU frame."""
+    geodetic_cache: tuple[float, np.ndarray] | None = None
+    """(physics time, geodetic of every vehicle's estimate) for telemetry."""
+
+    @classmethod
+    def build(cls, origin: tuple[float, float, float], homes_enu: np.ndarray,
+              overrides: list[tuple[float, float, float] | None] | None = None) -> FleetFrames:
+        """Frames for vehicles booted at ``homes_enu``, EKF origins at home unless overridden."""
+        lat0, lon0, h0 = origin
+        n = homes_enu.shape[0]
+        lat, lon, alt = pymap3d.enu2geodetic(homes_enu[:, 0], homes_enu[:, 1], homes_enu[:, 2],
+                                             lat0, lon0, h0)
+        ekf = np.stack([np.atleast_1d(lat), np.atleast_1d(lon), np.atleast_1d(alt)], axis=1)
+        if overrides is not None:
+            if len(overrides) != n:
+                raise ValueError(f"`ekf_origins` has {len(overrides)} entries for {n} vehicles")
+            for i, o in enumerate(overrides):
+                if o is not None:
+                    ekf[i] = o
+        show_rot = _ecef_to_enu_rotation(np.array([lat0]), np.array([lon0]))[0]
+        veh_rot = _ecef_to_enu_rotation(ekf[:, 0], ekf[:, 1])
+        # NED_i -> ENU_i -> ECEF -> show ENU.
+        ned_to_enu = show_rot @ np.transpose(veh_rot, (0, 2, 1)) @ _ENU_TO_NED
+        e, nn, u = pymap3d.geodetic2enu(ekf[:, 0], ekf[:, 1], ekf[:, 2], lat0, lon0, h0)
+        ekf_enu = np.stack([np.atleast_1d(e), np.atleast_1d(nn), np.atleast_1d(u)], axis=1)
+        return cls(origin, ekf, ned_to_enu, ekf_enu)
+
+    def enu_to_ned(self, index: int | np.ndarray | slice, enu: np.ndarray) -> np.ndarray:
+        """Show-frame ENU point(s) to vehicle ``index``'s local NED."""
+        rel = enu - self.ekf_origin_enu[index]
+        return np.einsum("...ji,...j->...i", self.ned_to_enu[index], rel)
+
+    def ned_to_show(self, index: int | np.ndarray | slice, ned: np.ndarray) -> np.ndarray:
+        """Vehicle ``index``'s local NED point(s) to show-frame ENU."""
+        return np.einsum("...ij,...j->...i", self.ned_to_enu[index], ned) \
+            + self.ekf_origin_enu[index]
+
+    def vec_enu_to_ned(self, index: int | np.ndarray | slice, vec: np.ndarray) -> np.ndarray:
+        """Rotate a show-frame vector (velocity) into the vehicle's NED axes."""
+        return np.einsum("...ji,...j->...i", self.ned_to_enu[index], vec)
+
+    def vec_ned_to_show(self, index: int | np.ndarray | slice, vec: np.ndarray) -> np.ndarray:
+        """Rotate a vehicle NED vector (velocity) into show-frame ENU axes."""
+        return np.einsum("...ij,...j->...i", self.ned_to_enu[index], vec)
+
+    def geodetic(self, enu: np.ndarray) -> np.ndarray:
+        """Show-frame ENU points ``(n, 3)`` to geodetic ``(n, 3)`` (lat, lon, alt)."""
+        lat, lon, alt = pymap3d.enu2geodetic(enu[..., 0], enu[..., 1], enu[..., 2], *self.origin)
+        return np.stack([lat, lon, alt], axis=-1)
+
+    def from_geodetic(self, lat: float, lon: float, alt: float) -> np.ndarray:
+        """A geodetic point to show-frame ENU."""
+        e, n, u = pymap3d.geodetic2enu(lat, lon, alt, *self.origin)
+        return np.array([float(e), float(n), float(u)])

@@ -1,0 +1,51 @@
+"""``groundctl sim`` as a subprocess: vehicles appear on the ground station's port."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+
+import pytest
+from sim_fixtures import GcsPeer
+
+from groundctl.cli import main
+
+
+def test_cli_fleet_is_seen_by_a_ground_station_and_stops_on_ctrl_c() -> None:
+    peer = GcsPeer()
+    host, port = peer.address
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "groundctl", "sim", "--count", "3", "--autopilot", "px4",
+         "--gcs", f"{host}:{port}", "--speed", "5", "--layout", "grid:4", "--seed", "1",
+         "--ekf-delay", "0.5", "--ready-delay", "1", "--loss", "0.05"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        for sid in (1, 2, 3):
+            hb = peer.wait("HEARTBEAT", sid, timeout=10.0)
+            assert hb.autopilot == 12  # MAV_AUTOPILOT_PX4
+        peer.poll(1.5)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10)
+        peer.close()
+    assert proc.returncode == 0, err
+    lines = out.splitlines()
+    assert lines[0].startswith("groundctl sim: 3 px4 vehicles")
+    assert any(line.startswith("t=") and "vehicles=3" in line for line in lines[1:])
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--count", "0"], "`count` must be positive"),
+    (["--origin", "1,2"], "--origin LAT,LON,ALT"),
+    (["--layout", "ring:3"], "--layout must be grid:SPACING"),
+    (["--loss", "2"], "`loss` must be a probability"),
+])
+def test_cli_rejects_bad_arguments(args: list[str], message: str,
+                                   capsys: pytest.CaptureFixture[str]) -> None:
+    try:
+        code = main(["sim", *args])
+    except SystemExit as exc:  # argparse errors
+        code = int(exc.code or 0)
+    assert code == 2
+    assert message in capsys.readouterr().err
