@@ -1,0 +1,283 @@
+"""Read a show file (TOML) into a validated :class:`Show`.
+
+Every problem is a :class:`ShowFileError` that names the file, the place
+(``[limits]``, ``formation 3 'star'``) and the key, the rule and the value,
+and a way out where there is one.  Beyond types and ranges the loader checks
+what would otherwise only fail in the planner or in the air: slots closer
+than the separation, slots outside the geofence or the altitude band, and
+transitions shorter than the limits allow (after assigning drones to slots
+the same way the planner will).
+
+The schema (every key; all tables but [show], [origin] and [[formation]]
+optional)::
+
+    [show]      name, drones, takeoff_altitude = 3
+    [origin]    lat, lon, alt, heading = 0
+    [limits]    max_speed_h, max_speed_up, max_speed_down, max_accel,
+                min_separation, min_altitude, max_altitude, geofence = [[x, y], ...]
+    [model]     kind = "quadrotor" | "unicycle"; unicycle: speed, r_min, max_turn_rate
+    [planner]   dt, steps, max_iterations, tolerance, pattern_tolerance, alpha, beta
+    [takeoff]   layout = "grid" | "points" | "random", layout keys, headings
+    [[formation]] shape, transition, name, center, plane, rotation, hold,
+                color | gradient (+ gradient_axis) | colors, shape keys
+    [landing]   transition, hold = 0, color = "#000000"
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from groundctl.errors import ShowFileError
+from groundctl.plan.assign import assign
+from groundctl.plan.feasibility import min_transition_time
+from groundctl.show import checks
+from groundctl.show.colors import ColorError, parse_color
+from groundctl.show.formations import Context, formation_where, read_formation
+from groundctl.show.model import (
+    Formation,
+    GeoOrigin,
+    Limits,
+    Model,
+    PlannerSettings,
+    QuadrotorModel,
+    Show,
+    UnicycleModel,
+)
+from groundctl.show.reader import Table, closest, describe, fmt
+from groundctl.show.takeoff import read_headings, read_home
+
+TOP_LEVEL = ("show", "origin", "limits", "model", "planner", "takeoff", "formation", "landing")
+MODEL_KINDS = ("quadrotor", "unicycle")
+_UNICYCLE_KEYS = ("speed", "r_min", "max_turn_rate")
+#: Show-file key -> Limits field.
+_LIMIT_KEYS = {
+    "max_speed_h": "max_speed_h",
+    "max_speed_up": "max_speed_up",
+    "max_speed_down": "max_speed_down",
+    "max_accel": "max_accel",
+    "min_separation": "min_separation",
+    "min_altitude": "min_alt",
+    "max_altitude": "max_alt",
+}
+_PLANNER_FLOATS = ("dt", "tolerance", "pattern_tolerance")
+LANDING_SHAPE = "home"
+LANDING_COLOR = "#000000"
+
+
+def load_show(path: str | Path) -> Show:
+    """Read and validate the show file at ``path``; :class:`ShowFileError` on any problem."""
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except FileNotFoundError:
+        raise ShowFileError(p, "", "no such file") from None
+    except OSError as exc:
+        raise ShowFileError(p, "", f"cannot read the file: {exc.strerror or exc}") from exc
+    try:
+        data = tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise ShowFileError(p, "", f"not UTF-8 text (byte {exc.start})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise _syntax_error(p, exc) from None
+    return parse_show(data, str(p), p.parent)
+
+
+def _syntax_error(path: Path, exc: tomllib.TOMLDecodeError) -> ShowFileError:
+    # tomllib puts the position in the message: "Invalid value (at line 3, column 9)".
+    text = str(exc)
+    m = re.search(r"\s*\(at line (\d+), column (\d+)\)$", text)
+    if m is None:
+        return ShowFileError(path, "", f"TOML syntax error: {text}")
+    return ShowFileError(path, f"line {m[1]}, column {m[2]}",
+                         f"TOML syntax error: {text[:m.start()]}")
+
+
+def _table(data: dict[str, Any], key: str, path: str, required: bool = False) -> Table:
+    where = f"[{key}]"
+    value = data.get(key)
+    if value is None:
+        if required:
+            raise ShowFileError(path, "", f"missing required table [{key}]")
+        value = {}
+    if not isinstance(value, dict):
+        raise ShowFileError(path, where, f"must be a table, got {describe(value)}")
+    return Table(value, path, where)
+
+
+def _check_top_level(data: dict[str, Any], path: str) -> None:
+    for key in data:
+        if key not in TOP_LEVEL:
+            near = closest(key, TOP_LEVEL)
+            near_s = f"[[{near}]]" if near == "formation" else f"[{near}]"
+            hint = f"; did you mean {near_s}?" if near else f"; valid: {', '.join(TOP_LEVEL)}"
+            raise ShowFileError(path, "", f"unknown table or key '{key}'{hint}")
+
+
+def _read_limits(t: Table) -> Limits:
+    t.check_keys((*_LIMIT_KEYS, "geofence"))
+    d = Limits()
+    values = {field: t.number(key, getattr(d, field), positive=field != "min_alt",
+                              minimum=0.0 if field == "min_alt" else None)
+              for key, field in _LIMIT_KEYS.items()}
+    if values["max_alt"] <= values["min_alt"]:
+        raise t.error(f"'max_altitude' {fmt(values['max_alt'])} m must be above "
+                      f"'min_altitude' {fmt(values['min_alt'])} m")
+    fence = None
+    if t.has("geofence"):
+        pts = t.point_list("geofence", (2,), min_count=3)
+        area = 0.5 * np.abs(np.dot(pts[:, 0], np.roll(pts[:, 1], 1))
+                            - np.dot(pts[:, 1], np.roll(pts[:, 0], 1)))
+        if area <= 1e-9:
+            raise t.error("'geofence' encloses no area; give at least 3 corners [x, y] in order")
+        fence = tuple((float(x), float(y)) for x, y in pts)
+    return Limits(**values, geofence=fence)
+
+
+def _read_model(t: Table) -> Model:
+    kind = t.string("kind", "quadrotor", choices=MODEL_KINDS)
+    if kind == "quadrotor":
+        t.check_keys(("kind",), {k: "a key of kind \"unicycle\"" for k in _UNICYCLE_KEYS})
+        return QuadrotorModel()
+    t.check_keys(("kind", *_UNICYCLE_KEYS))
+    d = UnicycleModel()
+    return UnicycleModel(speed=t.number("speed", d.speed, positive=True),
+                         r_min=t.number("r_min", d.r_min, positive=True),
+                         max_turn_rate=t.number("max_turn_rate", d.max_turn_rate, positive=True))
+
+
+def _read_planner(t: Table) -> PlannerSettings:
+    t.check_keys(("dt", "steps", "max_iterations", "tolerance", "pattern_tolerance",
+                  "alpha", "beta"))
+    d = PlannerSettings()
+    floats = {k: t.number(k, getattr(d, k), positive=True) for k in _PLANNER_FLOATS}
+    return PlannerSettings(
+        **floats,
+        steps=t.integer("steps", 0, minimum=2) if t.has("steps") else d.steps,
+        max_iterations=t.integer("max_iterations", d.max_iterations, minimum=1),
+        alpha=t.number("alpha", d.alpha, minimum=0.0),
+        beta=t.number("beta", d.beta, minimum=0.0),
+    )
+
+
+def _landing(t: Table, home: np.ndarray, takeoff_altitude: float, index: int,
+             unicycle: bool) -> Formation:
+    t.check_keys(("transition", "hold", "color"))
+    transition = t.number("transition", positive=True)
+    hold = t.number("hold", 0.0, minimum=0.0)
+    if unicycle and hold > 0:
+        raise t.error(f"'hold' must be 0 for the unicycle model, got {fmt(hold)}: "
+                      "it flies at constant speed and cannot hover")
+    try:
+        color = parse_color(t.get("color", LANDING_COLOR))
+    except ColorError as exc:
+        raise t.error(f"'color': {exc}") from None
+    points = home + np.array([0.0, 0.0, takeoff_altitude])
+    return Formation(name="landing", shape=LANDING_SHAPE, points=points,
+                     colors=np.tile(color, (len(points), 1)), transition_s=transition,
+                     hold_s=hold, index=index)
+
+
+def parse_show(data: dict[str, Any], path: str, base_dir: str | Path = ".") -> Show:
+    """Validate an already-parsed show file (``tomllib`` output) into a :class:`Show`.
+
+    ``path`` is only used in messages; ``base_dir`` resolves relative file
+    names (CSV point files).
+    """
+    _check_top_level(data, path)
+    st = _table(data, "show", path, required=True)
+    st.check_keys(("name", "drones", "takeoff_altitude"))
+    name = st.string("name", Path(path).stem or "show")
+    drones = st.integer("drones", minimum=1)
+    takeoff_altitude = st.number("takeoff_altitude", 3.0, positive=True)
+
+    ot = _table(data, "origin", path, required=True)
+    ot.check_keys(("lat", "lon", "alt", "heading"))
+    origin = GeoOrigin(lat=ot.number("lat", minimum=-90.0, maximum=90.0),
+                       lon=ot.number("lon", minimum=-180.0, maximum=180.0),
+                       alt=ot.number("alt"), heading_deg=ot.number("heading", 0.0))
+
+    limits = _read_limits(_table(data, "limits", path))
+    model = _read_model(_table(data, "model", path))
+    planner = _read_planner(_table(data, "planner", path))
+    unicycle = isinstance(model, UnicycleModel)
+
+    if takeoff_altitude < limits.min_alt - 1e-9 or takeoff_altitude > limits.max_alt + 1e-9:
+        raise st.error(f"'takeoff_altitude' {fmt(takeoff_altitude)} m is outside [limits] "
+                       f"min_altitude {fmt(limits.min_alt)} m .. max_altitude "
+                       f"{fmt(limits.max_alt)} m")
+
+    tt = _table(data, "takeoff", path)
+    layout = read_home(tt, drones, limits.min_separation, unicycle)
+    home, seed = layout.home, layout.seed
+    problem = (checks.separation_problem(home, limits.min_separation, layout.scale_key,
+                                         layout.scale)
+               or checks.geofence_problem(home, limits, "home"))
+    if problem:
+        raise tt.error(problem.replace("points ", "homes ", 1))
+
+    raw_formations = data.get("formation")
+    if raw_formations is None:
+        raise ShowFileError(path, "", "no formations; add at least one [[formation]] table")
+    if not isinstance(raw_formations, list) or not all(isinstance(f, dict)
+                                                       for f in raw_formations):
+        raise ShowFileError(path, "[formation]", "must be an array of tables: write "
+                            "[[formation]] (double brackets) before each formation")
+
+    ctx = Context(path=path, base_dir=Path(base_dir), drones=drones, model=model,
+                  takeoff_altitude=takeoff_altitude)
+    formations: list[Formation] = []
+    for i, raw in enumerate(raw_formations, start=1):
+        formation, table, local = read_formation(raw, i, ctx)
+        problem = (checks.separation_problem(formation.points, limits.min_separation,
+                                             local.scale_key, local.scale)
+                   or checks.geofence_problem(formation.points, limits)
+                   or checks.altitude_problem(formation.points, limits))
+        if problem:
+            raise table.error(problem)
+        formations.append(formation)
+
+    if tt.has("headings") and not unicycle:
+        raise tt.error("'headings' only applies to [model] kind = \"unicycle\"")
+    headings = read_headings(tt, drones, seed, home, formations[0].points.mean(axis=0))
+
+    if "landing" in data:
+        lt = _table(data, "landing", path)
+        formations.append(_landing(lt, home, takeoff_altitude, len(formations) + 1,
+                                   unicycle))
+
+    show = Show(name=name, drones=drones, origin=origin, limits=limits, model=model, home=home,
+                takeoff_altitude=takeoff_altitude, formations=tuple(formations),
+                planner=planner, start_headings=headings, source=path)
+    _check_transitions(show, path)
+    return show
+
+
+def assigned_goals(show: Show) -> list[np.ndarray]:
+    """Each formation's goal per drone, (drones, 3), assigned the way the planner does.
+
+    The first transition starts at ``show.start_positions``; each later one
+    at the previous formation's assigned goals.
+    """
+    goals = []
+    prev = show.start_positions
+    for f in show.formations:
+        goal = f.points[assign(prev, f.points)]
+        goals.append(goal)
+        prev = goal
+    return goals
+
+
+def _check_transitions(show: Show, path: str) -> None:
+    prev = show.start_positions
+    for f, goal in zip(show.formations, assigned_goals(show), strict=True):
+        bound = min_transition_time(prev, goal, show.limits, show.model)
+        problem = checks.transition_problem(bound, f.transition_s, show.model)
+        if problem:
+            where = "[landing]" if f.shape == LANDING_SHAPE else formation_where(f.index, f.name)
+            raise ShowFileError(path, where, problem)
+        prev = goal

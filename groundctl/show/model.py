@@ -1,0 +1,157 @@
+"""The show model: what an operator asked for, validated and in metres.
+
+Coordinates are metres in the *show frame*: origin at ``Show.origin`` (a
+geodetic point), +y pointing along ``origin.heading_deg`` (degrees clockwise
+from true north; the audience looks along +y at vertical formations drawn in
+the x-z plane), +x to its right, +z up.  ``heading_deg = 0`` makes the show
+frame plain east-north-up.  Everything downstream of the loader (planner,
+executor) works in this frame; the link layer converts to each vehicle's own NED frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class GeoOrigin:
+    """Geodetic anchor of the show frame."""
+
+    lat: float
+    """Latitude in degrees (WGS84)."""
+    lon: float
+    """Longitude in degrees (WGS84)."""
+    alt: float
+    """Altitude of the show frame's z = 0 in metres above mean sea level."""
+    heading_deg: float = 0.0
+    """Direction of the show frame's +y axis, degrees clockwise from true north."""
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Flight envelope every drone must stay in, everywhere, at all times."""
+
+    max_speed_h: float = 5.0
+    """Max horizontal speed, m/s."""
+    max_speed_up: float = 2.5
+    """Max climb rate, m/s."""
+    max_speed_down: float = 1.5
+    """Max descent rate, m/s (slower than climb: descending into own wash)."""
+    max_accel: float = 3.0
+    """Max acceleration magnitude, m/s^2."""
+    min_separation: float = 1.5
+    """Min distance between any two drones' centres, m."""
+    min_alt: float = 2.0
+    """Min altitude above the show frame's z = 0 once the show is running, m."""
+    max_alt: float = 120.0
+    """Max altitude, m."""
+    geofence: tuple[tuple[float, float], ...] | None = None
+    """Optional horizontal polygon (x, y) in show-frame metres; None = no fence."""
+
+
+@dataclass(frozen=True)
+class QuadrotorModel:
+    """3D point mass with speed and acceleration limits (show multirotors)."""
+
+    kind: Literal["quadrotor"] = "quadrotor"
+
+
+@dataclass(frozen=True)
+class UnicycleModel:
+    """The paper's 2D model: constant speed V, heading rate |u| <= V / r_min."""
+
+    speed: float = 2.0
+    """Constant forward speed V, m/s."""
+    r_min: float = 1.5
+    """Min turning radius, m (so the max turn rate is speed / r_min)."""
+    max_turn_rate: float = 1.0
+    """Absolute cap on |u|, rad/s (the paper's 1 rad/s); min of this and V/r_min applies."""
+    kind: Literal["unicycle"] = "unicycle"
+
+    @property
+    def turn_rate_limit(self) -> float:
+        return min(self.max_turn_rate, self.speed / self.r_min)
+
+
+Model = QuadrotorModel | UnicycleModel
+
+
+@dataclass(frozen=True)
+class PlannerSettings:
+    """Knobs of the SCP planner (all optional in the show file)."""
+
+    dt: float = 0.2
+    """QP time step in seconds (the paper's 20 s / 100 steps)."""
+    steps: int | None = None
+    """Fixed number of steps per transition; overrides dt when set (paper: N = 100)."""
+    max_iterations: int = 30
+    """SCP iteration cap per transition."""
+    tolerance: float = 0.02
+    """Converged when no sample moved more than this (m) and constraints hold."""
+    pattern_tolerance: float = 0.1
+    """The paper's eps: allowed final position error at each formation slot, m."""
+    alpha: float = 1.0
+    """Weight of control effort (acceleration or turn rate) in the cost."""
+    beta: float = 0.01
+    """Weight of deviation from the reference (straight-line) trajectory."""
+
+
+@dataclass(frozen=True)
+class Formation:
+    """One formation of the show and the transition that leads into it."""
+
+    name: str
+    """Operator's name for it (or the shape name), used in messages."""
+    shape: str
+    """Shape kind: grid, line, circle, square, star, spiral, sphere, text, points."""
+    points: FloatArray
+    """(M, 3) slot positions in show-frame metres, M >= drones."""
+    colors: FloatArray
+    """(M, 3) RGB in [0, 1] for each slot."""
+    transition_s: float
+    """Time to fly from the previous formation into this one, s."""
+    hold_s: float = 0.0
+    """Time to hold this formation once reached, s."""
+    index: int = 0
+    """1-based position in the show file's list of formations (for messages)."""
+
+
+@dataclass(frozen=True)
+class Show:
+    """A whole show, as loaded and validated from a show file."""
+
+    name: str
+    """Show name."""
+    drones: int
+    """Number of drones."""
+    origin: GeoOrigin
+    """Geodetic anchor and heading of the show frame."""
+    limits: Limits
+    """Flight envelope."""
+    model: Model
+    """Dynamics model used to plan."""
+    home: FloatArray
+    """(drones, 3) takeoff (and landing) positions on the ground, show-frame metres."""
+    takeoff_altitude: float
+    """Height above home each drone climbs to before the show clock starts, m."""
+    formations: tuple[Formation, ...]
+    """Formations in show order; a landing formation over ``home`` is the last one."""
+    planner: PlannerSettings = field(default_factory=PlannerSettings)
+    """SCP settings."""
+    start_headings: FloatArray | None = None
+    """(drones,) initial headings in radians for the unicycle model (None: face +y)."""
+    source: str = ""
+    """Path of the show file it came from ("" if built in code)."""
+
+    @property
+    def start_positions(self) -> FloatArray:
+        """Where the planned show begins: each home raised to the takeoff altitude."""
+        start = np.array(self.home, dtype=float, copy=True)
+        start[:, 2] += self.takeoff_altitude
+        return start
