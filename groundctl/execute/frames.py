@@ -1,0 +1,145 @@
+"""Show frame <-> geodetic <-> each vehicle's local NED frame.
+
+The show frame is anchored at a :class:`~groundctl.show.model.GeoOrigin`: +y
+points along ``heading_deg`` (clockwise from true north), +x to its right, +z
+up, so heading 0 is plain ENU.  Each vehicle flies in its own local NED frame
+whose origin is its EKF origin (GPS_GLOBAL_ORIGIN), and two vehicles rarely
+share one: a show point therefore goes show -> ENU at the show origin ->
+geodetic -> NED at that vehicle's EKF origin, exactly, through pymap3d (WGS84
+ECEF), so vehicles with different origins fly the same show.
+
+Altitudes are used as given on both sides (the show origin's and the EKF
+origin's are both AMSL as reported); only their difference matters here.
+
+Every function is vectorised: ``xyz`` may be (3,) or (n, 3), and origins may
+be one point or per-row arrays, so the whole fleet converts in one call.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import pymap3d
+from numpy.typing import ArrayLike, NDArray
+
+from groundctl.link.state import GeoPoint, VehicleState
+from groundctl.show.model import GeoOrigin
+
+FloatArray = NDArray[np.float64]
+
+
+def _rows(xyz: ArrayLike, name: str) -> FloatArray:
+    arr = np.asarray(xyz, dtype=float)
+    if arr.shape[-1:] != (3,) or arr.ndim > 2:
+        raise ValueError(f"`{name}` must have shape (3,) or (n, 3), got {arr.shape}")
+    return arr
+
+
+def _rotation(heading_deg: float) -> FloatArray:
+    """3x3 matrix taking show-frame vectors to ENU (rows are E, N, U)."""
+    h = np.radians(heading_deg)
+    c, s = np.cos(h), np.sin(h)
+    # +y is the unit vector at bearing h: (E, N) = (sin h, cos h); +x is the
+    # bearing h + 90 deg: (cos h, -sin h).
+    return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def show_to_enu(origin: GeoOrigin, xyz: ArrayLike) -> FloatArray:
+    """Show-frame vectors (positions relative to the origin, or velocities) as ENU."""
+    return _rows(xyz, "xyz") @ _rotation(origin.heading_deg).T
+
+
+def enu_to_show(origin: GeoOrigin, enu: ArrayLike) -> FloatArray:
+    """Inverse of :func:`show_to_enu`."""
+    return _rows(enu, "enu") @ _rotation(origin.heading_deg)
+
+
+def _enu_to_ned(enu: FloatArray) -> FloatArray:
+    return enu[..., [1, 0, 2]] * np.array([1.0, 1.0, -1.0])
+
+
+def show_to_geodetic(origin: GeoOrigin, xyz: ArrayLike) -> tuple[FloatArray, FloatArray,
+                                                                 FloatArray]:
+    """(lat_deg, lon_deg, alt_m) of show-frame points ``xyz``."""
+    enu = show_to_enu(origin, xyz)
+    lat, lon, alt = pymap3d.enu2geodetic(enu[..., 0], enu[..., 1], enu[..., 2],
+                                         origin.lat, origin.lon, origin.alt)
+    return np.asarray(lat, dtype=float), np.asarray(lon, dtype=float), np.asarray(alt, dtype=float)
+
+
+def geodetic_to_show(origin: GeoOrigin, lat: ArrayLike, lon: ArrayLike,
+                     alt: ArrayLike) -> FloatArray:
+    """Show-frame points of geodetic ``lat``, ``lon`` (degrees), ``alt`` (m)."""
+    e, n, u = pymap3d.geodetic2enu(lat, lon, alt, origin.lat, origin.lon, origin.alt)
+    return enu_to_show(origin, np.stack([np.asarray(e), np.asarray(n), np.asarray(u)], axis=-1))
+
+
+def origin_arrays(points: GeoPoint | Sequence[GeoPoint]) -> tuple[FloatArray, FloatArray,
+                                                                   FloatArray]:
+    """(lat, lon, alt) arrays of one EKF origin (scalars) or one per vehicle ((n,) each)."""
+    if isinstance(points, GeoPoint):
+        return (np.asarray(points.lat_deg, dtype=float), np.asarray(points.lon_deg, dtype=float),
+                np.asarray(points.alt_m, dtype=float))
+    return (np.array([p.lat_deg for p in points], dtype=float),
+            np.array([p.lon_deg for p in points], dtype=float),
+            np.array([p.alt_m for p in points], dtype=float))
+
+
+def show_to_ned(origin: GeoOrigin, ekf_origin: GeoPoint | Sequence[GeoPoint],
+                xyz: ArrayLike) -> FloatArray:
+    """Show-frame points as NED in each vehicle's local frame.
+
+    ``ekf_origin`` is one origin for every row of ``xyz``, or one per row.
+    """
+    pts = _rows(xyz, "xyz")
+    lat0, lon0, alt0 = origin_arrays(ekf_origin)
+    if lat0.ndim and (pts.ndim != 2 or len(pts) != len(lat0)):
+        raise ValueError(f"`ekf_origin` has {len(lat0)} origins but `xyz` has shape {pts.shape}")
+    lat, lon, alt = show_to_geodetic(origin, pts)
+    n, e, d = pymap3d.geodetic2ned(lat, lon, alt, lat0, lon0, alt0)
+    return np.stack([np.asarray(n), np.asarray(e), np.asarray(d)], axis=-1).astype(float)
+
+
+def ned_to_show(origin: GeoOrigin, ekf_origin: GeoPoint | Sequence[GeoPoint],
+                ned: ArrayLike) -> FloatArray:
+    """Local NED positions (telemetry) of vehicles as show-frame points."""
+    pts = _rows(ned, "ned")
+    lat0, lon0, alt0 = origin_arrays(ekf_origin)
+    if lat0.ndim and (pts.ndim != 2 or len(pts) != len(lat0)):
+        raise ValueError(f"`ekf_origin` has {len(lat0)} origins but `ned` has shape {pts.shape}")
+    lat, lon, alt = pymap3d.ned2geodetic(pts[..., 0], pts[..., 1], pts[..., 2], lat0, lon0, alt0)
+    return geodetic_to_show(origin, lat, lon, alt)
+
+
+def show_vel_to_ned(origin: GeoOrigin, vel: ArrayLike) -> FloatArray:
+    """Show-frame vectors (velocity, acceleration) as NED vectors.
+
+    A pure rotation by the heading: the tangent planes at the show origin and
+    at an EKF origin a few hundred metres away differ by about 1e-5 rad, far
+    below what a velocity feed-forward can express.
+    """
+    return _enu_to_ned(show_to_enu(origin, _rows(vel, "vel")))
+
+
+def ned_vel_to_show(origin: GeoOrigin, vel_ned: ArrayLike) -> FloatArray:
+    """Inverse of :func:`show_vel_to_ned`."""
+    return enu_to_show(origin, _enu_to_ned(_rows(vel_ned, "vel_ned")))
+
+
+def show_positions(origin: GeoOrigin,
+                   states: Mapping[int, VehicleState]) -> dict[int, FloatArray | None]:
+    """Each vehicle's current show-frame position (None without EKF origin or local position).
+
+    One vectorised conversion for the whole fleet; feeds the slot assignment
+    and the console.
+    """
+    ready = [s for s in states.values()
+             if s.ekf_origin is not None and s.position_ned is not None]
+    out: dict[int, FloatArray | None] = dict.fromkeys(states)
+    if ready:
+        pts = ned_to_show(origin, [s.ekf_origin for s in ready],  # type: ignore[misc]
+                          np.array([s.position_ned for s in ready], dtype=float))
+        for s, p in zip(ready, pts, strict=True):
+            out[s.system_id] = p
+    return out

@@ -1,0 +1,281 @@
+"""Pre-flight checks: pure functions of what the link knows, the assignment and the time.
+
+Every check returns a :class:`CheckResult` whose ``detail`` says the value
+and the rule, so the operator sees why a vehicle is held back.  A
+:class:`PreflightReport` collects them, renders one line per vehicle and
+raises :class:`~groundctl.errors.PreflightFailed` unless every vehicle that
+is not excluded passed.
+
+Excluding a vehicle keeps the rest of the show valid (the same trajectories
+minus some drones), but the excluded drone still stands on its takeoff slot:
+:func:`remaining_plan_conflicts` checks the neighbours' takeoff and landing
+do not pass too close to it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from groundctl.errors import PreflightFailed
+from groundctl.execute.mapping import DEFAULT_SLOT_TOLERANCE_M, Assignment
+from groundctl.link.state import VehicleState
+from groundctl.plan.plan import Plan
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """Limits the pre-flight checks hold every vehicle to."""
+
+    heartbeat_timeout_s: float = 2.0
+    """Max age of the last autopilot HEARTBEAT, s."""
+    min_fix_type: int = 3
+    """Min GPS_RAW_INT.fix_type (3 = 3D fix)."""
+    min_battery_pct: float = 60.0
+    """Min remaining battery, percent."""
+    slot_tolerance_m: float = DEFAULT_SLOT_TOLERANCE_M
+    """Max horizontal distance from the assigned takeoff slot, m."""
+    max_loss_ratio: float = 0.2
+    """Max fraction of packets lost."""
+    max_rtt_s: float = 0.25
+    """Max TIMESYNC round-trip time, s."""
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """The outcome of one check on one vehicle."""
+
+    name: str
+    """Short check name: ``heartbeat``, ``gps``, ``position``, ``battery``, ``slot``,
+    ``link``, ``autopilot``."""
+    ok: bool
+    """True if the vehicle passed."""
+    detail: str
+    """The value and, on failure, the rule it broke."""
+
+    def __str__(self) -> str:
+        return f"{self.name}: {self.detail}"
+
+
+def check_heartbeat(state: VehicleState, now: float, th: Thresholds) -> CheckResult:
+    """The autopilot's HEARTBEAT is recent."""
+    if state.last_heartbeat is None:
+        return CheckResult("heartbeat", False, "no autopilot HEARTBEAT yet")
+    age = now - state.last_heartbeat
+    if age >= th.heartbeat_timeout_s:
+        return CheckResult("heartbeat", False,
+                           f"last HEARTBEAT {age:.1f} s ago (limit {th.heartbeat_timeout_s:.1f} s)")
+    return CheckResult("heartbeat", True, f"{age:.1f} s ago")
+
+
+def check_gps(state: VehicleState, th: Thresholds) -> CheckResult:
+    """The GPS has a 3D fix (or better)."""
+    fix = state.gps_fix_type
+    if fix is None:
+        return CheckResult("gps", False, "no GPS_RAW_INT yet")
+    if fix < th.min_fix_type:
+        return CheckResult("gps", False, f"fix type {fix} (need {th.min_fix_type}: 3D fix)")
+    return CheckResult("gps", True, f"fix type {fix}")
+
+
+def check_position(state: VehicleState) -> CheckResult:
+    """The EKF has an origin and a local position: setpoints can be placed."""
+    if state.ekf_origin is None:
+        return CheckResult("position", False, "EKF origin unknown (no GPS_GLOBAL_ORIGIN)")
+    if state.position_ned is None:
+        return CheckResult("position", False, "no local position (no LOCAL_POSITION_NED)")
+    return CheckResult("position", True, "EKF origin and local position known")
+
+
+def check_battery(state: VehicleState, th: Thresholds) -> CheckResult:
+    """Enough battery for the show."""
+    pct = state.battery_remaining_pct
+    if pct is None:
+        return CheckResult("battery", False, "battery level unknown")
+    if pct < th.min_battery_pct:
+        return CheckResult("battery", False,
+                           f"{pct:.0f} % (minimum {th.min_battery_pct:.0f} %)")
+    return CheckResult("battery", True, f"{pct:.0f} %")
+
+
+def check_slot(sysid: int, assignment: Assignment, th: Thresholds) -> CheckResult:
+    """The vehicle has a track and stands on its takeoff slot."""
+    if sysid in assignment.refused:
+        return CheckResult("slot", False, assignment.refused[sysid])
+    if sysid not in assignment.tracks:
+        return CheckResult("slot", False, "no track assigned (extra vehicle)")
+    track = assignment.tracks[sysid]
+    d = assignment.distances.get(sysid)
+    if d is None:
+        return CheckResult("slot", False, f"track {track}, distance to its slot unknown")
+    if d > th.slot_tolerance_m:
+        return CheckResult("slot", False, f"track {track}, {d:.1f} m from its slot "
+                                          f"(tolerance {th.slot_tolerance_m:.1f} m)")
+    return CheckResult("slot", True, f"track {track}, {d:.1f} m from its slot")
+
+
+def check_link(state: VehicleState, th: Thresholds) -> CheckResult:
+    """Few packets lost and a short round trip (and a known clock offset)."""
+    loss, rtt = state.loss_ratio, state.rtt_s
+    if rtt is None:
+        return CheckResult("link", False, "no TIMESYNC answer yet (clock offset unknown)")
+    problems = []
+    if loss >= th.max_loss_ratio:
+        problems.append(f"loss {loss:.0%} (limit {th.max_loss_ratio:.0%})")
+    if rtt >= th.max_rtt_s:
+        problems.append(f"RTT {rtt * 1000:.0f} ms (limit {th.max_rtt_s * 1000:.0f} ms)")
+    if problems:
+        return CheckResult("link", False, ", ".join(problems))
+    return CheckResult("link", True, f"loss {loss:.0%}, RTT {rtt * 1000:.0f} ms")
+
+
+def check_autopilot(state: VehicleState) -> CheckResult:
+    """The autopilot is one whose modes we know how to command."""
+    if state.flavour is None:
+        return CheckResult("autopilot", False, "autopilot unknown: cannot command its modes")
+    return CheckResult("autopilot", True, f"{state.flavour}, mode {state.mode}")
+
+
+def check_vehicle(state: VehicleState, assignment: Assignment, now: float,
+                  thresholds: Thresholds | None = None) -> list[CheckResult]:
+    """Every pre-flight check on one vehicle, in a fixed order."""
+    th = thresholds or Thresholds()
+    return [
+        check_heartbeat(state, now, th),
+        check_gps(state, th),
+        check_position(state),
+        check_battery(state, th),
+        check_slot(state.system_id, assignment, th),
+        check_link(state, th),
+        check_autopilot(state),
+    ]
+
+
+@dataclass(frozen=True)
+class PreflightReport:
+    """Every vehicle's check results at one instant."""
+
+    results: dict[int, list[CheckResult]]
+    """System id -> its check results."""
+
+    def failures(self, excluded: Collection[int] = ()) -> dict[int, list[str]]:
+        """System id -> failed checks as text, for the vehicles not ``excluded``."""
+        out = {sysid: [str(r) for r in res if not r.ok]
+               for sysid, res in self.results.items() if sysid not in excluded}
+        return {sysid: why for sysid, why in out.items() if why}
+
+    def lines(self, excluded: Collection[int] = ()) -> list[str]:
+        """One line per vehicle, in system id order."""
+        out = []
+        for sysid in sorted(self.results):
+            failed = [str(r) for r in self.results[sysid] if not r.ok]
+            if sysid in excluded:
+                status = "excluded by the operator"
+            elif failed:
+                status = "NOT READY: " + "; ".join(failed)
+            else:
+                status = "ready"
+            out.append(f"vehicle {sysid}: {status}")
+        return out
+
+    def render(self, excluded: Collection[int] = ()) -> str:
+        return "\n".join(self.lines(excluded))
+
+    def require_all(self, excluded: Collection[int] = ()) -> None:
+        """Raise PreflightFailed unless every vehicle not ``excluded`` passed every check."""
+        failures = self.failures(excluded)
+        if failures:
+            raise PreflightFailed(failures)
+
+
+def run_preflight(vehicles: Mapping[int, VehicleState], assignment: Assignment, now: float,
+                  thresholds: Thresholds | None = None) -> PreflightReport:
+    """Check every vehicle in ``vehicles``."""
+    return PreflightReport({sysid: check_vehicle(state, assignment, now, thresholds)
+                            for sysid, state in sorted(vehicles.items())})
+
+
+@dataclass(frozen=True)
+class Conflict:
+    """A flying drone passing too close to an excluded drone left on its slot."""
+
+    track: int
+    """The flying drone's track."""
+    excluded_track: int
+    """The excluded drone's track (its home slot is the obstacle)."""
+    phase: str
+    """``takeoff``, ``landing``, ``show start`` or ``show end``."""
+    time: float
+    """Show time of the closest approach (0 for takeoff, the duration for landing), s."""
+    distance: float
+    """Closest approach to the excluded drone's home spot, m."""
+    min_separation: float
+    """The plan's minimum separation, m."""
+
+    def __str__(self) -> str:
+        return (f"track {self.track} passes {self.distance:.2f} m from excluded track "
+                f"{self.excluded_track}'s takeoff slot during {self.phase} at t={self.time:.1f} s "
+                f"(minimum separation {self.min_separation:.2f} m)")
+
+
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance from points ``p`` (E, 3) to segments a-b (n, 3): (n, E)."""
+    ab = b - a
+    denom = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
+    t = np.einsum("nej,nj->ne", p[None, :, :] - a[:, None, :], ab) / denom[:, None]
+    t = np.clip(t, 0.0, 1.0)
+    closest = a[:, None, :] + t[..., None] * ab[:, None, :]
+    return np.linalg.norm(p[None, :, :] - closest, axis=2)
+
+
+def remaining_plan_conflicts(plan: Plan, excluded_tracks: Collection[int],
+                             window_s: float = 5.0, step_s: float = 0.1) -> list[Conflict]:
+    """Where the remaining drones come within min_separation of an excluded drone on the ground.
+
+    Checked: each remaining drone's vertical climb from its slot to takeoff
+    altitude and its final descent, and its trajectory during the first and
+    last ``window_s`` seconds of the show, when it is low and near the slots.
+    One conflict (the closest approach) is reported per pair and phase.
+    Empty means the show may fly without the excluded drones.
+    """
+    if window_s <= 0:
+        raise ValueError(f"`window_s` must be positive, got {window_s}")
+    if step_s <= 0:
+        raise ValueError(f"`step_s` must be positive, got {step_s}")
+    excl = sorted(set(excluded_tracks))
+    bad = [t for t in excl if not 0 <= t < plan.drones]
+    if bad:
+        raise ValueError(f"`excluded_tracks` {bad} are not tracks of this plan "
+                         f"(0..{plan.drones - 1})")
+    keep = np.array([t for t in range(plan.drones) if t not in set(excl)], dtype=int)
+    if not excl or len(keep) == 0:
+        return []
+    sep = plan.limits.min_separation
+    obstacles = plan.home[excl]  # (E, 3) on the ground
+    conflicts: list[Conflict] = []
+
+    def collect(phase: str, dist: np.ndarray, times: np.ndarray | float) -> None:
+        # dist: (n_keep, E) closest approach; times: matching show times.
+        for i, e in zip(*np.nonzero(dist < sep), strict=True):
+            t = float(times if np.ndim(times) == 0 else times[i, e])  # type: ignore[index]
+            conflicts.append(Conflict(int(keep[i]), excl[e], phase, t, float(dist[i, e]), sep))
+
+    up = plan.home[keep] + np.array([0.0, 0.0, plan.takeoff_altitude])
+    column = _segment_distance(obstacles, plan.home[keep], up)
+    collect("takeoff", column, 0.0)
+    collect("landing", column, plan.duration)
+
+    n_steps = max(int(np.ceil(min(window_s, plan.duration) / step_s)), 1)
+    windows: list[tuple[str, np.ndarray]] = [
+        ("show start", np.linspace(0.0, min(window_s, plan.duration), n_steps + 1)),
+        ("show end", np.linspace(max(plan.duration - window_s, 0.0), plan.duration,
+                                 n_steps + 1)),
+    ]
+    for phase, times in windows:
+        pos, _, _ = plan.trajectories.evaluate(times)  # (n, T, 3)
+        d = np.linalg.norm(pos[keep][:, :, None, :] - obstacles[None, None, :, :], axis=3)
+        k = d.argmin(axis=1)  # (n_keep, E) closest time index
+        collect(phase, d.min(axis=1), times[k])
+    return conflicts

@@ -1,0 +1,515 @@
+"""The flight sequence as a pure state machine: observe, decide, return actions.
+
+Written once without I/O, h11 style.  A thin async driver, every tick::
+
+    actions = seq.update(now, fleet.vehicles)    # observe telemetry, advance
+    for a in actions: perform a (SetMode -> fleet.set_mode, Arm -> arm, Takeoff ->
+        takeoff, Land -> land, Disarm -> disarm, Kill -> disarm(force=True),
+        Notice -> console and event log), and on CommandRefused/CommandTimeout
+        call seq.command_failed(a, reason, now)
+    req = seq.stream_request(now)                 # whom to send setpoints, for which time
+    send SetpointStream.at(req.show_time, now, offsets, req.moving, req.fixed)
+        rows for req.sysids, and LedTracker.due(...) colours
+
+Streaming is not an action: :meth:`ShowSequence.stream_request` is the one
+source of truth for who gets setpoints each tick, so a start/stop event can
+never be missed or applied twice.
+
+Operator commands (:meth:`ShowSequence.hold`, ``resume``, ``land_all``,
+``land_one``, ``kill``) return actions the same way; bad operator input comes
+back as a :class:`Notice`, never an exception.
+
+Per vehicle: ARMING (ArduPilot: GUIDED, then arm; PX4: arm) -> TAKEOFF
+(NAV_TAKEOFF, wait until within ``takeoff_tolerance_m`` of the takeoff
+altitude; PX4 then gets setpoints for ``offboard_lead_s`` before OFFBOARD,
+because PX4 refuses OFFBOARD without a setpoint stream) -> READY -> SHOW ->
+RETURNING (to its landing slot: home at takeoff altitude) -> LANDING (land
+mode) -> LANDED (disarmed).  ArduCopter's guided takeoff needs GUIDED before
+arming, which is why the order differs.  Every step waits for its effect in
+telemetry (mode, armed, altitude), not just for the command's ACK; a step is
+re-sent after a refusal or ``step_timeout_s`` without effect, up to
+``max_attempts`` times, keeping the last reason.
+
+A vehicle whose link is lost is marked LOST, no longer streamed to and
+reported; the show goes on for the others (the vehicle's own failsafe is in
+charge of it).  A vehicle that fails to arm stays on its slot: if that puts
+it in a neighbour's takeoff or landing path the whole show is aborted.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from groundctl.execute.frames import ned_to_show
+from groundctl.execute.preflight import remaining_plan_conflicts
+from groundctl.link.flavours import Flavour
+from groundctl.link.state import VehicleState
+from groundctl.plan.plan import Plan
+
+# -- actions -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SetMode:
+    """Switch ``sysid`` to ``mode`` (a name :func:`~groundctl.link.flavours.mode_request`
+    knows)."""
+
+    sysid: int
+    """MAVLink system id."""
+    mode: str
+    """Mode name."""
+
+
+@dataclass(frozen=True)
+class Arm:
+    """Arm ``sysid`` (never forced)."""
+
+    sysid: int
+    """MAVLink system id."""
+
+
+@dataclass(frozen=True)
+class Takeoff:
+    """MAV_CMD_NAV_TAKEOFF to ``alt_m`` above home."""
+
+    sysid: int
+    """MAVLink system id."""
+    alt_m: float
+    """Altitude above home, m."""
+
+
+@dataclass(frozen=True)
+class Land:
+    """Land where it is, in the flavour's land mode."""
+
+    sysid: int
+    """MAVLink system id."""
+
+
+@dataclass(frozen=True)
+class Disarm:
+    """Disarm on the ground (not forced: the autopilot refuses it in flight)."""
+
+    sysid: int
+    """MAVLink system id."""
+
+
+@dataclass(frozen=True)
+class Kill:
+    """Force-disarm in flight: the motors stop and the drone falls."""
+
+    sysid: int
+    """MAVLink system id."""
+
+
+@dataclass(frozen=True)
+class Notice:
+    """Something the operator must see (a lost vehicle, a refused command)."""
+
+    sysid: int | None
+    """The vehicle concerned, or None for the whole show."""
+    text: str
+    """The message, naming the vehicle, what happened and why."""
+
+
+Action = SetMode | Arm | Takeoff | Land | Disarm | Kill | Notice
+Command = SetMode | Arm | Takeoff | Land | Disarm | Kill
+
+
+class VehiclePhase(enum.StrEnum):
+    """Where one vehicle is in the sequence."""
+
+    PREFLIGHT = "preflight"
+    ARMING = "arming"
+    TAKEOFF = "takeoff"
+    READY = "ready"
+    SHOW = "show"
+    RETURNING = "returning"
+    LANDING = "landing"
+    LANDED = "landed"
+    LOST = "lost"
+    FAILED = "failed"
+    KILLED = "killed"
+
+
+class ShowPhase(enum.StrEnum):
+    """Where the show as a whole is."""
+
+    PREFLIGHT = "preflight"
+    ARMING = "arming"
+    TAKEOFF = "takeoff"
+    SHOW = "show"
+    LANDING = "landing"
+    LANDED = "landed"
+
+
+_DONE = {VehiclePhase.LANDED, VehiclePhase.LOST, VehiclePhase.FAILED, VehiclePhase.KILLED}
+_STREAMED = {VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.RETURNING}
+_LAND_MODES = {"LAND", "AUTO.LAND"}  # ArduCopter's and PX4's, as decoded by the link
+
+
+@dataclass(frozen=True)
+class SequenceConfig:
+    """Tolerances and timeouts of the sequence."""
+
+    takeoff_tolerance_m: float = 0.3
+    """Takeoff is done within this of the takeoff altitude, m."""
+    arrive_tolerance_m: float = 0.5
+    """A returning vehicle is over its landing slot within this, m."""
+    max_attempts: int = 3
+    """Times a step (mode, arm, takeoff, land) is tried before giving up."""
+    retry_after_s: float = 1.0
+    """Pause before re-sending a refused command, s."""
+    step_timeout_s: float = 5.0
+    """A mode or arm step with no effect in telemetry after this is re-sent, s."""
+    takeoff_timeout_s: float = 60.0
+    """A takeoff that has not reached altitude after this has failed, s."""
+    offboard_lead_s: float = 1.0
+    """PX4: setpoints stream this long before OFFBOARD is requested, s."""
+
+
+@dataclass
+class VehicleRun:
+    """One vehicle's progress through the sequence."""
+
+    sysid: int
+    """MAVLink system id."""
+    track: int
+    """The plan track it flies."""
+    flavour: Flavour
+    """Its autopilot family."""
+    phase: VehiclePhase = VehiclePhase.PREFLIGHT
+    """Where it is."""
+    pending: Command | None = None
+    """The command of the current step, awaiting its effect."""
+    sent_at: float = 0.0
+    """Our time the pending command was last sent."""
+    attempts: int = 0
+    """Sends of the pending command so far."""
+    retry_at: float | None = None
+    """When to re-send the pending command after a refusal."""
+    stream_since: float | None = None
+    """Our time setpoints started flowing to it."""
+    reason: str | None = None
+    """The last refusal or failure reason."""
+
+
+@dataclass(frozen=True)
+class StreamRequest:
+    """What the driver streams this tick."""
+
+    show_time: float
+    """Plan time to evaluate, s."""
+    moving: bool
+    """False while the show clock is not running: hover, no feed-forward, no lead."""
+    sysids: frozenset[int]
+    """Vehicles to send setpoints to."""
+    fixed: dict[int, tuple[float, float, float]] = field(default_factory=dict)
+    """Vehicles held at a show-frame point (landing slots) instead of the plan."""
+
+
+class ShowSequence:
+    """The whole show's flight sequence; see the module docstring for the protocol."""
+
+    def __init__(self, plan: Plan, tracks: Mapping[int, int], flavours: Mapping[int, Flavour],
+                 config: SequenceConfig | None = None,
+                 grounded_tracks: Collection[int] = ()) -> None:
+        """``tracks`` maps system id -> plan track for every vehicle that flies;
+        ``grounded_tracks`` are tracks whose (excluded) drone stays on its slot."""
+        missing = sorted(set(tracks) - set(flavours))
+        if missing:
+            raise ValueError(f"`flavours` has no autopilot for vehicle(s) {missing}")
+        if len(set(tracks.values())) != len(tracks):
+            raise ValueError("`tracks` gives one track to two vehicles")
+        self.plan = plan
+        self.config = config or SequenceConfig()
+        self.vehicles: dict[int, VehicleRun] = {
+            sysid: VehicleRun(sysid, track, flavours[sysid])
+            for sysid, track in sorted(tracks.items())}
+        self.grounded_tracks: set[int] = set(grounded_tracks)
+        self._slots = plan.home + np.array([0.0, 0.0, plan.takeoff_altitude])
+        self._started = False
+        self._t0: float | None = None  # our time of show time 0 while the clock runs
+        self._paused_at: float | None = None  # show time frozen by hold
+        self._ended = False
+        self._frozen_at: float | None = None  # show time at which land_all stopped the show
+
+    # -- clock -----------------------------------------------------------------------
+    @property
+    def paused(self) -> bool:
+        return self._paused_at is not None
+
+    def show_time(self, now: float) -> float:
+        """The show clock: 0 before the start, frozen while held, capped at the duration."""
+        if self._frozen_at is not None:
+            return self._frozen_at
+        if self._paused_at is not None:
+            return self._paused_at
+        if self._t0 is None:
+            return 0.0
+        return min(max(now - self._t0, 0.0), self.plan.duration)
+
+    @property
+    def phase(self) -> ShowPhase:
+        phases = {v.phase for v in self.vehicles.values()}
+        if not self._started:
+            return ShowPhase.PREFLIGHT
+        if VehiclePhase.ARMING in phases:
+            return ShowPhase.ARMING
+        if phases & {VehiclePhase.TAKEOFF, VehiclePhase.READY}:
+            return ShowPhase.TAKEOFF
+        if VehiclePhase.SHOW in phases:
+            return ShowPhase.SHOW
+        if phases & {VehiclePhase.RETURNING, VehiclePhase.LANDING}:
+            return ShowPhase.LANDING
+        return ShowPhase.LANDED
+
+    # -- driver interface ------------------------------------------------------------
+    def start(self, now: float) -> list[Action]:
+        """Begin arming every vehicle (pre-flight checks have passed)."""
+        if self._started or self._ended:
+            return [Notice(None, "the sequence has already started or been stopped")]
+        self._started = True
+        actions: list[Action] = []
+        for v in self.vehicles.values():
+            v.phase = VehiclePhase.ARMING
+            first: Command = SetMode(v.sysid, "GUIDED") if v.flavour is Flavour.ARDUPILOT \
+                else Arm(v.sysid)
+            actions.append(self._send(v, first, now))
+        return actions
+
+    def update(self, now: float, states: Mapping[int, VehicleState]) -> list[Action]:
+        """Advance every vehicle from its telemetry; returns the actions to perform."""
+        actions: list[Action] = []
+        # Losses first: one may abort the show, and then nobody should be
+        # told to arm or take off in the same breath.
+        for v in self.vehicles.values():
+            if v.phase in _DONE or v.phase is VehiclePhase.PREFLIGHT:
+                continue
+            state = states.get(v.sysid)
+            if state is None or state.lost:
+                actions += self._lose(v, now, state)
+        for v in self.vehicles.values():
+            if v.phase in _DONE or v.phase is VehiclePhase.PREFLIGHT:
+                continue
+            actions += self._advance(v, states[v.sysid], now)
+        actions += self._maybe_start_show(now)
+        if self._t0 is not None and not self.paused and not self._ended \
+                and now - self._t0 >= self.plan.duration:
+            self._ended = True
+            for v in self.vehicles.values():
+                if v.phase is VehiclePhase.SHOW:
+                    v.phase = VehiclePhase.RETURNING
+            actions.append(Notice(None, "show finished: returning to the landing slots"))
+        return actions
+
+    def command_failed(self, command: Command, reason: str, now: float) -> list[Action]:
+        """A command was refused or timed out; retry it later or give the vehicle up."""
+        v = self.vehicles.get(command.sysid)
+        if v is None or v.pending != command:
+            return []  # a stale answer: the vehicle has moved on
+        v.reason = reason
+        if v.attempts >= self.config.max_attempts:
+            return self._give_up(v, f"{_describe(command)} failed {v.attempts} times: {reason}",
+                                 now)
+        v.retry_at = now + self.config.retry_after_s
+        return []
+
+    def stream_request(self, now: float) -> StreamRequest:
+        """Whom to send setpoints to this tick, and for which show time."""
+        sysids = frozenset(v.sysid for v in self.vehicles.values()
+                           if v.phase in _STREAMED
+                           or (v.phase is VehiclePhase.TAKEOFF and v.stream_since is not None))
+        fixed = {v.sysid: tuple(map(float, self._slots[v.track]))
+                 for v in self.vehicles.values() if v.phase is VehiclePhase.RETURNING}
+        moving = self._t0 is not None and not self.paused and not self._ended
+        return StreamRequest(self.show_time(now), moving, sysids, fixed)  # type: ignore[arg-type]
+
+    # -- operator --------------------------------------------------------------------
+    def hold(self, now: float) -> list[Action]:
+        """Pause the show clock: every drone hovers at its current plan point."""
+        if self.paused:
+            return [Notice(None, "already holding")]
+        self._paused_at = self.show_time(now)
+        return [Notice(None, f"holding at show time {self._paused_at:.1f} s")]
+
+    def resume(self, now: float) -> list[Action]:
+        """Restart the show clock from where it was held."""
+        if self._paused_at is None:
+            return [Notice(None, "not holding: nothing to resume")]
+        if self._t0 is not None:
+            self._t0 = now - self._paused_at
+        resumed, self._paused_at = self._paused_at, None
+        return [Notice(None, f"resuming at show time {resumed:.1f} s")]
+
+    def land_all(self, now: float) -> list[Action]:
+        """Every vehicle back to its landing slot and down; the show is over."""
+        if self._frozen_at is None:
+            self._frozen_at = self.show_time(now)
+        self._ended = True
+        actions: list[Action] = [Notice(None, "landing all vehicles")]
+        for v in self.vehicles.values():
+            actions += self._land(v, now)
+        return actions
+
+    def land_one(self, sysid: int, now: float) -> list[Action]:
+        """Vehicle ``sysid`` back to its landing slot and down; the others go on."""
+        v = self.vehicles.get(sysid)
+        if v is None:
+            return [Notice(None, f"no vehicle {sysid} in this show")]
+        return [Notice(sysid, f"landing vehicle {sysid}"), *self._land(v, now)]
+
+    def kill(self, sysid: int, now: float, confirm: bool = False) -> list[Action]:
+        """Stop ``sysid``'s motors in flight; needs ``confirm`` because the drone falls."""
+        v = self.vehicles.get(sysid)
+        if v is None:
+            return [Notice(None, f"no vehicle {sysid} in this show")]
+        if not confirm:
+            return [Notice(sysid, f"kill vehicle {sysid} not sent: it stops the motors and "
+                                  "the drone falls; confirm to kill")]
+        v.phase, v.pending = VehiclePhase.KILLED, None
+        return [Kill(sysid), Notice(sysid, f"vehicle {sysid} killed by the operator")]
+
+    # -- internals -------------------------------------------------------------------
+    def _send(self, v: VehicleRun, command: Command, now: float) -> Command:
+        if command != v.pending:
+            v.attempts = 0
+        v.pending, v.sent_at, v.retry_at = command, now, None
+        v.attempts += 1
+        return command
+
+    def _land(self, v: VehicleRun, now: float) -> list[Action]:
+        if v.phase is VehiclePhase.PREFLIGHT:
+            v.phase = VehiclePhase.LANDED
+            return []
+        if v.phase is VehiclePhase.ARMING:
+            # Still on the ground (takeoff was never sent): nothing to land, but
+            # it may already be armed.
+            v.phase, v.pending = VehiclePhase.LANDED, None
+            return [Disarm(v.sysid), Notice(v.sysid, f"vehicle {v.sysid} stood down on the ground")]
+        if v.phase in (VehiclePhase.ARMING, VehiclePhase.TAKEOFF):
+            v.phase = VehiclePhase.LANDING
+            return [self._send(v, Land(v.sysid), now)]
+        if v.phase in (VehiclePhase.READY, VehiclePhase.SHOW):
+            v.phase, v.pending = VehiclePhase.RETURNING, None
+        return []
+
+    def _lose(self, v: VehicleRun, now: float, state: VehicleState | None) -> list[Action]:
+        silent = "never heard" if state is None else f"silent for {state.silent_for(now):.1f} s"
+        was = v.phase
+        v.phase, v.pending, v.reason = VehiclePhase.LOST, None, f"link lost ({silent})"
+        actions: list[Action] = [
+            Notice(v.sysid, f"vehicle {v.sysid} lost during {was} ({silent}); no longer "
+                            "streamed, its failsafe is in charge; the show goes on")]
+        if was is VehiclePhase.ARMING:
+            actions += self._left_on_slot(v, now)
+        return actions
+
+    def _give_up(self, v: VehicleRun, why: str, now: float) -> list[Action]:
+        was, v.reason, v.pending = v.phase, why, None
+        v.phase = VehiclePhase.FAILED
+        if was is VehiclePhase.LANDING:
+            return [Notice(v.sysid, f"vehicle {v.sysid}: {why}; land it by hand")]
+        actions: list[Action] = [Notice(v.sysid, f"vehicle {v.sysid}: {why}")]
+        if was is not VehiclePhase.ARMING:
+            # In the air (or may be): bring it down where it is, straight below.
+            v.phase = VehiclePhase.LANDING
+            actions.append(self._send(v, Land(v.sysid), now))
+            return actions
+        return actions + self._left_on_slot(v, now)
+
+    def _left_on_slot(self, v: VehicleRun, now: float) -> list[Action]:
+        # A drone that never took off stands on its slot: an obstacle for its
+        # neighbours' takeoff and landing.  If it is in their way, stop the show.
+        self.grounded_tracks.add(v.track)
+        flying = {u.track for u in self.vehicles.values() if u.phase not in _DONE}
+        conflicts = [c for c in remaining_plan_conflicts(self.plan, self.grounded_tracks)
+                     if c.track in flying]
+        if not conflicts or self._ended:
+            return []
+        return [Notice(None, f"aborting the show: {conflicts[0]}"), *self.land_all(now)]
+
+    def _altitude(self, state: VehicleState) -> float | None:
+        if state.global_position is not None:
+            return state.global_position.relative_alt_m
+        return None
+
+    def _advance(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
+        cfg = self.config
+        cmd = v.pending
+        if v.retry_at is not None and now >= v.retry_at and cmd is not None:
+            return [self._send(v, cmd, now)]
+        if isinstance(cmd, SetMode) and cmd.mode == "GUIDED":
+            if state.mode == "GUIDED":
+                return [self._send(v, Arm(v.sysid), now)]
+        elif isinstance(cmd, Arm):
+            if state.armed:
+                v.phase = VehiclePhase.TAKEOFF
+                return [self._send(v, Takeoff(v.sysid, self.plan.takeoff_altitude), now)]
+        elif isinstance(cmd, Takeoff):
+            alt = self._altitude(state)
+            if alt is not None and abs(alt - cmd.alt_m) <= cfg.takeoff_tolerance_m:
+                v.stream_since = now
+                v.pending = None
+                if v.flavour is Flavour.ARDUPILOT:
+                    v.phase = VehiclePhase.READY  # already in GUIDED since before arming
+                return []
+            if now - v.sent_at >= cfg.takeoff_timeout_s:
+                return self._give_up(v, f"takeoff did not reach {cmd.alt_m:.1f} m within "
+                                        f"{cfg.takeoff_timeout_s:.0f} s", now)
+            return []
+        elif cmd is None and v.phase is VehiclePhase.TAKEOFF and v.stream_since is not None:
+            # PX4 rejects OFFBOARD unless setpoints are already arriving.
+            if now - v.stream_since >= cfg.offboard_lead_s:
+                return [self._send(v, SetMode(v.sysid, "OFFBOARD"), now)]
+            return []
+        elif isinstance(cmd, SetMode) and cmd.mode == "OFFBOARD":
+            if state.mode == "OFFBOARD":
+                v.phase, v.pending = VehiclePhase.READY, None
+                return []
+        elif v.phase is VehiclePhase.RETURNING:
+            return self._returning(v, state, now)
+        elif isinstance(cmd, Land) or v.phase is VehiclePhase.LANDING:
+            if not state.armed:
+                v.phase, v.pending = VehiclePhase.LANDED, None
+                return [Notice(v.sysid, f"vehicle {v.sysid} landed")]
+            if state.mode in _LAND_MODES:
+                return []  # descending: that takes as long as it takes
+        if cmd is not None and now - v.sent_at >= cfg.step_timeout_s and v.retry_at is None:
+            return self.command_failed(cmd, f"no effect after {cfg.step_timeout_s:.0f} s", now)
+        return []
+
+    def _returning(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
+        if state.ekf_origin is None or state.position_ned is None:
+            return []
+        pos = ned_to_show(self.plan.origin, state.ekf_origin, state.position_ned)
+        if np.linalg.norm(pos - self._slots[v.track]) <= self.config.arrive_tolerance_m:
+            v.phase = VehiclePhase.LANDING
+            return [self._send(v, Land(v.sysid), now)]
+        return []
+
+    def _maybe_start_show(self, now: float) -> list[Action]:
+        if self._t0 is not None or self._ended or not self._started or self.paused:
+            return []
+        phases = [v.phase for v in self.vehicles.values()]
+        if any(p in (VehiclePhase.ARMING, VehiclePhase.TAKEOFF) for p in phases):
+            return []
+        ready = [v for v in self.vehicles.values() if v.phase is VehiclePhase.READY]
+        if not ready:
+            return []
+        self._t0 = now
+        for v in ready:
+            v.phase = VehiclePhase.SHOW
+        return [Notice(None, f"show started with {len(ready)} vehicle(s)")]
+
+
+def _describe(command: Command) -> str:
+    if isinstance(command, SetMode):
+        return f"mode {command.mode}"
+    if isinstance(command, Takeoff):
+        return "takeoff"
+    return type(command).__name__.lower()

@@ -1,0 +1,191 @@
+"""Setpoints and LED colours for the whole fleet at one instant, in each vehicle's frame.
+
+A setpoint sent at our time ``now`` reaches the vehicle a little later, so
+:meth:`SetpointStream.at` evaluates the plan ``lead_s`` ahead of the show
+clock; ``time_boot_ms`` stamps the same instant on the vehicle's clock
+(vehicle time = our time + TIMESYNC offset).  Everything is vectorised over
+the fleet: one plan evaluation, one geodetic conversion per tick.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from groundctl.execute.frames import show_to_ned, show_vel_to_ned
+from groundctl.link.state import GeoPoint, Vec3
+from groundctl.plan.plan import Plan
+
+FloatArray = NDArray[np.float64]
+
+DEFAULT_LEAD_S = 0.15
+
+
+@dataclass(frozen=True)
+class StreamTarget:
+    """One vehicle to stream to."""
+
+    sysid: int
+    """MAVLink system id."""
+    track: int
+    """The plan track it flies."""
+    ekf_origin: GeoPoint
+    """Its local NED origin (GPS_GLOBAL_ORIGIN)."""
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    """What to send one vehicle this tick."""
+
+    sysid: int
+    """MAVLink system id."""
+    time_boot_ms: int
+    """The instant the setpoint is for, on the vehicle's clock (0 if its offset is unknown)."""
+    pos_ned: Vec3
+    """Position in its local NED frame, m."""
+    vel_ned: Vec3
+    """Velocity feed-forward, m/s."""
+    acc_ned: Vec3
+    """Acceleration feed-forward, m/s^2."""
+    rgb: tuple[int, int, int]
+    """LED colour, 0-255 each."""
+
+
+@dataclass(frozen=True)
+class Setpoints:
+    """The fleet's setpoints for one tick, row i for ``sysids[i]``."""
+
+    sysids: tuple[int, ...]
+    """System ids, in the stream's target order."""
+    time_boot_ms: NDArray[np.int64]
+    """(n,) vehicle-clock stamps, ms."""
+    pos_ned: FloatArray
+    """(n, 3) positions, each in its vehicle's NED frame."""
+    vel_ned: FloatArray
+    """(n, 3) velocity feed-forward."""
+    acc_ned: FloatArray
+    """(n, 3) acceleration feed-forward."""
+    rgb: NDArray[np.uint8]
+    """(n, 3) colours, 0-255."""
+
+    def __iter__(self) -> Iterator[Setpoint]:
+        for i, sysid in enumerate(self.sysids):
+            yield Setpoint(sysid, int(self.time_boot_ms[i]),
+                           tuple(map(float, self.pos_ned[i])),  # type: ignore[arg-type]
+                           tuple(map(float, self.vel_ned[i])),  # type: ignore[arg-type]
+                           tuple(map(float, self.acc_ned[i])),  # type: ignore[arg-type]
+                           (int(self.rgb[i, 0]), int(self.rgb[i, 1]), int(self.rgb[i, 2])))
+
+    def __len__(self) -> int:
+        return len(self.sysids)
+
+
+def quantise_rgb(rgb: ArrayLike) -> NDArray[np.uint8]:
+    """Colours in [0, 1] as 0-255 integers (rounded, clipped)."""
+    return np.clip(np.rint(np.asarray(rgb, dtype=float) * 255.0), 0, 255).astype(np.uint8)
+
+
+class SetpointStream:
+    """Turns plan states into per-vehicle setpoints for a fixed set of vehicles."""
+
+    def __init__(self, plan: Plan, targets: Sequence[StreamTarget],
+                 lead_s: float = DEFAULT_LEAD_S) -> None:
+        if lead_s < 0:
+            raise ValueError(f"`lead_s` must be non-negative, got {lead_s}")
+        tracks = [t.track for t in targets]
+        bad = [t for t in tracks if not 0 <= t < plan.drones]
+        if bad:
+            raise ValueError(f"`targets` name tracks {bad} outside the plan's 0..{plan.drones - 1}")
+        if len(set(tracks)) != len(tracks) or len({t.sysid for t in targets}) != len(targets):
+            raise ValueError("`targets` must not repeat a track or a system id")
+        self.plan = plan
+        self.targets = tuple(targets)
+        self.lead_s = lead_s
+        self.sysids = tuple(t.sysid for t in targets)
+        self._tracks = np.array(tracks, dtype=int)
+        self._origins = [t.ekf_origin for t in targets]
+        self._index = {t.sysid: i for i, t in enumerate(targets)}
+
+    def landing_slots(self) -> FloatArray:
+        """(n, 3) show-frame landing slots of the targets: home at takeoff altitude."""
+        return self.plan.home[self._tracks] + np.array([0.0, 0.0, self.plan.takeoff_altitude])
+
+    def at(self, show_time: float, now: float, clock_offsets: Mapping[int, float | None],
+           moving: bool = True, fixed: Mapping[int, ArrayLike] | None = None) -> Setpoints:
+        """Setpoints for show time ``show_time`` at our time ``now``.
+
+        ``moving`` False means the show clock is paused: the plan position at
+        ``show_time`` itself, with zero velocity and acceleration, so the
+        fleet hovers in a planned (separated) configuration.  ``fixed`` holds
+        vehicles (system id -> show-frame point) at a point instead, with
+        zero feed-forward, e.g. over their landing slots.
+        """
+        t = min(show_time + self.lead_s, self.plan.duration) if moving else show_time
+        state = self.plan.state_at(t)
+        pos = state.pos[self._tracks]
+        vel = state.vel[self._tracks] if moving else np.zeros_like(pos)
+        acc = state.acc[self._tracks] if moving else np.zeros_like(pos)
+        if moving and show_time + self.lead_s >= self.plan.duration:
+            # Past the end the plan holds its final state: no feed-forward.
+            vel, acc = np.zeros_like(pos), np.zeros_like(pos)
+        if fixed:
+            pos, vel, acc = pos.copy(), vel.copy(), acc.copy()
+            for sysid, point in fixed.items():
+                if sysid not in self._index:
+                    raise ValueError(f"`fixed` names vehicle {sysid}, which is not streamed")
+                i = self._index[sysid]
+                pos[i], vel[i], acc[i] = np.asarray(point, dtype=float), 0.0, 0.0
+        stamp_s = now + (self.lead_s if moving else 0.0)
+        offsets = np.array([np.nan if (o := clock_offsets.get(s)) is None else o
+                            for s in self.sysids], dtype=float)
+        # Unknown offset: 0 is what autopilots read as "no timestamp" (both
+        # stock ArduPilot and PX4 act on a setpoint on arrival anyway).
+        ms = np.where(np.isnan(offsets), 0.0, np.maximum((stamp_s + offsets) * 1000.0, 0.0))
+        return Setpoints(
+            sysids=self.sysids,
+            time_boot_ms=ms.astype(np.int64),
+            pos_ned=show_to_ned(self.plan.origin, self._origins, pos),
+            vel_ned=show_vel_to_ned(self.plan.origin, vel),
+            acc_ned=show_vel_to_ned(self.plan.origin, acc),
+            rgb=quantise_rgb(state.rgb[self._tracks]),
+        )
+
+
+class LedTracker:
+    """Decides when to send each vehicle LED_CONTROL.
+
+    LED_CONTROL is never acknowledged, so a lost packet would leave a drone
+    the wrong colour indefinitely: send on every change of the quantised
+    colour, and repeat the current colour every ``refresh_s`` regardless.
+    """
+
+    def __init__(self, refresh_s: float = 1.0) -> None:
+        if refresh_s <= 0:
+            raise ValueError(f"`refresh_s` must be positive, got {refresh_s}")
+        self.refresh_s = refresh_s
+        self._sent: dict[int, tuple[tuple[int, int, int], float]] = {}
+
+    def due(self, sysids: Sequence[int], rgb: ArrayLike,
+            now: float) -> list[tuple[int, tuple[int, int, int]]]:
+        """The (system id, colour) pairs to send now; records them as sent.
+
+        ``rgb`` is (n, 3) 0-255 for ``sysids``.
+        """
+        colours = np.asarray(rgb)
+        if colours.shape != (len(sysids), 3):
+            raise ValueError(f"`rgb` must have shape ({len(sysids)}, 3), got {colours.shape}")
+        out = []
+        for sysid, row in zip(sysids, colours, strict=True):
+            colour = (int(row[0]), int(row[1]), int(row[2]))
+            last = self._sent.get(sysid)
+            if last is None or last[0] != colour or now - last[1] >= self.refresh_s:
+                self._sent[sysid] = (colour, now)
+                out.append((sysid, colour))
+        return out
+
+    def forget(self, sysid: int) -> None:
+        """Drop what was sent to ``sysid`` (it rebooted or came back): it gets a fresh send."""
+        self._sent.pop(sysid, None)

@@ -1,0 +1,285 @@
+"""The flight sequence state machine, driven with hand-made vehicle states and a float clock."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_execute_support import make_plan, make_vehicle, set_altitude
+
+from groundctl.execute.sequence import (
+    Arm,
+    Disarm,
+    Kill,
+    Land,
+    Notice,
+    SequenceConfig,
+    SetMode,
+    ShowPhase,
+    ShowSequence,
+    Takeoff,
+    VehiclePhase,
+)
+from groundctl.link.flavours import Flavour
+from groundctl.link.state import VehicleState
+
+ARDU, PX4 = Flavour.ARDUPILOT, Flavour.PX4
+
+
+def _fleet(flavour: Flavour = ARDU, n: int = 2) -> dict[int, VehicleState]:
+    return {i + 1: make_vehicle(i + 1, flavour=flavour, ned=(0.0, 3.0 * i, 0.0))
+            for i in range(n)}
+
+
+def _airborne_ardupilot(seq: ShowSequence, states: dict[int, VehicleState], now: float) -> float:
+    """Drive an ArduPilot fleet from start to the show clock running; returns the time."""
+    seq.start(now)
+    for v in states.values():
+        v.mode = "GUIDED"
+    seq.update(now + 0.1, states)
+    for v in states.values():
+        v.armed = True
+    seq.update(now + 0.2, states)
+    for v in states.values():
+        set_altitude(v, 3.0)
+    seq.update(now + 0.3, states)
+    return now + 0.3
+
+
+def test_ardupilot_sequence_guided_before_arming_then_show_then_landing() -> None:
+    plan = make_plan()
+    states = _fleet(ARDU)
+    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    assert seq.phase is ShowPhase.PREFLIGHT
+    # ArduCopter's guided takeoff: GUIDED first, then arm, then NAV_TAKEOFF.
+    assert seq.start(0.0) == [SetMode(1, "GUIDED"), SetMode(2, "GUIDED")]
+    assert seq.phase is ShowPhase.ARMING
+    assert seq.update(0.1, states) == []  # nothing happens until telemetry shows GUIDED
+    for v in states.values():
+        v.mode = "GUIDED"
+    assert seq.update(0.2, states) == [Arm(1), Arm(2)]
+    for v in states.values():
+        v.armed = True
+    assert seq.update(0.3, states) == [Takeoff(1, 3.0), Takeoff(2, 3.0)]
+    assert seq.phase is ShowPhase.TAKEOFF
+    assert seq.stream_request(0.3).sysids == frozenset()
+
+    set_altitude(states[1], 2.8)
+    set_altitude(states[2], 2.6)  # 0.4 m short: not there yet
+    assert seq.update(1.0, states) == []
+    assert seq.vehicles[1].phase is VehiclePhase.READY
+    assert seq.stream_request(1.0).sysids == frozenset({1})
+    assert not seq.stream_request(1.0).moving  # hovering at plan time 0 until everyone is up
+    set_altitude(states[2], 2.95)
+    assert seq.update(2.0, states) == [Notice(None, "show started with 2 vehicle(s)")]
+    assert seq.phase is ShowPhase.SHOW
+
+    req = seq.stream_request(5.0)
+    assert req.sysids == frozenset({1, 2}) and req.moving and req.fixed == {}
+    assert req.show_time == pytest.approx(3.0)
+
+    assert seq.update(12.0, states) == [
+        Notice(None, "show finished: returning to the landing slots")]
+    assert seq.phase is ShowPhase.LANDING
+    req = seq.stream_request(12.0)
+    assert req.fixed == {1: (0.0, 0.0, 3.0), 2: (3.0, 0.0, 3.0)}
+    assert not req.moving and req.show_time == plan.duration
+
+    states[1].position_ned = (0.1, 0.0, -3.0)  # over its slot (show x=0, y=0.1 -> N 0.1)
+    states[2].position_ned = (0.0, 1.0, -3.0)  # 2 m short of its slot
+    assert seq.update(13.0, states) == [Land(1)]
+    states[2].position_ned = (0.0, 3.2, -3.0)
+    assert seq.update(14.0, states) == [Land(2)]
+    assert seq.stream_request(14.0).sysids == frozenset()
+    states[1].armed = states[2].armed = False
+    assert seq.update(20.0, states) == [Notice(1, "vehicle 1 landed"),
+                                        Notice(2, "vehicle 2 landed")]
+    assert seq.phase is ShowPhase.LANDED
+
+
+def test_px4_streams_setpoints_before_asking_for_offboard() -> None:
+    states = _fleet(PX4, n=1)
+    seq = ShowSequence(make_plan(), {1: 0}, {1: PX4}, SequenceConfig(offboard_lead_s=1.0))
+    assert seq.start(0.0) == [Arm(1)]
+    states[1].armed = True
+    assert seq.update(0.5, states) == [Takeoff(1, 3.0)]
+    set_altitude(states[1], 3.1)
+    assert seq.update(4.0, states) == []
+    # Setpoints flow from here, while still in the takeoff phase...
+    assert seq.stream_request(4.0).sysids == frozenset({1})
+    assert seq.vehicles[1].phase is VehiclePhase.TAKEOFF
+    assert seq.update(4.5, states) == []
+    # ...and only after offboard_lead_s is OFFBOARD requested.
+    assert seq.update(5.0, states) == [SetMode(1, "OFFBOARD")]
+    states[1].mode = "OFFBOARD"
+    assert seq.update(5.2, states) == [Notice(None, "show started with 1 vehicle(s)")]
+
+
+def test_arming_refusals_are_retried_then_the_vehicle_is_left_out_with_the_reason() -> None:
+    states = _fleet(ARDU, n=3)
+    seq = ShowSequence(make_plan(), {1: 0, 2: 1, 3: 2}, dict.fromkeys((1, 2, 3), ARDU),
+                       SequenceConfig(max_attempts=3, retry_after_s=1.0))
+    seq.start(0.0)
+    for v in states.values():
+        v.mode = "GUIDED"
+    seq.update(0.1, states)
+    reason = "PreArm: Battery below minimum arming voltage"
+    now = 0.2
+    for attempt in (1, 2):
+        assert seq.command_failed(Arm(2), reason, now) == []
+        assert seq.update(now + 0.5, states) == []  # waits retry_after_s
+        assert seq.update(now + 1.0, states) == [Arm(2)]
+        assert seq.vehicles[2].attempts == attempt + 1
+        now += 1.0
+    assert seq.command_failed(Arm(2), reason, now) == [
+        Notice(2, f"vehicle 2: arm failed 3 times: {reason}")]
+    assert seq.vehicles[2].phase is VehiclePhase.FAILED
+    assert seq.vehicles[2].reason == f"arm failed 3 times: {reason}"
+    # Its slot is 3 m from the neighbours: the others fly on.
+    assert seq.command_failed(Arm(2), reason, now) == []  # stale: nothing pending
+    states[1].armed = states[3].armed = True
+    assert seq.update(now + 0.1, states) == [Takeoff(1, 3.0), Takeoff(3, 3.0)]
+
+
+def test_a_vehicle_left_on_a_neighbours_takeoff_path_aborts_the_show() -> None:
+    home = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(make_plan(home=home), {1: 0, 2: 1}, {1: ARDU, 2: ARDU},
+                       SequenceConfig(max_attempts=1))
+    seq.start(0.0)
+    states[1].mode = states[2].mode = "GUIDED"
+    seq.update(0.1, states)
+    states[1].armed = True
+    assert seq.update(0.2, states) == [Takeoff(1, 3.0)]
+    actions = seq.command_failed(Arm(2), "PreArm: Compass not calibrated", 0.3)
+    assert actions == [
+        Notice(2, "vehicle 2: arm failed 1 times: PreArm: Compass not calibrated"),
+        Notice(None, "aborting the show: track 0 passes 1.00 m from excluded track 1's takeoff "
+                     "slot during takeoff at t=0.0 s (minimum separation 1.50 m)"),
+        Notice(None, "landing all vehicles"),
+        Land(1),
+    ]
+    assert seq.vehicles[1].phase is VehiclePhase.LANDING
+
+
+def test_wrong_mode_with_no_effect_is_resent_after_the_step_timeout() -> None:
+    states = _fleet(ARDU, n=1)
+    seq = ShowSequence(make_plan(), {1: 0}, {1: ARDU},
+                       SequenceConfig(step_timeout_s=5.0, retry_after_s=1.0))
+    seq.start(0.0)
+    assert seq.update(4.9, states) == []
+    assert seq.update(5.0, states) == []
+    assert seq.vehicles[1].reason == "no effect after 5 s"
+    assert seq.update(6.0, states) == [SetMode(1, "GUIDED")]
+
+
+def test_a_lost_vehicle_is_dropped_from_streaming_and_the_show_goes_on() -> None:
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    t0 = _airborne_ardupilot(seq, states, 0.0)
+    states[2].lost = True
+    states[2].last_heard = 0.0
+    actions = seq.update(t0 + 2.0, states)
+    assert actions == [Notice(2, "vehicle 2 lost during show (silent for 2.3 s); no longer "
+                                 "streamed, its failsafe is in charge; the show goes on")]
+    assert seq.stream_request(t0 + 2.0).sysids == frozenset({1})
+    assert seq.phase is ShowPhase.SHOW
+    states[2].lost = False  # it comes back: still not streamed blindly
+    assert seq.update(t0 + 3.0, states) == []
+    assert seq.stream_request(t0 + 3.0).sysids == frozenset({1})
+
+
+def test_hold_freezes_the_show_clock_and_resume_continues_from_there() -> None:
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    t0 = _airborne_ardupilot(seq, states, 0.0)
+    assert seq.hold(t0 + 2.0) == [Notice(None, "holding at show time 2.0 s")]
+    assert seq.hold(t0 + 2.5) == [Notice(None, "already holding")]
+    req = seq.stream_request(t0 + 30.0)
+    assert req.show_time == pytest.approx(2.0) and not req.moving
+    assert seq.update(t0 + 30.0, states) == []  # the show does not end while held
+    assert seq.resume(t0 + 30.0) == [Notice(None, "resuming at show time 2.0 s")]
+    assert seq.stream_request(t0 + 31.0).show_time == pytest.approx(3.0)
+    assert seq.resume(t0 + 31.0) == [Notice(None, "not holding: nothing to resume")]
+
+
+def test_land_one_returns_that_vehicle_while_the_others_fly_on() -> None:
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    t0 = _airborne_ardupilot(seq, states, 0.0)
+    assert seq.land_one(2, t0 + 1.0) == [Notice(2, "landing vehicle 2")]
+    req = seq.stream_request(t0 + 1.0)
+    assert req.moving and req.sysids == frozenset({1, 2}) and req.fixed == {2: (3.0, 0.0, 3.0)}
+    assert seq.land_one(9, t0 + 1.0) == [Notice(None, "no vehicle 9 in this show")]
+
+
+def test_kill_needs_confirmation() -> None:
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    t0 = _airborne_ardupilot(seq, states, 0.0)
+    assert seq.kill(1, t0 + 1.0) == [
+        Notice(1, "kill vehicle 1 not sent: it stops the motors and the drone falls; "
+                  "confirm to kill")]
+    assert seq.vehicles[1].phase is VehiclePhase.SHOW
+    assert seq.kill(1, t0 + 1.0, confirm=True) == [
+        Kill(1), Notice(1, "vehicle 1 killed by the operator")]
+    assert seq.stream_request(t0 + 1.0).sysids == frozenset({2})
+
+
+def test_land_all_during_takeoff_lands_climbers_and_stands_down_the_rest() -> None:
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    seq.start(0.0)
+    states[1].mode = states[2].mode = "GUIDED"
+    seq.update(0.1, states)
+    states[1].armed = True
+    seq.update(0.2, states)  # vehicle 1 taking off, vehicle 2 still arming
+    assert seq.land_all(0.3) == [Notice(None, "landing all vehicles"), Land(1), Disarm(2),
+                                 Notice(2, "vehicle 2 stood down on the ground")]
+    assert seq.stream_request(0.3).sysids == frozenset()
+    states[1].armed = False
+    assert seq.update(5.0, states) == [Notice(1, "vehicle 1 landed")]
+    assert seq.phase is ShowPhase.LANDED
+
+
+def test_constructor_rejects_inconsistent_tables() -> None:
+    with pytest.raises(ValueError, match=r"`flavours` has no autopilot for vehicle\(s\) \[2\]"):
+        ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU})
+    with pytest.raises(ValueError, match="`tracks` gives one track to two vehicles"):
+        ShowSequence(make_plan(), {1: 0, 2: 0}, {1: ARDU, 2: ARDU})
+
+
+def test_land_is_resent_when_the_vehicle_never_enters_its_land_mode() -> None:
+    states = _fleet(PX4, n=1)
+    seq = ShowSequence(make_plan(), {1: 0}, {1: PX4}, SequenceConfig(step_timeout_s=5.0))
+    seq.start(0.0)
+    states[1].armed = True
+    seq.update(0.1, states)  # taking off
+    assert seq.land_one(1, 1.0) == [Notice(1, "landing vehicle 1"), Land(1)]
+    states[1].mode = "AUTO.TAKEOFF"
+    assert seq.update(6.0, states) == []
+    assert seq.vehicles[1].reason == "no effect after 5 s"
+    assert seq.update(7.0, states) == [Land(1)]
+    states[1].mode = "AUTO.LAND"
+    assert seq.update(20.0, states) == []  # descending takes as long as it takes
+    states[1].armed = False
+    assert seq.update(30.0, states) == [Notice(1, "vehicle 1 landed")]
+
+
+def test_a_vehicle_lost_on_its_slot_next_to_a_climber_aborts_the_show() -> None:
+    home = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(make_plan(home=home), {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    seq.start(0.0)
+    states[1].mode = "GUIDED"
+    states[2].lost = True
+    states[2].last_heard = 0.0
+    actions = seq.update(1.0, states)
+    lost, abort = actions[:2]
+    assert isinstance(lost, Notice) and isinstance(abort, Notice)
+    assert lost.text.startswith("vehicle 2 lost during arming (silent for 1.0 s)")
+    assert abort.text.startswith("aborting the show: track 0 passes 1.00 m")
+    # Vehicle 1 is in GUIDED and would be armed next: it is stood down instead.
+    assert actions[2:] == [Notice(None, "landing all vehicles"), Disarm(1),
+                           Notice(1, "vehicle 1 stood down on the ground")]
+    assert seq.phase is ShowPhase.LANDED
+    assert seq.start(2.0) == [Notice(None, "the sequence has already started or been stopped")]

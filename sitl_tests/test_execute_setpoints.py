@@ -1,0 +1,96 @@
+"""Per-vehicle setpoints from the plan, and when LED colours are (re)sent."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_execute_support import ORIGIN, geo_offset, make_plan
+
+from groundctl.execute.frames import show_to_ned, show_vel_to_ned
+from groundctl.execute.setpoints import LedTracker, SetpointStream, StreamTarget, quantise_rgb
+from groundctl.show.model import GeoOrigin
+
+A = geo_offset(ORIGIN, 0.0, 0.0)
+B = geo_offset(ORIGIN, 18.0, 24.0)
+
+
+def _stream(origin: GeoOrigin = ORIGIN) -> SetpointStream:
+    # Vehicle 11 flies track 2, vehicle 12 track 0, from different EKF origins.
+    return SetpointStream(make_plan(origin=origin),
+                          [StreamTarget(11, 2, A), StreamTarget(12, 0, B)], lead_s=0.15)
+
+
+def test_setpoints_lead_the_show_clock_and_use_each_vehicles_frame() -> None:
+    stream = _stream(GeoOrigin(ORIGIN.lat, ORIGIN.lon, ORIGIN.alt, 90.0))
+    sp = stream.at(2.0, now=100.0, clock_offsets={11: 50.0, 12: -20.0})
+    state = stream.plan.state_at(2.15)
+    assert sp.sysids == (11, 12)
+    np.testing.assert_allclose(sp.pos_ned[0], show_to_ned(stream.plan.origin, A, state.pos[2]),
+                               atol=1e-6)
+    np.testing.assert_allclose(sp.pos_ned[1], show_to_ned(stream.plan.origin, B, state.pos[0]),
+                               atol=1e-6)
+    np.testing.assert_allclose(sp.vel_ned, show_vel_to_ned(stream.plan.origin, state.vel[[2, 0]]))
+    np.testing.assert_allclose(sp.acc_ned, show_vel_to_ned(stream.plan.origin, state.acc[[2, 0]]))
+    assert np.abs(sp.vel_ned).max() > 0.1  # mid-transition: real feed-forward
+    # The stamp is the instant the setpoint is for (now + lead) on each vehicle's clock.
+    assert sp.time_boot_ms.tolist() == [150_150, 80_150]
+
+
+def test_same_show_point_differs_by_the_origin_offset_between_vehicles() -> None:
+    plan = make_plan()
+    stream = SetpointStream(plan, [StreamTarget(1, 0, A), StreamTarget(2, 1, B)], lead_s=0.0)
+    sp = stream.at(0.0, 0.0, {}, moving=False, fixed={2: plan.home[0] + [0.0, 0.0, 3.0]})
+    np.testing.assert_allclose(sp.pos_ned[0] - sp.pos_ned[1], [24.0, 18.0, 0.0], atol=1e-3)
+    assert sp.time_boot_ms.tolist() == [0, 0]  # offsets unknown
+
+
+def test_paused_clock_hovers_at_the_plan_point_without_feed_forward_or_lead() -> None:
+    stream = _stream()
+    sp = stream.at(2.0, now=100.0, clock_offsets={11: 50.0}, moving=False)
+    np.testing.assert_allclose(sp.pos_ned[0], show_to_ned(ORIGIN, A, stream.plan.state_at(2.0)
+                                                          .pos[2]), atol=1e-6)
+    assert not sp.vel_ned.any() and not sp.acc_ned.any()
+    assert sp.time_boot_ms.tolist() == [150_000, 0]
+
+
+def test_fixed_points_override_the_plan_and_past_the_end_there_is_no_feed_forward() -> None:
+    stream = _stream()
+    slots = stream.landing_slots()
+    np.testing.assert_allclose(slots, [[6.0, 0.0, 3.0], [0.0, 0.0, 3.0]])
+    sp = stream.at(9.95, 0.0, {}, fixed={12: slots[1]})
+    np.testing.assert_allclose(sp.pos_ned[1], show_to_ned(ORIGIN, B, slots[1]), atol=1e-6)
+    assert not sp.vel_ned.any() and not sp.acc_ned.any()
+    with pytest.raises(ValueError, match="`fixed` names vehicle 5, which is not streamed"):
+        stream.at(1.0, 0.0, {}, fixed={5: slots[0]})
+
+
+def test_colours_are_quantised_to_bytes_and_iterated_per_vehicle() -> None:
+    sp = _stream().at(10.0, 0.0, {})
+    assert [s.rgb for s in sp] == [(255, 128, 0), (255, 128, 0)]
+    assert quantise_rgb([[1.2, -0.1, 0.2]]).tolist() == [[255, 0, 51]]
+    first = next(iter(sp))
+    assert first.sysid == 11 and len(first.pos_ned) == 3 and len(sp) == 2
+
+
+def test_stream_rejects_bad_targets() -> None:
+    plan = make_plan()
+    with pytest.raises(ValueError, match=r"`targets` name tracks \[3\]"):
+        SetpointStream(plan, [StreamTarget(1, 3, A)])
+    with pytest.raises(ValueError, match="must not repeat"):
+        SetpointStream(plan, [StreamTarget(1, 0, A), StreamTarget(2, 0, A)])
+    with pytest.raises(ValueError, match="`lead_s` must be non-negative"):
+        SetpointStream(plan, [], lead_s=-1.0)
+
+
+def test_led_sent_on_change_and_refreshed_every_second() -> None:
+    leds = LedTracker(refresh_s=1.0)
+    red, blue = [255, 0, 0], [0, 0, 255]
+    assert leds.due([1, 2], [red, red], now=0.0) == [(1, (255, 0, 0)), (2, (255, 0, 0))]
+    assert leds.due([1, 2], [red, red], now=0.5) == []
+    assert leds.due([1, 2], [red, blue], now=0.6) == [(2, (0, 0, 255))]
+    assert leds.due([1, 2], [red, blue], now=1.0) == [(1, (255, 0, 0))]
+    assert leds.due([1, 2], [red, blue], now=1.6) == [(2, (0, 0, 255))]
+    leds.forget(1)
+    assert leds.due([1], [red], now=1.7) == [(1, (255, 0, 0))]
+    with pytest.raises(ValueError, match=r"`rgb` must have shape \(1, 3\)"):
+        leds.due([1], [red, red], now=2.0)
