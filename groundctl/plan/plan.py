@@ -1,0 +1,175 @@
+"""A planned show: every drone's state and colour at any time, saved to one file.
+
+The plan file is a NumPy ``.npz`` archive: the arrays of the trajectories and
+colour keyframes, plus one JSON document (``meta``) with the show's name,
+origin, limits and the formation timeline.  It holds no pickled objects, so
+loading a plan from elsewhere cannot run code.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from groundctl.errors import PlanFileError
+from groundctl.plan.trajectory import Trajectories
+from groundctl.show.model import GeoOrigin, Limits
+
+FloatArray = NDArray[np.float64]
+
+#: Bumped whenever the file layout changes incompatibly.
+PLAN_FORMAT = 1
+
+
+@dataclass(frozen=True)
+class FormationWindow:
+    """When the fleet flies into one formation and holds it."""
+
+    index: int
+    """1-based formation index in the show file."""
+    name: str
+    """Formation name."""
+    start: float
+    """Show time the transition into it begins, s."""
+    arrive: float
+    """Show time the formation is reached, s."""
+    end: float
+    """Show time the hold ends (the next transition begins), s."""
+    goals: FloatArray
+    """(n, 3) slot each drone was assigned in this formation."""
+
+
+@dataclass(frozen=True)
+class State:
+    """The fleet at one instant."""
+
+    pos: FloatArray
+    """(n, 3) positions, show frame, m."""
+    vel: FloatArray
+    """(n, 3) velocities, m/s."""
+    acc: FloatArray
+    """(n, 3) accelerations, m/s^2."""
+    rgb: FloatArray
+    """(n, 3) LED colours in [0, 1]."""
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A whole planned show, from the end of takeoff to the start of landing."""
+
+    show_name: str
+    """Name of the show it was planned from."""
+    origin: GeoOrigin
+    """Geodetic anchor and heading of the show frame."""
+    limits: Limits
+    """The envelope it was planned and verified against."""
+    model: str
+    """Dynamics model it was planned with ("quadrotor" or "unicycle")."""
+    home: FloatArray
+    """(n, 3) takeoff and landing spots on the ground."""
+    takeoff_altitude: float
+    """Height above home at which the plan starts and ends, m."""
+    trajectories: Trajectories
+    """Every drone's trajectory, show time 0 to ``duration``."""
+    color_times: FloatArray
+    """(F,) colour keyframe times, s."""
+    colors: FloatArray
+    """(n, F, 3) colours at the keyframes; linear in between."""
+    formations: tuple[FormationWindow, ...]
+    """The formation timeline."""
+
+    @property
+    def drones(self) -> int:
+        return self.trajectories.drones
+
+    @property
+    def duration(self) -> float:
+        return self.trajectories.end
+
+    def colors_at(self, t: float) -> FloatArray:
+        """(n, 3) colours at show time ``t`` (held before the first and after the last key)."""
+        times = self.color_times
+        if t <= times[0]:
+            return self.colors[:, 0].copy()
+        if t >= times[-1]:
+            return self.colors[:, -1].copy()
+        k = int(np.searchsorted(times, t, side="right") - 1)
+        w = (t - times[k]) / (times[k + 1] - times[k])
+        return (1 - w) * self.colors[:, k] + w * self.colors[:, k + 1]
+
+    def state_at(self, t: float) -> State:
+        """Position, velocity, acceleration and colour of every drone at show time ``t``."""
+        pos, vel, acc = self.trajectories.evaluate(float(t))
+        return State(pos=pos, vel=vel, acc=acc, rgb=self.colors_at(float(t)))
+
+    # -- file --------------------------------------------------------------------------
+    def save(self, path: str | Path) -> Path:
+        """Write the plan to ``path`` (``.npz`` is appended by NumPy if missing)."""
+        path = Path(path)
+        meta = {
+            "format": PLAN_FORMAT,
+            "show_name": self.show_name,
+            "origin": asdict(self.origin),
+            "limits": asdict(self.limits),
+            "model": self.model,
+            "takeoff_altitude": self.takeoff_altitude,
+            "formations": [{"index": f.index, "name": f.name, "start": f.start,
+                            "arrive": f.arrive, "end": f.end} for f in self.formations],
+        }
+        arrays: dict[str, Any] = {
+            "meta": np.array(json.dumps(meta)),
+            "times": self.trajectories.times,
+            "pos": self.trajectories.pos,
+            "vel": self.trajectories.vel,
+            "home": self.home,
+            "color_times": self.color_times,
+            "colors": self.colors,
+        }
+        for i, f in enumerate(self.formations):
+            arrays[f"goals_{i}"] = f.goals
+        with path.open("wb") as fh:
+            np.savez_compressed(fh, **arrays)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> Plan:
+        """Read a plan written by :meth:`save`; PlanFileError if it is not one."""
+        path = Path(path)
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                meta = json.loads(str(data["meta"]))
+                if meta.get("format") != PLAN_FORMAT:
+                    raise PlanFileError(path, f"plan format {meta.get('format')!r} is not "
+                                              f"{PLAN_FORMAT}; re-plan the show")
+                lim = dict(meta["limits"])
+                if lim.get("geofence") is not None:
+                    lim["geofence"] = tuple(tuple(p) for p in lim["geofence"])
+                formations = tuple(
+                    FormationWindow(index=f["index"], name=f["name"], start=f["start"],
+                                    arrive=f["arrive"], end=f["end"],
+                                    goals=np.asarray(data[f"goals_{i}"], dtype=float))
+                    for i, f in enumerate(meta["formations"]))
+                return cls(
+                    show_name=meta["show_name"], origin=GeoOrigin(**meta["origin"]),
+                    limits=Limits(**lim), model=meta["model"],
+                    home=np.asarray(data["home"], dtype=float),
+                    takeoff_altitude=float(meta["takeoff_altitude"]),
+                    trajectories=Trajectories(np.asarray(data["times"], dtype=float),
+                                              np.asarray(data["pos"], dtype=float),
+                                              np.asarray(data["vel"], dtype=float)),
+                    color_times=np.asarray(data["color_times"], dtype=float),
+                    colors=np.asarray(data["colors"], dtype=float),
+                    formations=formations)
+        except PlanFileError:
+            raise
+        except FileNotFoundError as exc:
+            raise PlanFileError(path, "no such file") from exc
+        except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile,
+                json.JSONDecodeError) as exc:
+            raise PlanFileError(path, f"not a groundctl plan ({exc})") from exc

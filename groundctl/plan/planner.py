@@ -1,0 +1,141 @@
+"""Plan a whole show: assignment, every transition by SCP, holds, colours, verification.
+
+Quadrotor transitions start and end at rest on exact slots, so once the
+assignment chain is fixed they are independent problems and are planned in
+parallel processes.  Unicycle transitions cannot stop: each starts with the
+heading the previous one ended with, so they are planned in order.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from groundctl.errors import ShowFileError
+from groundctl.plan.assign import assign
+from groundctl.plan.plan import FormationWindow, Plan
+from groundctl.plan.scp_quad import TransitionResult, plan_quad_transition
+from groundctl.plan.scp_unicycle import plan_unicycle_transition
+from groundctl.plan.trajectory import Trajectories, concatenate, hold
+from groundctl.plan.verify import Verification, verify
+from groundctl.show.model import Show, UnicycleModel
+
+FloatArray = NDArray[np.float64]
+
+#: Colour of every drone before the first formation's colours fade in.
+START_COLOR = (0.1, 0.1, 0.1)
+
+Progress = Callable[[int, int], None]
+"""Called with (transitions done, transitions in all) as planning goes on."""
+
+
+@dataclass(frozen=True)
+class PlanResult:
+    """A planned, verified show and the figures of how it was planned."""
+
+    plan: Plan
+    """The plan."""
+    transitions: tuple[TransitionResult, ...]
+    """Per-transition planner figures, in show order."""
+    verification: Verification
+    """Continuous-time verification of the whole plan."""
+    seconds: float
+    """Wall time of the whole planning, s."""
+
+
+def _chain(show: Show) -> tuple[list[FloatArray], list[NDArray[np.intp]]]:
+    """Assigned goals of every formation, each from the previous formation's goals."""
+    prev = show.start_positions
+    goals, slots_of = [], []
+    for f in show.formations:
+        if len(f.points) < show.drones:
+            raise ShowFileError(show.source or show.name, f"formation {f.index} '{f.name}'",
+                                f"{show.drones} drones but the shape has {len(f.points)} points")
+        idx = assign(prev, f.points)
+        prev = f.points[idx]
+        goals.append(prev)
+        slots_of.append(idx)
+    return goals, slots_of
+
+
+def _quad_job(args: tuple) -> TransitionResult:  # type: ignore[type-arg]
+    return plan_quad_transition(*args)
+
+
+def plan_show(show: Show, workers: int | None = None,
+              progress: Progress | None = None) -> PlanResult:
+    """Plan and verify ``show``.  Raises InfeasibleTransition or PlanningError."""
+    t0 = time.perf_counter()
+    goals, slots_of = _chain(show)
+    starts = [show.start_positions, *goals[:-1]]
+    total = len(show.formations)
+    results: list[TransitionResult] = []
+    if isinstance(show.model, UnicycleModel):
+        if show.start_headings is not None:
+            heading = np.asarray(show.start_headings, dtype=float)
+        else:
+            heading = np.full(show.drones, np.pi / 2)
+        here = show.start_positions
+        for f, g in zip(show.formations, goals, strict=True):
+            # A constant-speed drone ends within eps of its slot, not on it: the next
+            # transition starts where this one really ended, with the heading it had.
+            res, heading = plan_unicycle_transition(
+                f.index, f.name, here, g, heading, f.transition_s, show.takeoff_altitude,
+                show.limits, show.model, show.planner)
+            here = res.trajectories.pos[:, -1]
+            results.append(res)
+            if progress:
+                progress(len(results), total)
+    else:
+        jobs = [(f.index, f.name, s, g, f.transition_s, show.limits, show.planner)
+                for f, s, g in zip(show.formations, starts, goals, strict=True)]
+        workers = workers if workers is not None else min(len(jobs), os.cpu_count() or 1)
+        if workers > 1 and len(jobs) > 1:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                for res in pool.map(_quad_job, jobs):
+                    results.append(res)
+                    if progress:
+                        progress(len(results), total)
+        else:
+            for job in jobs:
+                results.append(_quad_job(job))
+                if progress:
+                    progress(len(results), total)
+
+    # Stitch transitions and holds onto one show clock; colours fade over each transition.
+    parts: list[Trajectories] = []
+    windows: list[FormationWindow] = []
+    t = 0.0
+    key_t = [0.0]
+    key_c = [np.tile(START_COLOR, (show.drones, 1))]
+    for f, res, g, idx in zip(show.formations, results, goals, slots_of, strict=True):
+        parts.append(res.trajectories.shifted(t))
+        arrive = t + f.transition_s
+        key_t.append(arrive)
+        key_c.append(f.colors[idx])
+        end = arrive
+        if f.hold_s > 0:
+            if isinstance(show.model, UnicycleModel):
+                raise ShowFileError(show.source or show.name, f"formation {f.index} '{f.name}'",
+                                    "'hold' must be 0 for the unicycle model (it cannot hover)")
+            parts.append(hold(res.trajectories.pos[:, -1], arrive, f.hold_s))
+            end = arrive + f.hold_s
+            key_t.append(end)
+            key_c.append(f.colors[idx])
+        windows.append(FormationWindow(index=f.index, name=f.name, start=t, arrive=arrive,
+                                       end=end, goals=g))
+        t = end
+    plan = Plan(
+        show_name=show.name, origin=show.origin, limits=show.limits, model=show.model.kind,
+        home=np.asarray(show.home, dtype=float), takeoff_altitude=show.takeoff_altitude,
+        trajectories=concatenate(parts), color_times=np.asarray(key_t),
+        colors=np.stack(key_c, axis=1), formations=tuple(windows))
+    verification = verify(plan)
+    return PlanResult(plan=plan, transitions=tuple(results), verification=verification,
+                      seconds=time.perf_counter() - t0)

@@ -1,0 +1,332 @@
+"""The quadrotor QP of one group of interacting drones, built once, updated in place.
+
+Decision variables (all flattened C-order): positions P (g, N+1, 3),
+velocities V (g, N+1, 3), accelerations A (g, N, 3) held constant over each
+step (a double integrator, exact discretisation), and one slack per
+separation pair-segment S (m,).
+
+Constraints (rows of OSQP's l <= Ax <= u):
+
+* dynamics: p[k+1] = p[k] + dt v[k] + dt^2/2 a[k],  v[k+1] = v[k] + dt a[k];
+* boxes: start/goal positions and zero end velocities fixed; altitude limits
+  and an SCP trust region on interior positions; per-axis speed and
+  acceleration boxes;
+* tangent planes of the norm limits at the previous iterate,
+  n.v_h <= v_max_h and n.a <= a_max (exact at convergence, checked after);
+* separation, linearised around the previous iterate pbar (the paper's
+  constraint), imposed on *segments*: for pair (i, j) and step k, with the
+  normal n taken at the middle of the segment, n.(p_i - p_j) + s >= d' at
+  both ends k and k+1.  Both ends sharing one normal keeps the whole chord on
+  the safe side, and d' adds the most a double integrator can bulge from its
+  chord (a_rel dt^2 / 8) so the continuous trajectory keeps d_min, not only
+  the samples.  The slack s >= 0 (l1-penalised) keeps every QP feasible even
+  from a straight-line guess that runs two drones through each other.
+
+Only the values of the tangent and separation rows, the bounds and the linear
+cost change between SCP iterations: the sparsity pattern is fixed at build
+time, so OSQP factorises the KKT structure once and warm-starts each solve.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import osqp
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from groundctl.errors import PlanningError
+from groundctl.plan.profile import JERK_WEIGHT
+from groundctl.show.model import Limits
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.intp]
+
+#: Penalty per metre of separation slack: large enough that any feasible
+#: separation is preferred to any saving in effort.
+SLACK_WEIGHT = 1e2
+#: OSQP outcomes the SCP accepts.
+ACCEPTED_STATUS = ("solved", "solved inaccurate")
+#: On "maximum iterations reached", ADMM resumes from its own iterate (warm start)
+#: this many more times before the planner gives up: an unfinished iterate does not
+#: meet the equality constraints (end states), so it is never used as a result.
+RESUMES = 4
+
+
+def solve_checked(solver: osqp.OSQP, transition: int, what: str) -> NDArray[np.float64]:
+    """Solve, resuming an unfinished ADMM run; PlanningError unless OSQP solved it."""
+    res = solver.solve(raise_error=False)
+    for _ in range(RESUMES):
+        if res.info.status != "maximum iterations reached":
+            break
+        res = solver.solve(raise_error=False)
+    if res.info.status not in ACCEPTED_STATUS:
+        raise PlanningError(transition, f"OSQP {res.info.status}", what)
+    return np.asarray(res.x)
+
+
+#: Numerical buffer on separation on top of the geometric tightening, m.
+SEPARATION_BUFFER = 0.02
+
+
+@dataclass(frozen=True)
+class PairSegments:
+    """Separation rows: drone pair (local indices) and the step k of each segment."""
+
+    i: IntArray
+    """(m,) first drone of each pair-segment (group-local index)."""
+    j: IntArray
+    """(m,) second drone."""
+    k: IntArray
+    """(m,) segment index: the segment runs from step k to step k+1."""
+
+
+class RowBuilder:
+    """Accumulates COO triplets and bounds, block by block."""
+
+    def __init__(self) -> None:
+        self.r: list[IntArray] = []
+        self.c: list[IntArray] = []
+        self.v: list[FloatArray] = []
+        self.count = 0
+
+        self.nnz = 0
+
+    def block(self, nrows: int, rows: IntArray, cols: IntArray,
+              vals: FloatArray) -> tuple[slice, slice]:
+        """Append a block; return its row range and its range in the triplet arrays."""
+        self.r.append(rows + self.count)
+        self.c.append(cols)
+        self.v.append(vals)
+        row_range = slice(self.count, self.count + nrows)
+        coo_range = slice(self.nnz, self.nnz + len(vals))
+        self.count += nrows
+        self.nnz += len(vals)
+        return row_range, coo_range
+
+
+class GroupQP:
+    """The QP for ``g`` drones over one transition."""
+
+    def __init__(self, start: FloatArray, goal: FloatArray, ref: FloatArray, steps: int,
+                 dt: float, limits: Limits, pairs: PairSegments, alpha: float, beta: float,
+                 trust_radius: float, osqp_settings: dict[str, float | int | bool]) -> None:
+        g = start.shape[0]
+        n_steps = steps
+        self.g, self.N, self.dt, self.limits = g, n_steps, dt, limits
+        self.start, self.goal, self.ref = start, goal, ref
+        self.pairs = pairs
+        self.trust_radius = trust_radius
+        self._alpha, self._beta = alpha, beta
+        m = len(pairs.i)
+        self.nP = g * (n_steps + 1) * 3
+        self.nV = self.nP
+        self.nA = g * n_steps * 3
+        self.nS = m
+        self.oV = self.nP
+        self.oA = self.oV + self.nV
+        self.oS = self.oA + self.nA
+        self.nx = self.oS + self.nS
+        # Bulge of a double integrator's relative path from its chord over one step.
+        self.d_sep = limits.min_separation + 2 * limits.max_accel * dt * dt / 8 + SEPARATION_BUFFER
+
+        self._build(osqp_settings)
+
+    # -- index helpers --------------------------------------------------------------
+    def _ip(self, i: IntArray, k: IntArray, c: IntArray) -> IntArray:
+        return (i * (self.N + 1) + k) * 3 + c
+
+    def _iv(self, i: IntArray, k: IntArray, c: IntArray) -> IntArray:
+        return self.oV + (i * (self.N + 1) + k) * 3 + c
+
+    def _ia(self, i: IntArray, k: IntArray, c: IntArray) -> IntArray:
+        return self.oA + (i * self.N + k) * 3 + c
+
+    def _build(self, settings: dict[str, float | int | bool]) -> None:
+        g, N, dt, lim = self.g, self.N, self.dt, self.limits
+        rows = RowBuilder()
+        # Dynamics: one row per (drone, step, axis).
+        gi, kk, cc = (x.ravel() for x in np.meshgrid(np.arange(g), np.arange(N), np.arange(3),
+                                                      indexing="ij"))
+        nd = len(gi)
+        r = np.arange(nd)
+        self.dyn_rows, _ = rows.block(nd, np.tile(r, 4),
+                   np.concatenate([self._ip(gi, kk + 1, cc), self._ip(gi, kk, cc),
+                                   self._iv(gi, kk, cc), self._ia(gi, kk, cc)]),
+                   np.concatenate([np.ones(nd), -np.ones(nd), np.full(nd, -dt),
+                                   np.full(nd, -0.5 * dt * dt)]))
+        rows.block(nd, np.tile(r, 3),
+                   np.concatenate([self._iv(gi, kk + 1, cc), self._iv(gi, kk, cc),
+                                   self._ia(gi, kk, cc)]),
+                   np.concatenate([np.ones(nd), -np.ones(nd), np.full(nd, -dt)]))
+        # Boxes on every P, V, A variable and slack.
+        nbox = self.nx
+        self.box_rows, _ = rows.block(nbox, np.arange(nbox), np.arange(nbox), np.ones(nbox))
+        # Tangent planes of the horizontal speed limit at interior steps.
+        ti, tk = (x.ravel() for x in np.meshgrid(np.arange(g), np.arange(1, N), indexing="ij"))
+        nt = len(ti)
+        self.tan_v = (ti, tk)
+        self.tan_v_rows, self.tan_v_coo = rows.block(nt, np.tile(np.arange(nt), 2),
+                                     np.concatenate([self._iv(ti, tk, 0), self._iv(ti, tk, 1)]),
+                                     np.ones(2 * nt))
+        # Tangent planes of the acceleration limit.
+        ai, ak = (x.ravel() for x in np.meshgrid(np.arange(g), np.arange(N), indexing="ij"))
+        na = len(ai)
+        self.tan_a = (ai, ak)
+        self.tan_a_rows, self.tan_a_coo = rows.block(na, np.tile(np.arange(na), 3),
+                                     np.concatenate([self._ia(ai, ak, c) for c in range(3)]),
+                                     np.ones(3 * na))
+        # Separation: two rows (segment ends) per pair-segment, 6 coefficients + slack.
+        p = self.pairs
+        m = len(p.i)
+        if m:
+            end = np.concatenate([p.k, p.k + 1])  # row q < m: start of segment; q >= m: end
+            ii = np.concatenate([p.i, p.i])
+            jj = np.concatenate([p.j, p.j])
+            rr = np.arange(2 * m)
+            cols = [self._ip(ii, end, c) for c in range(3)] + [self._ip(jj, end, c)
+                                                               for c in range(3)]
+            slack = self.oS + np.concatenate([np.arange(m), np.arange(m)])
+            self.sep_rows, sep_coo = rows.block(2 * m, np.concatenate([np.tile(rr, 6), rr]),
+                                       np.concatenate([*cols, slack]),
+                                       np.concatenate([np.ones(12 * m), np.ones(2 * m)]))
+            # The slack coefficients (last 2m entries) never change.
+            self.sep_coo = slice(sep_coo.start, sep_coo.start + 12 * m)
+        else:
+            self.sep_rows = slice(rows.count, rows.count)
+            self.sep_coo = slice(rows.nnz, rows.nnz)
+
+        self.n_rows = rows.count
+        r_all = np.concatenate(rows.r)
+        c_all = np.concatenate(rows.c)
+        self._values = np.concatenate(rows.v)
+        # Map COO entry order to CSC data order once: later updates permute with it.
+        marker = sp.csc_matrix((np.arange(1, len(r_all) + 1, dtype=float), (r_all, c_all)),
+                               shape=(self.n_rows, self.nx))
+        marker.sort_indices()
+        if marker.nnz != len(r_all):
+            raise PlanningError(-1, "internal", "duplicate entries in the QP constraint matrix")
+        self._csc_from_coo = marker.data.astype(np.intp) - 1
+        self.A = marker.copy()
+        self.A.data = self._values[self._csc_from_coo]
+
+        self._P = self._cost_matrix()
+        self.q = np.zeros(self.nx)
+        self.q[: self.nP] = -2.0 * self.beta_dt * self.ref.ravel()
+        self.q[self.oS:] = SLACK_WEIGHT
+        self.l = np.full(self.n_rows, -np.inf)
+        self.u = np.full(self.n_rows, np.inf)
+        self.l[: 6 * g * N] = 0.0  # both dynamics blocks are equalities
+        self.u[: 6 * g * N] = 0.0
+        self.u[self.tan_v_rows] = lim.max_speed_h
+        self.u[self.tan_a_rows] = lim.max_accel
+        self.l[self.sep_rows] = self.d_sep
+        self._static_boxes()
+        self.solver = osqp.OSQP()
+        self.solver.setup(P=self._P, q=self.q, A=self.A, l=self.l, u=self.u, **settings)
+
+    @property
+    def beta_dt(self) -> float:
+        """Weight of squared reference deviation per sample (beta times the step)."""
+        return self._beta * self.dt
+
+    def _cost_matrix(self) -> sp.csc_matrix:
+        g, N, dt = self.g, self.N, self.dt
+        # Effort on each drone's accelerations, axis by axis: sum a^2 dt + w sum (da/dt)^2 dt.
+        diff = sp.diags([-np.ones(N - 1), np.ones(N - 1)], [0, 1], shape=(N - 1, N))
+        h1 = 2.0 * (dt * sp.identity(N) + (JERK_WEIGHT / dt) * (diff.T @ diff))
+        # Accelerations are laid out (drone, step, axis): kron over axes inside.
+        h_a = sp.kron(sp.identity(g), sp.kron(h1, sp.identity(3)))
+        blocks = [
+            2.0 * self.beta_dt * sp.identity(self.nP),
+            sp.csc_matrix((self.nV, self.nV)),
+            self._alpha * h_a,
+            1e-3 * sp.identity(self.nS),  # keeps the slack part strictly convex
+        ]
+        return sp.triu(sp.block_diag(blocks, format="csc"), format="csc")
+
+    def _static_boxes(self) -> None:
+        g, N, lim = self.g, self.N, self.limits
+        lo = np.full(self.nx, -np.inf)
+        hi = np.full(self.nx, np.inf)
+        P_lo = lo[: self.nP].reshape(g, N + 1, 3)
+        P_hi = hi[: self.nP].reshape(g, N + 1, 3)
+        P_lo[:, :, 2] = lim.min_alt
+        P_hi[:, :, 2] = lim.max_alt
+        # The start and goal may sit below min_alt (a landing grid): never tighter than them.
+        P_lo[:, :, 2] = np.minimum(P_lo[:, :, 2], np.minimum(self.start[:, None, 2],
+                                                             self.goal[:, None, 2]))
+        # End states last: they are equalities and nothing may loosen them afterwards.
+        P_lo[:, 0], P_hi[:, 0] = self.start, self.start
+        P_lo[:, -1], P_hi[:, -1] = self.goal, self.goal
+        V_lo = lo[self.oV: self.oA].reshape(g, N + 1, 3)
+        V_hi = hi[self.oV: self.oA].reshape(g, N + 1, 3)
+        V_lo[:, :, :2], V_hi[:, :, :2] = -lim.max_speed_h, lim.max_speed_h
+        V_lo[:, :, 2], V_hi[:, :, 2] = -lim.max_speed_down, lim.max_speed_up
+        V_lo[:, [0, -1]] = 0.0
+        V_hi[:, [0, -1]] = 0.0
+        lo[self.oA: self.oS] = -lim.max_accel
+        hi[self.oA: self.oS] = lim.max_accel
+        lo[self.oS:] = 0.0
+        self._box_lo, self._box_hi = lo, hi
+        self.l[self.box_rows] = lo
+        self.u[self.box_rows] = hi
+
+    def linearise(self, P: FloatArray, V: FloatArray, A: FloatArray) -> None:
+        """Relinearise every iterate-dependent row around (P, V, A) and push to OSQP."""
+        g, N = self.g, self.N
+        # Speed tangent planes at interior steps: normal of the previous horizontal velocity.
+        ti, tk = self.tan_v
+        vh = V[ti, tk, :2]
+        nv = np.linalg.norm(vh, axis=1, keepdims=True)
+        n_h = np.where(nv > 1e-6, vh / np.maximum(nv, 1e-12), 0.0)
+        self._values[self.tan_v_coo] = np.concatenate([n_h[:, 0], n_h[:, 1]])
+        ai, ak = self.tan_a
+        av = A[ai, ak]
+        na = np.linalg.norm(av, axis=1, keepdims=True)
+        n_a = np.where(na > 1e-6, av / np.maximum(na, 1e-12), 0.0)
+        self._values[self.tan_a_coo] = n_a.T.ravel()
+        # Separation normals at segment midpoints (a straight line through the other
+        # drone gives a zero midpoint vector: fall back to the normal at a segment end,
+        # then to a fixed horizontal direction, so the row is never all zeros).
+        p = self.pairs
+        m = len(p.i)
+        lo = self._box_lo.copy()
+        hi = self._box_hi.copy()
+        if m:
+            rel = P[p.i] - P[p.j]  # (m, N+1, 3)
+            idx = np.arange(m)
+            mid = 0.5 * (rel[idx, p.k] + rel[idx, p.k + 1])
+            nrm = np.linalg.norm(mid, axis=1)
+            alt = rel[idx, p.k]
+            mid = np.where(nrm[:, None] > 1e-6, mid, alt)
+            nrm = np.linalg.norm(mid, axis=1)
+            fallback = np.tile([0.0, 1.0, 0.0], (m, 1))
+            n_sep = np.where(nrm[:, None] > 1e-6, mid / np.maximum(nrm, 1e-12)[:, None], fallback)
+            coef = np.concatenate([n_sep, n_sep], axis=0)  # both segment ends
+            self._values[self.sep_coo] = np.concatenate(
+                [coef[:, 0], coef[:, 1], coef[:, 2], -coef[:, 0], -coef[:, 1], -coef[:, 2]])
+        # Trust region on interior positions, inside the altitude box.
+        tr = self.trust_radius
+        P_lo = lo[: self.nP].reshape(g, N + 1, 3)
+        P_hi = hi[: self.nP].reshape(g, N + 1, 3)
+        P_lo[:, 1:-1] = np.maximum(P_lo[:, 1:-1], P[:, 1:-1] - tr)
+        P_hi[:, 1:-1] = np.minimum(P_hi[:, 1:-1], P[:, 1:-1] + tr)
+        self.l[self.box_rows] = lo
+        self.u[self.box_rows] = hi
+        self.A.data = self._values[self._csc_from_coo]
+        self.solver.update(Ax=self.A.data, l=self.l, u=self.u)
+        x0 = np.concatenate([P.ravel(), V.ravel(), A.ravel(), np.zeros(self.nS)])
+        self.solver.warm_start(x=x0)
+
+    def solve(self, transition: int) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Solve; return (P, V, A, slack).  Raises PlanningError unless OSQP solved it."""
+        x = solve_checked(self.solver, transition, f"{self.g} drones, {self.N} steps, "
+                                                   f"{len(self.pairs.i)} pair-segments")
+        g, N = self.g, self.N
+        P = x[: self.nP].reshape(g, N + 1, 3).copy()
+        V = x[self.oV: self.oA].reshape(g, N + 1, 3).copy()
+        A = x[self.oA: self.oS].reshape(g, N, 3).copy()
+        S = x[self.oS:].copy()
+        return P, V, A, S

@@ -1,0 +1,324 @@
+"""SCP for the paper's unicycle model: constant speed V, turn rate |u| <= V / r_min.
+
+Per drone: positions p (N+1, 2), headings theta (N+1), turn rates u (N) and a
+terminal slack e (2).  The dynamics
+
+    p[k+1] = p[k] + dt V [cos theta[k], sin theta[k]],   theta[k+1] = theta[k] + dt u[k]
+
+are linearised around the previous iterate's headings; after every QP the
+headings are rolled out through the *nonlinear* dynamics, so each iterate
+(and the result) flies at exactly V.  The pattern constraint
+|p[N] - target| <= eps is a box of half-width eps/sqrt(2) softened by a
+penalised slack, and separation uses the same segment rows as the quadrotor.
+
+Initial guess.  The paper starts from the straight line.  With constant speed
+that is a stationary point whenever the straight distance d is shorter than
+V T: along the line, the first-order change of the along-track distance with
+heading is zero, so the linearised QP can never shorten the path and the SCP
+stalls with a terminal error of V T - d.  We therefore start from the line
+plus a heading weave theta = theta_line + a sin(2 pi t / T) whose amplitude
+solves J0(a) = d / (V T): its mean along-track speed is exactly d / T and its
+lateral drift integrates to zero, so the guess ends on the target.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import osqp
+import scipy.sparse as sp
+from numpy.typing import NDArray
+from scipy.optimize import brentq
+from scipy.special import j0
+
+from groundctl.errors import InfeasibleTransition, PlanningError
+from groundctl.plan.conflicts import close_pair_segments, segment_keys, widen
+from groundctl.plan.quad_qp import SLACK_WEIGHT, RowBuilder, solve_checked
+from groundctl.plan.scp_quad import OSQP_SETTINGS, SLACK_TOL, TransitionResult
+from groundctl.plan.trajectory import Trajectories
+from groundctl.show.model import Limits, PlannerSettings, UnicycleModel
+
+FloatArray = NDArray[np.float64]
+
+#: Weight of the terminal slack (m^-2): the pattern error dominates any effort.
+TERMINAL_WEIGHT = 1e3
+#: Max heading change per SCP iteration, rad (keeps the linearisation honest).
+HEADING_TRUST = 0.5
+#: A pair-segment closer than separation + NEED_MARGIN must have QP rows (m).
+NEED_MARGIN = 0.3
+#: When the QP is (re)built, rows go to every pair-segment within separation + this (m).
+BUILD_MARGIN = 1.5
+#: Factor applied to the heading trust region after every feasible iteration.
+TRUST_DECAY = 0.5
+
+
+def _wrap(a: FloatArray) -> FloatArray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def rollout(p0: FloatArray, theta: FloatArray, speed: float, dt: float) -> FloatArray:
+    """Positions (n, N+1, 2) flown from ``p0`` (n, 2) with headings ``theta`` (n, N+1)."""
+    step = dt * speed * np.stack([np.cos(theta[:, :-1]), np.sin(theta[:, :-1])], axis=2)
+    return np.concatenate([p0[:, None, :], p0[:, None, :] + np.cumsum(step, axis=1)], axis=1)
+
+
+def initial_headings(start: FloatArray, goal: FloatArray, heading0: FloatArray,
+                     model: UnicycleModel, steps: int, dt: float) -> FloatArray:
+    """Line heading plus a length-matching weave, turning from the start heading first."""
+    delta = goal - start
+    d = np.linalg.norm(delta, axis=1)
+    line = np.arctan2(delta[:, 1], delta[:, 0])
+    total = model.speed * steps * dt
+    ratio = np.clip(d / total, 0.0, 1.0)
+    # J0 falls from 1 at 0 to 0 at 2.405: one root in between for every ratio in (0, 1).
+    amp = np.array([0.0 if r > 1 - 1e-9 else brentq(lambda a, r=r: j0(a) - r, 0.0, 2.4048)
+                    for r in ratio])
+    t = np.arange(steps + 1) * dt
+    phase = 2 * np.pi * t / (steps * dt)
+    desired = line[:, None] + amp[:, None] * np.sin(phase)[None, :]
+    # Follow the weave from the start heading without ever turning faster than the
+    # limit, so the guess itself is flyable and every trust region around it feasible.
+    theta = np.empty_like(desired)
+    theta[:, 0] = heading0
+    max_step = 0.95 * model.turn_rate_limit * dt
+    for k in range(steps):
+        turn = np.clip(_wrap(desired[:, k + 1] - theta[:, k]), -max_step, max_step)
+        theta[:, k + 1] = theta[:, k] + turn
+    return theta
+
+
+class UnicycleQP:
+    """The linearised unicycle QP for all drones of a transition (2D)."""
+
+    def __init__(self, start: FloatArray, goal: FloatArray, heading0: FloatArray, ref: FloatArray,
+                 model: UnicycleModel, steps: int, dt: float, d_sep: float, eps: float,
+                 segs: NDArray[np.int64], alpha: float, beta: float) -> None:
+        n, N = start.shape[0], steps
+        self.n, self.N, self.dt, self.model, self.eps = n, N, dt, model, eps
+        self.start, self.goal, self.heading0 = start, goal, heading0
+        self.segs = segs
+        m = len(segs)
+        self.nP = n * (N + 1) * 2
+        self.oT = self.nP
+        self.oU = self.oT + n * (N + 1)
+        self.oE = self.oU + n * N
+        self.oS = self.oE + 2 * n
+        self.nx = self.oS + m
+
+        Ints = NDArray[np.intp]
+
+        def ip(i: Ints, k: Ints, c: int | Ints) -> Ints:
+            return (i * (N + 1) + k) * 2 + c
+
+        def it(i: NDArray[np.intp], k: NDArray[np.intp]) -> NDArray[np.intp]:
+            return self.oT + i * (N + 1) + k
+
+        rows = RowBuilder()
+        gi, kk = (x.ravel() for x in np.meshgrid(np.arange(n), np.arange(N), indexing="ij"))
+        nd = len(gi)
+        self._dyn = (gi, kk)
+        r = np.arange(nd)
+        # Position dynamics, x then y rows: p[k+1] - p[k] - dt V perp(thbar) theta[k] = const.
+        self.dyn_rows, self.dyn_coo = rows.block(
+            2 * nd, np.concatenate([r, r, r, r + nd, r + nd, r + nd]),
+            np.concatenate([ip(gi, kk + 1, 0), ip(gi, kk, 0), it(gi, kk),
+                            ip(gi, kk + 1, 1), ip(gi, kk, 1), it(gi, kk)]),
+            np.concatenate([np.ones(nd), -np.ones(nd), np.zeros(nd),
+                            np.ones(nd), -np.ones(nd), np.zeros(nd)]))
+        self.th_rows, _ = rows.block(
+            nd, np.concatenate([r, r, r]),
+            np.concatenate([it(gi, kk + 1), it(gi, kk), self.oU + gi * N + kk]),
+            np.concatenate([np.ones(nd), -np.ones(nd), np.full(nd, -dt)]))
+        # Box rows only where a variable has bounds: interior positions are free, and an
+        # unbounded row still costs a row in OSQP's KKT factorisation.
+        pos_fixed = ip(np.repeat(np.arange(n), 2), np.zeros(2 * n, dtype=np.intp),
+                       np.tile([0, 1], n))
+        self._boxed = np.concatenate([pos_fixed, np.arange(self.oT, self.oE),
+                                      np.arange(self.oS, self.nx)])
+        nb = len(self._boxed)
+        self.box_rows, _ = rows.block(nb, np.arange(nb), self._boxed, np.ones(nb))
+        # Terminal box with slack: p[N] - e in target +- eps / sqrt(2).
+        ti = np.arange(n)
+        tr = np.concatenate([ti, ti, ti + n, ti + n])
+        self.term_rows, _ = rows.block(
+            2 * n, tr, np.concatenate([ip(ti, np.full(n, N), 0), self.oE + 2 * ti,
+                                       ip(ti, np.full(n, N), 1), self.oE + 2 * ti + 1]),
+            np.concatenate([np.ones(n), -np.ones(n), np.ones(n), -np.ones(n)]))
+        if m:
+            end = np.concatenate([segs[:, 2], segs[:, 2] + 1])
+            ii = np.concatenate([segs[:, 0], segs[:, 0]])
+            jj = np.concatenate([segs[:, 1], segs[:, 1]])
+            rr = np.arange(2 * m)
+            slack = self.oS + np.concatenate([np.arange(m), np.arange(m)])
+            self.sep_rows, sep_coo = rows.block(
+                2 * m, np.concatenate([np.tile(rr, 4), rr]),
+                np.concatenate([ip(ii, end, 0), ip(ii, end, 1), ip(jj, end, 0), ip(jj, end, 1),
+                                slack]),
+                np.ones(10 * m))
+            self.sep_coo = slice(sep_coo.start, sep_coo.start + 8 * m)
+        else:
+            self.sep_rows = slice(rows.count, rows.count)
+            self.sep_coo = slice(rows.nnz, rows.nnz)
+        self.n_rows = rows.count
+        r_all, c_all = np.concatenate(rows.r), np.concatenate(rows.c)
+        self._values = np.concatenate(rows.v)
+        marker = sp.csc_matrix((np.arange(1, len(r_all) + 1, dtype=float), (r_all, c_all)),
+                               shape=(self.n_rows, self.nx))
+        marker.sort_indices()
+        self._perm = marker.data.astype(np.intp) - 1
+        self.A = marker.copy()
+        self.A.data = self._values[self._perm]
+
+        cost = np.zeros(self.nx)
+        cost[: self.nP] = 2 * beta * dt
+        cost[self.oU: self.oE] = 2 * alpha * dt
+        cost[self.oE: self.oS] = 2 * TERMINAL_WEIGHT
+        cost[self.oS:] = 1e-3
+        self.P = sp.diags(cost, format="csc")
+        self.q = np.zeros(self.nx)
+        self.q[: self.nP] = -2 * beta * dt * ref.ravel()
+        self.q[self.oS:] = SLACK_WEIGHT
+        self.l = np.full(self.n_rows, -np.inf)
+        self.u = np.full(self.n_rows, np.inf)
+        self.l[self.th_rows] = 0.0
+        self.u[self.th_rows] = 0.0
+        # Half-width eps/2 rather than eps/sqrt(2): the rolled-out (nonlinear) end point
+        # differs a little from the QP's linear one and must still land within eps.
+        half = eps / 2
+        self.l[self.term_rows] = np.concatenate([goal[:, 0], goal[:, 1]]) - half
+        self.u[self.term_rows] = np.concatenate([goal[:, 0], goal[:, 1]]) + half
+        self.l[self.sep_rows] = d_sep
+        lo = np.full(self.nx, -np.inf)
+        hi = np.full(self.nx, np.inf)
+        Pl = lo[: self.nP].reshape(n, N + 1, 2)
+        Ph = hi[: self.nP].reshape(n, N + 1, 2)
+        Pl[:, 0], Ph[:, 0] = start, start
+        lo[self.oU: self.oE] = -model.turn_rate_limit
+        hi[self.oU: self.oE] = model.turn_rate_limit
+        lo[self.oS:] = 0.0
+        self._lo, self._hi = lo, hi
+        self.solver = osqp.OSQP()
+        self.solver.setup(P=self.P, q=self.q, A=self.A, l=self.l, u=self.u, **OSQP_SETTINGS)
+
+    def linearise(self, P: FloatArray, theta: FloatArray, trust: FloatArray) -> None:
+        n, N, dt, V = self.n, self.N, self.dt, self.model.speed
+        gi, kk = self._dyn
+        th = theta[gi, kk]
+        nd = len(gi)
+        vals = self._values[self.dyn_coo]
+        vals[2 * nd: 3 * nd] = dt * V * np.sin(th)  # x row: -(-sin) coefficient
+        vals[5 * nd: 6 * nd] = -dt * V * np.cos(th)
+        self._values[self.dyn_coo] = vals
+        cx = dt * V * (np.cos(th) + np.sin(th) * th)
+        cy = dt * V * (np.sin(th) - np.cos(th) * th)
+        self.l[self.dyn_rows] = np.concatenate([cx, cy])
+        self.u[self.dyn_rows] = np.concatenate([cx, cy])
+        segs = self.segs
+        if len(segs):
+            rel = P[segs[:, 0]] - P[segs[:, 1]]
+            idx = np.arange(len(segs))
+            mid = 0.5 * (rel[idx, segs[:, 2]] + rel[idx, segs[:, 2] + 1])
+            nrm = np.linalg.norm(mid, axis=1)
+            mid = np.where(nrm[:, None] > 1e-6, mid, rel[idx, segs[:, 2]])
+            nrm = np.linalg.norm(mid, axis=1)
+            nvec = np.where(nrm[:, None] > 1e-6, mid / np.maximum(nrm, 1e-12)[:, None],
+                            np.array([0.0, 1.0]))
+            c2 = np.concatenate([nvec, nvec])
+            self._values[self.sep_coo] = np.concatenate([c2[:, 0], c2[:, 1], -c2[:, 0],
+                                                         -c2[:, 1]])
+        lo, hi = self._lo.copy(), self._hi.copy()
+        Tl = lo[self.oT: self.oU].reshape(n, N + 1)
+        Th = hi[self.oT: self.oU].reshape(n, N + 1)
+        Tl[:] = theta - trust[:, None]
+        Th[:] = theta + trust[:, None]
+        Tl[:, 0] = Th[:, 0] = self.heading0
+        self.l[self.box_rows] = lo[self._boxed]
+        self.u[self.box_rows] = hi[self._boxed]
+        self.A.data = self._values[self._perm]
+        self.solver.update(Ax=self.A.data, l=self.l, u=self.u)
+
+    def solve(self, transition: int) -> tuple[FloatArray, FloatArray]:
+        x = solve_checked(self.solver, transition, f"unicycle, {self.n} drones, {self.N} steps")
+        theta = x[self.oT: self.oU].reshape(self.n, self.N + 1).copy()
+        slack = x[self.oS:]
+        return theta, slack
+
+
+def plan_unicycle_transition(index: int, name: str, start: FloatArray, goal: FloatArray,
+                             heading0: FloatArray, duration: float, altitude: float,
+                             limits: Limits, model: UnicycleModel,
+                             settings: PlannerSettings) -> tuple[TransitionResult, FloatArray]:
+    """Plan one constant-speed transition in the plane z = ``altitude``.
+
+    Returns the result and the final headings (the next transition starts there).
+    """
+    t0 = time.perf_counter()
+    s2, g2 = start[:, :2], goal[:, :2]
+    d = np.linalg.norm(g2 - s2, axis=1)
+    reach = model.speed * duration
+    if d.max() > reach + settings.pattern_tolerance:
+        worst = int(np.argmax(d))
+        raise InfeasibleTransition(
+            index, name, float(d[worst] / model.speed), duration,
+            f"drone {worst + 1} must cover {d[worst]:.1f} m at a constant {model.speed:.1f} m/s")
+    n = len(start)
+    steps = settings.steps or max(4, int(np.ceil(duration / settings.dt - 1e-9)))
+    dt = duration / steps
+    frac = np.linspace(0, 1, steps + 1)
+    ref = s2[:, None, :] + frac[None, :, None] * (g2 - s2)[:, None, :]
+    theta = initial_headings(s2, g2, heading0, model, steps, dt)
+    P = rollout(s2, theta, model.speed, dt)
+    d_sep = limits.min_separation + 0.05
+    qp: UnicycleQP | None = None
+    have = np.empty(0, dtype=np.int64)
+    iterations, slack_max, err = 0, 0.0, np.inf
+    trust = np.full(n, HEADING_TRUST)
+    errs = np.full(n, np.inf)
+    for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 (used after)
+        need = segment_keys(close_pair_segments(P, d_sep + NEED_MARGIN), n, steps)
+        if qp is None or not np.all(np.isin(need, have)):
+            # Rows for every pair-segment that is anywhere near: generous, so that the
+            # QP (and OSQP's factorisation and warm start) survives many iterations.
+            built = widen(close_pair_segments(P, d_sep + BUILD_MARGIN), steps, 3)
+            have = segment_keys(built, n, steps)
+            qp = UnicycleQP(s2, g2, heading0, ref, model, steps, dt, d_sep,
+                            settings.pattern_tolerance, built, settings.alpha, settings.beta)
+        qp.linearise(P, theta, trust)
+        new_theta, slack = qp.solve(index)
+        P_new = rollout(s2, new_theta, model.speed, dt)
+        change = float(np.abs(P_new - P).max())
+        theta, P = new_theta, P_new
+        slack_max = float(slack.max(initial=0.0))
+        prev_errs, errs = errs, np.linalg.norm(P[:, -1] - g2, axis=1)
+        err = float(errs.max())
+        # Per-drone trust regions: a drone whose end point got worse overshot (the
+        # linearisation promised more than the nonlinear rollout gave) and gets half
+        # the room; one that improved gets a little more; once the whole fleet is
+        # feasible every region shrinks fast so the last iterations only polish.
+        if err <= settings.pattern_tolerance and slack_max < SLACK_TOL:
+            trust = np.maximum(trust * TRUST_DECAY, 1e-3)
+        else:
+            worse = errs > prev_errs
+            trust = np.where(worse, np.maximum(trust * 0.5, 1e-3),
+                             np.minimum(trust * 1.2, HEADING_TRUST))
+        if change < settings.tolerance and slack_max < SLACK_TOL \
+                and err <= settings.pattern_tolerance:
+            break
+    if err > settings.pattern_tolerance or slack_max >= SLACK_TOL:
+        raise PlanningError(index, "did not converge",
+                            f"pattern error {err:.2f} m, separation slack {slack_max:.3f} m "
+                            f"after {iterations} SCP iterations")
+    # Knot velocities along the polyline's tangent (mean of the two segment headings).
+    head = theta.copy()
+    head[:, 1:-1] = np.arctan2(np.sin(theta[:, :-2]) + np.sin(theta[:, 1:-1]),
+                               np.cos(theta[:, :-2]) + np.cos(theta[:, 1:-1]))
+    vel2 = model.speed * np.stack([np.cos(head), np.sin(head)], axis=2)
+    pos = np.concatenate([P, np.full((n, steps + 1, 1), altitude)], axis=2)
+    vel = np.concatenate([vel2, np.zeros((n, steps + 1, 1))], axis=2)
+    times = np.linspace(0.0, duration, steps + 1)
+    result = TransitionResult(
+        index=index, name=name, trajectories=Trajectories(times, pos, vel), steps=steps,
+        iterations=iterations, seconds=time.perf_counter() - t0, qp_drones=n, groups=1,
+        max_slack=slack_max, straight_length=float(d.mean()))
+    return result, theta[:, -1]

@@ -1,0 +1,93 @@
+"""The SCP separates drones whose straight lines collide, within the limits."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from groundctl.errors import InfeasibleTransition
+from groundctl.plan.assign import assign
+from groundctl.plan.profile import rest_to_rest
+from groundctl.plan.scp_quad import plan_quad_transition
+from groundctl.plan.scp_unicycle import plan_unicycle_transition, rollout
+from groundctl.show.model import Limits, PlannerSettings, UnicycleModel
+
+LIM = Limits(min_separation=1.5, min_alt=0.0, max_alt=100.0)
+
+
+def min_pair_distance(tr) -> float:  # type: ignore[no-untyped-def]
+    pos, _, _ = tr.evaluate(tr.dense_times(40))
+    i, j = np.triu_indices(tr.drones, 1)
+    return float(np.linalg.norm(pos[i] - pos[j], axis=2).min())
+
+
+def test_head_on_swap_is_separated_in_continuous_time() -> None:
+    start = np.array([[-5.0, 0, 10], [5.0, 0, 10]])
+    res = plan_quad_transition(1, "swap", start, start[::-1].copy(), 10.0, LIM, PlannerSettings())
+    tr = res.trajectories
+    # Straight lines would meet at the centre; the plan keeps 1.5 m everywhere.
+    assert min_pair_distance(tr) >= 1.5 - 1e-3
+    assert np.allclose(tr.pos[:, 0], start) and np.allclose(tr.pos[:, -1], start[::-1])
+    assert np.allclose(tr.vel[:, [0, -1]], 0.0)
+    _, vel, acc = tr.evaluate(tr.dense_times(20))
+    assert np.linalg.norm(vel[..., :2], axis=2).max() <= LIM.max_speed_h * 1.005
+    assert np.linalg.norm(acc, axis=2).max() <= LIM.max_accel * 1.005
+    assert res.qp_drones == 2
+
+
+def test_eight_drones_crossing_through_the_centre() -> None:
+    ang = np.arange(8) * np.pi / 4
+    start = np.column_stack([8 * np.cos(ang), 8 * np.sin(ang), np.full(8, 10.0)])
+    goal = start.copy()
+    goal[:, :2] *= -1
+    res = plan_quad_transition(1, "cross", start, goal, 12.0, LIM, PlannerSettings())
+    assert min_pair_distance(res.trajectories) >= 1.5 - 1e-3
+    assert res.max_slack < 5e-3
+
+
+def test_far_apart_drones_need_no_qp_and_fly_the_reference() -> None:
+    start = np.array([[0.0, 0, 10], [20.0, 0, 10]])
+    goal = start + np.array([0.0, 10, 0])
+    res = plan_quad_transition(1, "apart", start, goal, 10.0, LIM, PlannerSettings())
+    assert res.qp_drones == 0
+    prof = rest_to_rest(res.steps, 10.0 / res.steps)
+    expected = start[:, None] + prof.s[None, :, None] * (goal - start)[:, None]
+    assert np.allclose(res.trajectories.pos, expected)
+
+
+def test_too_short_transition_names_the_minimum_time() -> None:
+    start = np.array([[0.0, 0, 10]])
+    with pytest.raises(InfeasibleTransition) as err:
+        far = start + np.array([100.0, 0, 0])
+        plan_quad_transition(2, "far", start, far, 5.0, LIM, PlannerSettings())
+    assert err.value.needed_time == pytest.approx(100 / 5 + 5 / 3)
+    assert "transition 2 into 'far'" in str(err.value)
+    assert "needs at least 21.7 s but has 5.0 s" in str(err.value)
+
+
+def test_assignment_minimises_squared_distance() -> None:
+    start = np.array([[0.0, 0], [10.0, 0]])
+    slots = np.array([[11.0, 0], [1.0, 0], [50.0, 50]])
+    assert assign(start, slots).tolist() == [1, 0]
+    with pytest.raises(ValueError, match="`slots` has 1 points for 2 drones"):
+        assign(start, slots[:1])
+
+
+def test_unicycle_keeps_constant_speed_and_reaches_the_pattern() -> None:
+    start = np.array([[-15.0, 0.0, 0], [15.0, 0.0, 0], [0.0, -15.0, 0]])
+    goal = np.array([[12.0, 0.5, 0], [-12.0, -0.5, 0], [0.0, 12.0, 0]])
+    model = UnicycleModel(speed=2.0, r_min=1.5)
+    heading0 = np.array([0.0, np.pi, np.pi / 2])
+    lim = Limits(min_separation=1.0, min_alt=0.0)
+    settings = PlannerSettings(steps=80, pattern_tolerance=0.1)
+    res, _ = plan_unicycle_transition(1, "swap", start, goal, heading0, 15.0, 10.0, lim, model,
+                                      settings)
+    tr = res.trajectories
+    assert np.linalg.norm(tr.pos[:, -1, :2] - goal[:, :2], axis=1).max() <= 0.1
+    assert min_pair_distance(tr) >= 1.0
+    lengths = tr.path_lengths()
+    assert lengths == pytest.approx(np.full(3, 30.0), rel=0.01)
+    # The knots lie exactly on the nonlinear constant-speed rollout.
+    theta = np.arctan2(np.diff(tr.pos[:, :, 1]), np.diff(tr.pos[:, :, 0]))
+    theta = np.concatenate([theta, theta[:, -1:]], axis=1)
+    assert np.allclose(rollout(start[:, :2], theta, 2.0, 15.0 / 80), tr.pos[:, :, :2], atol=1e-9)
