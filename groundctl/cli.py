@@ -17,7 +17,7 @@ from groundctl import __version__
 from groundctl.errors import EXIT_ABORTED, GroundctlError
 
 #: Verb modules under groundctl.commands, in the order ``--help`` lists them.
-COMMANDS = ("plan", "check", "sim", "dry_run", "fly")
+COMMANDS = ("plan", "check", "sim")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,13 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="more log output on stderr (-vv for debug)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"groundctl.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"groundctl.commands.{name}":
-                raise
-            continue  # verb not built yet in this checkout
-        module.add_parser(sub)
+        importlib.import_module(f"groundctl.commands.{name}").add_parser(sub)
     return parser
 
 
