@@ -143,6 +143,11 @@ def window_metrics(tr: Trajectories, limits: Limits, t0: float, t1: float) -> Wi
     speed_h = np.linalg.norm(vel[..., :2], axis=2)
     vmax = float(np.linalg.norm(vel, axis=2).max())
     sep, pair, tsep = _separation(sub, limits.min_separation, vmax, t0, t1)
+    if not np.isfinite(sep) and sub.drones >= 2:
+        # Nobody came near anybody: report the closest pair at the window's start.
+        dist, idx = cKDTree(sub.pos[:, 0]).query(sub.pos[:, 0], k=2)
+        q = int(np.argmin(dist[:, 1]))
+        sep, pair, tsep = float(dist[q, 1]), (q + 1, int(idx[q, 1]) + 1), float(sub.times[0])
     outside = 0
     if limits.geofence:
         poly = np.asarray(limits.geofence, dtype=float)
