@@ -70,6 +70,8 @@ class ParseResult:
     """Well-formed, correctly signed (if signing is on) messages, in order."""
     bad: list[str] = field(default_factory=list)
     """One reason per rejected piece: bad prefix, CRC, length, signature, truncation."""
+    unknown: int = 0
+    """Well-formed packets of messages our dialect does not know (ignored)."""
 
 
 class DatagramParser:
@@ -92,7 +94,7 @@ class DatagramParser:
                 result.bad.append(str(msg.reason))
             elif isinstance(msg, mavlink.MAVLink_unknown):
                 # A message our dialect lacks: well-formed, just not ours to read.
-                continue
+                result.unknown += 1
             else:
                 result.messages.append(msg)
         if self.mav.buf_len() > 0:

@@ -75,6 +75,8 @@ class LinkStats:
     """Malformed, truncated or badly signed pieces."""
     unknown_system_packets: int = 0
     """Packets from system ids outside ``expected_ids``."""
+    unknown_messages: int = 0
+    """Well-formed packets of messages our dialect does not know, ignored."""
     address_conflicts: int = 0
     """Packets from a known system id arriving from an unexpected address."""
     foreign_packets: int = 0
@@ -228,6 +230,7 @@ class FleetLink:
         result = self._parser(addr).feed(data)
         for reason in result.bad:
             self._bad_packet(addr, reason)
+        self.stats.unknown_messages += result.unknown
         for msg in result.messages:
             self.stats.packets += 1
             if self.tlog is not None:

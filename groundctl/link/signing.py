@@ -29,6 +29,9 @@ class SigningConfig:
     """Our link id (0-255), written into every signature we produce."""
     allow_unsigned: bool = False
     """Accept unsigned incoming packets too (migration aid); signed ones are still checked."""
+    unsigned_ok: frozenset[int] = frozenset()
+    """Message ids accepted unsigned even when ``allow_unsigned`` is off (ArduPilot lets
+    RADIO_STATUS from a local radio modem through, GCS_Signing.cpp)."""
 
     def __post_init__(self) -> None:
         if len(self.key) != 32:
@@ -55,5 +58,5 @@ def apply_signing(
     mav.signing.link_id = config.link_id
     mav.signing.sign_outgoing = True
     mav.signing.timestamp = signing_timestamp(wall())
-    allow = config.allow_unsigned
-    mav.signing.allow_unsigned_callback = lambda _mav, _msgid: allow
+    allow, always = config.allow_unsigned, config.unsigned_ok
+    mav.signing.allow_unsigned_callback = lambda _mav, msgid: allow or msgid in always

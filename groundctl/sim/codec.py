@@ -1,24 +1,24 @@
-"""One vehicle's MAVLink codec: pymavlink encodes and decodes, sockets live elsewhere.
+"""One simulated vehicle's MAVLink codec, with the counters an autopilot keeps.
 
-One ``MAVLink(None, ...)`` object per vehicle keeps that vehicle's sequence
-numbers, parser state and signing state, as skybrush-server's channel does per
-peer.  Every datagram is parsed on its own: UDP keeps packet boundaries, so a
-truncated packet must not swallow the start of the next datagram.
+The codec itself is the link layer's (:mod:`groundctl.link.codec`): one
+pymavlink ``MAVLink(None, ...)`` object per vehicle, used only to encode and
+decode, each datagram parsed on its own, nothing ever raised on bad input.  A
+vehicle and the ground station must frame, sign and reject packets the same
+way, so they share that code rather than each having its own.
 """
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-#: Signing timestamps count 10 µs units since 2015-01-01 00:00:00 UTC.
-_SIGNING_EPOCH = 1420070400
+from groundctl.link.codec import DatagramParser, Encoder, new_codec
+from groundctl.link.signing import SigningConfig
 
 #: ArduPilot accepts these unsigned even with signing on (GCS_Signing.cpp): radio
 #: status from a local radio modem.
-_UNSIGNED_OK = frozenset({mavlink.MAVLINK_MSG_ID_RADIO_STATUS})
+UNSIGNED_OK = frozenset({mavlink.MAVLINK_MSG_ID_RADIO_STATUS})
 
 
 @dataclass
@@ -39,58 +39,27 @@ class VehicleCodec:
     """Encoder/decoder for one vehicle (system id ``sysid``, component 1)."""
 
     def __init__(self, sysid: int, signing_key: bytes | None = None) -> None:
-        self.mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
-        self.mav.robust_parsing = True
+        signing = None if signing_key is None else SigningConfig(signing_key,
+                                                                 unsigned_ok=UNSIGNED_OK)
+        self.mav = new_codec(sysid, 1, signing)
+        self._encoder = Encoder(self.mav)
+        self._parser = DatagramParser(self.mav)
         self.counters = CodecCounters()
-        if signing_key is not None:
-            self.mav.signing.secret_key = signing_key
-            self.mav.signing.sign_outgoing = True
-            self.mav.signing.timestamp = int((time.time() - _SIGNING_EPOCH) * 100_000)
-            self.mav.signing.allow_unsigned_callback = _allow_unsigned
 
     def decode(self, data: bytes) -> list[mavlink.MAVLink_message]:
         """Messages in one datagram; anything unusable is counted, never raised."""
-        mav = self.mav
-        # A fresh parse per datagram: drop whatever a previous bad datagram left.
-        mav.buf = bytearray()
-        mav.buf_index = 0
-        mav.expected_length = mavlink.HEADER_LEN_V1 + 2
-        mav.have_prefix_error = False
-        out: list[mavlink.MAVLink_message] = []
-        try:
-            msg = mav.parse_char(data)
-            while msg is not None:
-                self._accept(msg, out)
-                msg = mav.parse_char(b"")
-        except mavlink.MAVError as exc:
-            if "signature" in str(exc):
+        result = self._parser.feed(data)
+        for reason in result.bad:
+            if "signature" in reason:
                 self.counters.rejected_signature += 1
             else:
                 self.counters.bad_packets += 1
-        except Exception:  # a bad packet must never take a vehicle down
-            self.counters.bad_packets += 1
-        if mav.buf_len() > 0:
-            self.counters.bad_packets += 1  # a truncated packet at the end of the datagram
-        return out
-
-    def _accept(self, msg: mavlink.MAVLink_message, out: list[mavlink.MAVLink_message]) -> None:
-        if isinstance(msg, mavlink.MAVLink_bad_data):
-            # robust_parsing turns decode errors, bad signatures included, into BAD_DATA.
-            if "signature" in str(getattr(msg, "reason", "")):
-                self.counters.rejected_signature += 1
-            else:
-                self.counters.bad_packets += 1
-            return
-        self.counters.packets_in += 1
-        out.append(msg)
+        # A real autopilot drops messages it has no definition for: count them as bad.
+        self.counters.bad_packets += result.unknown
+        self.counters.packets_in += len(result.messages)
+        return result.messages
 
     def encode(self, msg: mavlink.MAVLink_message) -> bytes:
         """Wire bytes of ``msg`` (MAVLink 2, signed when a key is set)."""
-        data = msg.pack(self.mav)
-        self.mav.seq = (self.mav.seq + 1) % 256
         self.counters.packets_out += 1
-        return data
-
-
-def _allow_unsigned(mav: mavlink.MAVLink, msgid: int) -> bool:
-    return msgid in _UNSIGNED_OK
+        return self._encoder.encode(msg)
