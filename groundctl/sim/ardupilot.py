@@ -23,14 +23,12 @@ from typing import ClassVar
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from groundctl.link.flavours import MODE_FLAG_CUSTOM, Flavour, mode_from_set_mode
+from groundctl.link.flavours import Flavour
 from groundctl.sim import physics as P
 from groundctl.sim.vehicle import (
     ACCEPTED,
     FAILED,
     FORCE_MAGIC,
-    UNSUPPORTED,
-    Msg,
     Setpoint,
     Vehicle,
     as_int,
@@ -50,6 +48,9 @@ class ArduPilotVehicle(Vehicle):
     """A simulated ArduCopter."""
 
     flavour = Flavour.ARDUPILOT
+    unknown_mode_result = FAILED
+    land_mode = "LAND"
+    rtl_mode = "RTL"
     boot_mode = "STABILIZE"
     guided_modes: ClassVar[frozenset[str]] = frozenset({"GUIDED", "AUTO", "RTL", "LAND",
                                                         "SMART_RTL"})
@@ -72,27 +73,6 @@ class ArduPilotVehicle(Vehicle):
         self.statustext(info, "EKF3 IMU0 is using GPS")
 
     # -- commands -----------------------------------------------------------------------------
-
-    def command(self, msg: Msg, cmd: int, p: list[float], now: float) -> int:
-        if cmd == mavlink.MAV_CMD_DO_SET_MODE:
-            if not as_int(p[0]) & MODE_FLAG_CUSTOM:
-                return FAILED
-            return self.request_mode(p[1], p[2], now)
-        if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
-            return self._arm_disarm(p, now)
-        if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
-            return self._takeoff(p[6], now)
-        if cmd == mavlink.MAV_CMD_NAV_LAND:
-            return self.set_mode("LAND", now)
-        if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
-            return self.set_mode("RTL", now)
-        return UNSUPPORTED
-
-    def request_mode(self, param2: float, param3: float, now: float) -> int:
-        name = mode_from_set_mode(self.flavour, param2, param3)
-        if name is None:
-            return FAILED
-        return self.set_mode(name, now)
 
     def set_mode(self, name: str, now: float) -> int:
         """Switch to mode ``name`` if its checks pass; returns the MAV_RESULT."""

@@ -26,14 +26,12 @@ from typing import ClassVar
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from groundctl.link.flavours import MODE_FLAG_CUSTOM, Flavour, mode_from_set_mode
+from groundctl.link.flavours import Flavour
 from groundctl.sim import physics as P
 from groundctl.sim.vehicle import (
     ACCEPTED,
     FORCE_MAGIC,
     TEMP_REJECTED,
-    UNSUPPORTED,
-    Msg,
     Setpoint,
     Vehicle,
     as_int,
@@ -67,6 +65,8 @@ class PX4Vehicle(Vehicle):
     """A simulated PX4 multicopter."""
 
     flavour = Flavour.PX4
+    land_mode = "AUTO.LAND"
+    rtl_mode = "AUTO.RTL"
     boot_mode = "AUTO.LOITER"
     guided_modes: ClassVar[frozenset[str]] = frozenset({
         "OFFBOARD", "AUTO.TAKEOFF", "AUTO.LOITER", "AUTO.MISSION", "AUTO.RTL", "AUTO.LAND"})
@@ -92,27 +92,6 @@ class PX4Vehicle(Vehicle):
         self.statustext(mavlink.MAV_SEVERITY_INFO, "[ekf2] EKF origin set, GNSS fusion started")
 
     # -- commands -----------------------------------------------------------------------------
-
-    def command(self, msg: Msg, cmd: int, p: list[float], now: float) -> int:
-        if cmd == mavlink.MAV_CMD_DO_SET_MODE:
-            if not as_int(p[0]) & MODE_FLAG_CUSTOM:
-                return UNSUPPORTED
-            return self.request_mode(p[1], p[2], now)
-        if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
-            return self._arm_disarm(p, now)
-        if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
-            return self._takeoff(p[6], now)
-        if cmd == mavlink.MAV_CMD_NAV_LAND:
-            return self.set_mode("AUTO.LAND", now)
-        if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
-            return self.set_mode("AUTO.RTL", now)
-        return UNSUPPORTED
-
-    def request_mode(self, param2: float, param3: float, now: float) -> int:
-        name = mode_from_set_mode(self.flavour, param2, param3)
-        if name is None:
-            return UNSUPPORTED
-        return self.set_mode(name, now)
 
     def _refuse_mode(self, name: str) -> int:
         self.statustext(mavlink.MAV_SEVERITY_CRITICAL,

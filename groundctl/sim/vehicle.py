@@ -21,7 +21,7 @@ from typing import ClassVar
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from groundctl.link.flavours import Flavour, encode_mode
+from groundctl.link.flavours import MODE_FLAG_CUSTOM, Flavour, encode_mode, mode_from_set_mode
 from groundctl.sim import physics as P
 from groundctl.sim import telemetry as T
 from groundctl.sim.config import SimConfig
@@ -74,6 +74,11 @@ class Vehicle:
     guided_modes: ClassVar[frozenset[str]] = frozenset()
     #: Whether LED_CONTROL (an ardupilotmega message) does anything.
     supports_led: ClassVar[bool] = True
+    #: MAV_RESULT for DO_SET_MODE without the custom flag or with an unknown mode.
+    unknown_mode_result: ClassVar[int] = UNSUPPORTED
+    #: Modes MAV_CMD_NAV_LAND and MAV_CMD_NAV_RETURN_TO_LAUNCH switch to.
+    land_mode: ClassVar[str]
+    rtl_mode: ClassVar[str]
 
     def __init__(self, index: int, sysid: int, config: SimConfig, physics: P.FleetPhysics,
                  frames: FleetFrames, boot_time: float, unix_at_boot: float) -> None:
@@ -398,7 +403,24 @@ class Vehicle:
             self.ack(msg, self.command(msg, cmd, p, now))
 
     def command(self, msg: Msg, cmd: int, p: list[float], now: float) -> int:
-        """Flavour-specific commands; returns the MAV_RESULT to ACK."""
+        """Mode, arming, takeoff, land and RTL commands; returns the MAV_RESULT to ACK.
+
+        Both autopilots take the same commands; what differs (which checks pass,
+        which mode LAND and RTL mean, how a refusal is coded) lives in the
+        flavour's hooks and class attributes.
+        """
+        if cmd == mavlink.MAV_CMD_DO_SET_MODE:
+            if not as_int(p[0]) & MODE_FLAG_CUSTOM:
+                return self.unknown_mode_result
+            return self.request_mode(p[1], p[2], now)
+        if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+            return self._arm_disarm(p, now)
+        if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
+            return self._takeoff(p[6], now)
+        if cmd == mavlink.MAV_CMD_NAV_LAND:
+            return self.set_mode(self.land_mode, now)
+        if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            return self.set_mode(self.rtl_mode, now)
         return UNSUPPORTED
 
     def _cmd_message_interval(self, msg: Msg, p: list[float], now: float) -> None:
@@ -531,6 +553,21 @@ class Vehicle:
 
     def request_mode(self, param2: float, param3: float, now: float) -> int:
         """DO_SET_MODE with the custom-mode flag: returns the MAV_RESULT."""
+        name = mode_from_set_mode(self.flavour, param2, param3)
+        if name is None:
+            return self.unknown_mode_result
+        return self.set_mode(name, now)
+
+    def set_mode(self, name: str, now: float) -> int:
+        """Switch to mode ``name`` if the flavour's checks pass; returns the MAV_RESULT."""
+        return UNSUPPORTED
+
+    def _arm_disarm(self, p: list[float], now: float) -> int:
+        """COMPONENT_ARM_DISARM (p1 = 1 arms, p2 = 21196 forces)."""
+        return UNSUPPORTED
+
+    def _takeoff(self, alt: float, now: float) -> int:
+        """NAV_TAKEOFF with param7 ``alt`` (its meaning differs per flavour)."""
         return UNSUPPORTED
 
     _HANDLERS: ClassVar[dict[str, Callable[[Vehicle, Msg, float], None]]] = {}
