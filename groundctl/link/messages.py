@@ -63,6 +63,19 @@ def position_type_mask(
     return mask
 
 
+def _feed_forward(
+    vel_ned: Vec3 | None, acc_ned: Vec3 | None, yaw: float | None, yaw_rate: float | None
+) -> tuple[tuple[float, float, float], tuple[float, float, float], int]:
+    """Velocity, acceleration (zeros where absent) and the type_mask of a position target."""
+    mask = position_type_mask(
+        velocity=vel_ned is not None,
+        acceleration=acc_ned is not None,
+        yaw=yaw is not None,
+        yaw_rate=yaw_rate is not None,
+    )
+    return _vec3("vel_ned", vel_ned), _vec3("acc_ned", acc_ned), mask
+
+
 def position_target_local_ned(
     target_system: int,
     time_boot_ms: int,
@@ -79,14 +92,7 @@ def position_target_local_ned(
     show coordinates per vehicle.
     """
     x, y, z = _vec3("pos_ned", pos_ned)
-    vx, vy, vz = _vec3("vel_ned", vel_ned)
-    ax, ay, az = _vec3("acc_ned", acc_ned)
-    mask = position_type_mask(
-        velocity=vel_ned is not None,
-        acceleration=acc_ned is not None,
-        yaw=yaw is not None,
-        yaw_rate=yaw_rate is not None,
-    )
+    (vx, vy, vz), (ax, ay, az), mask = _feed_forward(vel_ned, acc_ned, yaw, yaw_rate)
     return mavlink.MAVLink_set_position_target_local_ned_message(
         int(time_boot_ms) & 0xFFFFFFFF, target_system, target_component,
         mavlink.MAV_FRAME_LOCAL_NED, mask,
@@ -125,14 +131,7 @@ def position_target_global_int(
         raise ValueError(f"`lat_deg` must be in -90..90, got {lat_deg}")
     if not -180.0 <= lon_deg <= 180.0:
         raise ValueError(f"`lon_deg` must be in -180..180, got {lon_deg}")
-    vx, vy, vz = _vec3("vel_ned", vel_ned)
-    ax, ay, az = _vec3("acc_ned", acc_ned)
-    mask = position_type_mask(
-        velocity=vel_ned is not None,
-        acceleration=acc_ned is not None,
-        yaw=yaw is not None,
-        yaw_rate=yaw_rate is not None,
-    )
+    (vx, vy, vz), (ax, ay, az), mask = _feed_forward(vel_ned, acc_ned, yaw, yaw_rate)
     return mavlink.MAVLink_set_position_target_global_int_message(
         int(time_boot_ms) & 0xFFFFFFFF, target_system, target_component, frame, mask,
         round(lat_deg * 1e7), round(lon_deg * 1e7), float(alt_m),
