@@ -8,6 +8,8 @@ the collision-avoidance step to fix (Turpin, Michael, Kumar: CAPT).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
@@ -33,3 +35,19 @@ def assign(start: NDArray[np.float64], slots: NDArray[np.float64]) -> NDArray[np
     goal = np.empty(start.shape[0], dtype=np.intp)
     goal[rows] = cols
     return goal
+
+
+def assign_chain(start: NDArray[np.float64],
+                 formations: Sequence[NDArray[np.float64]]) -> list[NDArray[np.intp]]:
+    """Slot index per drone for each formation in turn (show order).
+
+    The first formation is assigned from ``start``, each later one from the
+    slots the drones were given in the previous one.
+    """
+    chain = []
+    prev = np.asarray(start, dtype=float)
+    for slots in formations:
+        idx = assign(prev, slots)
+        chain.append(idx)
+        prev = np.asarray(slots, dtype=float)[idx]
+    return chain

@@ -69,7 +69,7 @@ def min_transition_time(start: NDArray[np.float64], goal: NDArray[np.float64],
     else:
         vlim = line_speed_limits(delta, limits)
         times = rest_to_rest_time(dist, vlim, limits.max_accel)
-    worst = int(np.argmax(times)) if len(times) else 0
     if not len(times):
         return TimeBound(0.0, 0, 0.0, 0.0)
+    worst = int(np.argmax(times))
     return TimeBound(float(times[worst]), worst, float(dist[worst]), float(vlim[worst]))

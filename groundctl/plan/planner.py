@@ -17,8 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from groundctl.errors import ShowFileError
-from groundctl.plan.assign import assign
+from groundctl.plan.assign import assign_chain
 from groundctl.plan.plan import FormationWindow, Plan
 from groundctl.plan.scp_quad import TransitionResult, plan_quad_transition
 from groundctl.plan.scp_unicycle import plan_unicycle_transition
@@ -50,17 +49,9 @@ class PlanResult:
 
 
 def _chain(show: Show) -> tuple[list[FloatArray], list[NDArray[np.intp]]]:
-    """Assigned goals of every formation, each from the previous formation's goals."""
-    prev = show.start_positions
-    goals, slots_of = [], []
-    for f in show.formations:
-        if len(f.points) < show.drones:
-            raise ShowFileError(show.source or show.name, f"formation {f.index} '{f.name}'",
-                                f"{show.drones} drones but the shape has {len(f.points)} points")
-        idx = assign(prev, f.points)
-        prev = f.points[idx]
-        goals.append(prev)
-        slots_of.append(idx)
+    """Assigned goals and slot indices of every formation, in show order."""
+    slots_of = assign_chain(show.start_positions, [f.points for f in show.formations])
+    goals = [f.points[idx] for f, idx in zip(show.formations, slots_of, strict=True)]
     return goals, slots_of
 
 
@@ -122,8 +113,9 @@ def plan_show(show: Show, workers: int | None = None,
         end = arrive
         if f.hold_s > 0:
             if isinstance(show.model, UnicycleModel):
-                raise ShowFileError(show.source or show.name, f"formation {f.index} '{f.name}'",
-                                    "'hold' must be 0 for the unicycle model (it cannot hover)")
+                # The loader refuses this in show files; a Show built in code may not.
+                raise ValueError(f"formation {f.index} '{f.name}': `hold_s` must be 0 for the "
+                                 "unicycle model (it cannot hover)")
             parts.append(hold(res.trajectories.pos[:, -1], arrive, f.hold_s))
             end = arrive + f.hold_s
             key_t.append(end)

@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 
 from groundctl.errors import PlanningError
 from groundctl.plan.profile import JERK_WEIGHT
+from groundctl.plan.qp_build import FixedPattern, RowBuilder, segment_normals
 from groundctl.show.model import Limits
 
 FloatArray = NDArray[np.float64]
@@ -80,30 +81,6 @@ class PairSegments:
     """(m,) second drone."""
     k: IntArray
     """(m,) segment index: the segment runs from step k to step k+1."""
-
-
-class RowBuilder:
-    """Accumulates COO triplets and bounds, block by block."""
-
-    def __init__(self) -> None:
-        self.r: list[IntArray] = []
-        self.c: list[IntArray] = []
-        self.v: list[FloatArray] = []
-        self.count = 0
-
-        self.nnz = 0
-
-    def block(self, nrows: int, rows: IntArray, cols: IntArray,
-              vals: FloatArray) -> tuple[slice, slice]:
-        """Append a block; return its row range and its range in the triplet arrays."""
-        self.r.append(rows + self.count)
-        self.c.append(cols)
-        self.v.append(vals)
-        row_range = slice(self.count, self.count + nrows)
-        coo_range = slice(self.nnz, self.nnz + len(vals))
-        self.count += nrows
-        self.nnz += len(vals)
-        return row_range, coo_range
 
 
 class GroupQP:
@@ -151,7 +128,7 @@ class GroupQP:
                                                       indexing="ij"))
         nd = len(gi)
         r = np.arange(nd)
-        self.dyn_rows, _ = rows.block(nd, np.tile(r, 4),
+        rows.block(nd, np.tile(r, 4),
                    np.concatenate([self._ip(gi, kk + 1, cc), self._ip(gi, kk, cc),
                                    self._iv(gi, kk, cc), self._ia(gi, kk, cc)]),
                    np.concatenate([np.ones(nd), -np.ones(nd), np.full(nd, -dt),
@@ -198,18 +175,9 @@ class GroupQP:
             self.sep_coo = slice(rows.nnz, rows.nnz)
 
         self.n_rows = rows.count
-        r_all = np.concatenate(rows.r)
-        c_all = np.concatenate(rows.c)
-        self._values = np.concatenate(rows.v)
-        # Map COO entry order to CSC data order once: later updates permute with it.
-        marker = sp.csc_matrix((np.arange(1, len(r_all) + 1, dtype=float), (r_all, c_all)),
-                               shape=(self.n_rows, self.nx))
-        marker.sort_indices()
-        if marker.nnz != len(r_all):
-            raise PlanningError(-1, "internal", "duplicate entries in the QP constraint matrix")
-        self._csc_from_coo = marker.data.astype(np.intp) - 1
-        self.A = marker.copy()
-        self.A.data = self._values[self._csc_from_coo]
+        self._pattern = FixedPattern(rows, self.nx)
+        self._values = self._pattern.values
+        self.A = self._pattern.matrix
 
         self._P = self._cost_matrix()
         self.q = np.zeros(self.nx)
@@ -287,23 +255,12 @@ class GroupQP:
         na = np.linalg.norm(av, axis=1, keepdims=True)
         n_a = np.where(na > 1e-6, av / np.maximum(na, 1e-12), 0.0)
         self._values[self.tan_a_coo] = n_a.T.ravel()
-        # Separation normals at segment midpoints (a straight line through the other
-        # drone gives a zero midpoint vector: fall back to the normal at a segment end,
-        # then to a fixed horizontal direction, so the row is never all zeros).
         p = self.pairs
         m = len(p.i)
         lo = self._box_lo.copy()
         hi = self._box_hi.copy()
         if m:
-            rel = P[p.i] - P[p.j]  # (m, N+1, 3)
-            idx = np.arange(m)
-            mid = 0.5 * (rel[idx, p.k] + rel[idx, p.k + 1])
-            nrm = np.linalg.norm(mid, axis=1)
-            alt = rel[idx, p.k]
-            mid = np.where(nrm[:, None] > 1e-6, mid, alt)
-            nrm = np.linalg.norm(mid, axis=1)
-            fallback = np.tile([0.0, 1.0, 0.0], (m, 1))
-            n_sep = np.where(nrm[:, None] > 1e-6, mid / np.maximum(nrm, 1e-12)[:, None], fallback)
+            n_sep = segment_normals(P, p.i, p.j, p.k)
             coef = np.concatenate([n_sep, n_sep], axis=0)  # both segment ends
             self._values[self.sep_coo] = np.concatenate(
                 [coef[:, 0], coef[:, 1], coef[:, 2], -coef[:, 0], -coef[:, 1], -coef[:, 2]])
@@ -315,8 +272,7 @@ class GroupQP:
         P_hi[:, 1:-1] = np.minimum(P_hi[:, 1:-1], P[:, 1:-1] + tr)
         self.l[self.box_rows] = lo
         self.u[self.box_rows] = hi
-        self.A.data = self._values[self._csc_from_coo]
-        self.solver.update(Ax=self.A.data, l=self.l, u=self.u)
+        self.solver.update(Ax=self._pattern.refresh(), l=self.l, u=self.u)
         x0 = np.concatenate([P.ravel(), V.ravel(), A.ravel(), np.zeros(self.nS)])
         self.solver.warm_start(x=x0)
 

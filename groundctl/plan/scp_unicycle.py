@@ -34,7 +34,8 @@ from scipy.special import j0
 
 from groundctl.errors import InfeasibleTransition, PlanningError
 from groundctl.plan.conflicts import close_pair_segments, segment_keys, widen
-from groundctl.plan.quad_qp import SLACK_WEIGHT, RowBuilder, solve_checked
+from groundctl.plan.qp_build import FixedPattern, RowBuilder, segment_normals
+from groundctl.plan.quad_qp import SLACK_WEIGHT, solve_checked
 from groundctl.plan.scp_quad import OSQP_SETTINGS, SLACK_TOL, TransitionResult
 from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import Limits, PlannerSettings, UnicycleModel
@@ -161,14 +162,9 @@ class UnicycleQP:
             self.sep_rows = slice(rows.count, rows.count)
             self.sep_coo = slice(rows.nnz, rows.nnz)
         self.n_rows = rows.count
-        r_all, c_all = np.concatenate(rows.r), np.concatenate(rows.c)
-        self._values = np.concatenate(rows.v)
-        marker = sp.csc_matrix((np.arange(1, len(r_all) + 1, dtype=float), (r_all, c_all)),
-                               shape=(self.n_rows, self.nx))
-        marker.sort_indices()
-        self._perm = marker.data.astype(np.intp) - 1
-        self.A = marker.copy()
-        self.A.data = self._values[self._perm]
+        self._pattern = FixedPattern(rows, self.nx)
+        self._values = self._pattern.values
+        self.A = self._pattern.matrix
 
         cost = np.zeros(self.nx)
         cost[: self.nP] = 2 * beta * dt
@@ -216,14 +212,7 @@ class UnicycleQP:
         self.u[self.dyn_rows] = np.concatenate([cx, cy])
         segs = self.segs
         if len(segs):
-            rel = P[segs[:, 0]] - P[segs[:, 1]]
-            idx = np.arange(len(segs))
-            mid = 0.5 * (rel[idx, segs[:, 2]] + rel[idx, segs[:, 2] + 1])
-            nrm = np.linalg.norm(mid, axis=1)
-            mid = np.where(nrm[:, None] > 1e-6, mid, rel[idx, segs[:, 2]])
-            nrm = np.linalg.norm(mid, axis=1)
-            nvec = np.where(nrm[:, None] > 1e-6, mid / np.maximum(nrm, 1e-12)[:, None],
-                            np.array([0.0, 1.0]))
+            nvec = segment_normals(P, segs[:, 0], segs[:, 1], segs[:, 2])
             c2 = np.concatenate([nvec, nvec])
             self._values[self.sep_coo] = np.concatenate([c2[:, 0], c2[:, 1], -c2[:, 0],
                                                          -c2[:, 1]])
@@ -235,8 +224,7 @@ class UnicycleQP:
         Tl[:, 0] = Th[:, 0] = self.heading0
         self.l[self.box_rows] = lo[self._boxed]
         self.u[self.box_rows] = hi[self._boxed]
-        self.A.data = self._values[self._perm]
-        self.solver.update(Ax=self.A.data, l=self.l, u=self.u)
+        self.solver.update(Ax=self._pattern.refresh(), l=self.l, u=self.u)
 
     def solve(self, transition: int) -> tuple[FloatArray, FloatArray]:
         x = solve_checked(self.solver, transition, f"unicycle, {self.n} drones, {self.N} steps")

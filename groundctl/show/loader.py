@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from groundctl.errors import ShowFileError
-from groundctl.plan.assign import assign
+from groundctl.plan.assign import assign_chain
 from groundctl.plan.feasibility import min_transition_time
 from groundctl.show import checks
 from groundctl.show.colors import ColorError, parse_color
@@ -263,13 +263,9 @@ def assigned_goals(show: Show) -> list[np.ndarray]:
     The first transition starts at ``show.start_positions``; each later one
     at the previous formation's assigned goals.
     """
-    goals = []
-    prev = show.start_positions
-    for f in show.formations:
-        goal = f.points[assign(prev, f.points)]
-        goals.append(goal)
-        prev = goal
-    return goals
+    points = [f.points for f in show.formations]
+    chain = assign_chain(show.start_positions, points)
+    return [pts[idx] for pts, idx in zip(points, chain, strict=True)]
 
 
 def _check_transitions(show: Show, path: str) -> None:

@@ -1,0 +1,80 @@
+"""Pieces both SCP models use to build their QPs once and update them in place."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.intp]
+
+
+class RowBuilder:
+    """Accumulates the constraint matrix as COO triplets, block by block."""
+
+    def __init__(self) -> None:
+        self.r: list[IntArray] = []
+        self.c: list[IntArray] = []
+        self.v: list[FloatArray] = []
+        self.count = 0
+        self.nnz = 0
+
+    def block(self, nrows: int, rows: IntArray, cols: IntArray,
+              vals: FloatArray) -> tuple[slice, slice]:
+        """Append a block; return its row range and its range in the triplet arrays."""
+        self.r.append(rows + self.count)
+        self.c.append(cols)
+        self.v.append(vals)
+        row_range = slice(self.count, self.count + nrows)
+        coo_range = slice(self.nnz, self.nnz + len(vals))
+        self.count += nrows
+        self.nnz += len(vals)
+        return row_range, coo_range
+
+
+class FixedPattern:
+    """A CSC matrix whose sparsity never changes; values are edited in COO order.
+
+    ``values`` is in the order the :class:`RowBuilder` blocks were appended, so a
+    block's coefficients are updated through the slice ``block()`` returned;
+    :meth:`refresh` permutes them into the CSC data array OSQP takes.
+    """
+
+    def __init__(self, rows: RowBuilder, ncols: int) -> None:
+        r = np.concatenate(rows.r)
+        c = np.concatenate(rows.c)
+        self.values = np.concatenate(rows.v)
+        # Mark each COO entry with its 1-based position, convert once, read the
+        # permutation back from the CSC data.
+        marker = sp.csc_matrix((np.arange(1, len(r) + 1, dtype=float), (r, c)),
+                               shape=(rows.count, ncols))
+        marker.sort_indices()
+        if marker.nnz != len(r):
+            raise ValueError("`rows` holds duplicate (row, column) entries")
+        self._perm = marker.data.astype(np.intp) - 1
+        self.matrix = marker
+        self.refresh()
+
+    def refresh(self) -> NDArray[np.float64]:
+        """Copy ``values`` into the matrix; return its CSC data (for ``osqp.update(Ax=...)``)."""
+        self.matrix.data = self.values[self._perm]
+        return self.matrix.data
+
+
+def segment_normals(P: FloatArray, i: IntArray, j: IntArray, k: IntArray) -> FloatArray:
+    """Unit normals (m, d) of the paper's linearised separation, one per pair-segment.
+
+    The normal is drone i minus drone j at the middle of segment k of the previous
+    iterate ``P`` (n, N+1, d).  A straight line through the other drone gives a
+    zero midpoint vector: fall back to the segment start, then to a fixed
+    direction, so a row is never all zeros.
+    """
+    start = P[i, k] - P[j, k]
+    mid = 0.5 * (start + P[i, k + 1] - P[j, k + 1])
+    norm = np.linalg.norm(mid, axis=1)
+    mid = np.where(norm[:, None] > 1e-6, mid, start)
+    norm = np.linalg.norm(mid, axis=1)
+    fallback = np.zeros(P.shape[-1])
+    fallback[1] = 1.0
+    return np.where(norm[:, None] > 1e-6, mid / np.maximum(norm, 1e-12)[:, None], fallback)
