@@ -60,8 +60,9 @@ class Trajectories:
         s = (t - self.times[seg]) / h
         return seg, s, h
 
-    def evaluate(self, t: FloatArray | float) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Position, velocity, acceleration of every drone at times ``t``.
+    def evaluate(self, t: FloatArray | float, drones: NDArray[np.intp] | None = None
+                 ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Position, velocity, acceleration of every drone (or of ``drones``) at times ``t``.
 
         ``t`` scalar gives (n, 3) arrays; ``t`` of shape (T,) gives (n, T, 3).
         Times outside the knots are clamped (the fleet holds its end states).
@@ -69,8 +70,10 @@ class Trajectories:
         scalar = np.ndim(t) == 0
         tt = np.atleast_1d(np.asarray(t, dtype=float))
         seg, s, h = self._coefficients(tt)
-        p0, p1 = self.pos[:, seg], self.pos[:, seg + 1]
-        m0, m1 = self.vel[:, seg] * h[None, :, None], self.vel[:, seg + 1] * h[None, :, None]
+        pos_k = self.pos if drones is None else self.pos[drones]
+        vel_k = self.vel if drones is None else self.vel[drones]
+        p0, p1 = pos_k[:, seg], pos_k[:, seg + 1]
+        m0, m1 = vel_k[:, seg] * h[None, :, None], vel_k[:, seg + 1] * h[None, :, None]
         s = s[None, :, None]
         s2, s3 = s * s, s * s * s
         h00, h10, h01, h11 = 2 * s3 - 3 * s2 + 1, s3 - 2 * s2 + s, -2 * s3 + 3 * s2, s3 - s2

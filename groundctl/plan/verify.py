@@ -1,11 +1,9 @@
 """Continuous-time verification of a plan: what the drones will fly, not the QP samples.
 
-Separation is checked on the cubic trajectories between knots: per knot
-segment, a KD-tree at the segment start finds every pair that could come
-within the limit during the segment (radius = limit + the most two drones can
-close in it), those pairs are sampled densely, and the pairs that come near
-the limit are refined on a much finer grid.  Speeds, accelerations, altitude
-and the geofence are checked on a dense sampling of every segment.
+Everything is evaluated once, densely, over the whole show (see
+:func:`_dense_pass`); per-transition and whole-show figures are read off that
+one pass.  Separation is checked on the cubic trajectories between knots, not
+only at the knots.
 """
 
 from __future__ import annotations
@@ -100,61 +98,97 @@ def _inside(poly: NDArray[np.float64], xy: NDArray[np.float64]) -> NDArray[np.bo
     return inside
 
 
-def _separation(tr: Trajectories, limit: float, vmax: float, t0: float,
-                t1: float) -> tuple[float, tuple[int, int], float]:
-    """Min distance between any two drones over [t0, t1] on the continuous trajectories."""
-    n = tr.drones
-    if n < 2:
-        return np.inf, (0, 0), t0
-    kk = np.flatnonzero((tr.times[:-1] < t1 - 1e-12) & (tr.times[1:] > t0 + 1e-12))
-    best = (np.inf, (0, 0), t0)
-    frac = np.linspace(0.0, 1.0, SAMPLES + 1)
-    for k in kk:
-        a, b = tr.times[k], tr.times[k + 1]
-        h = b - a
-        # Two drones at most vmax each can close 2 vmax h during the segment.
-        radius = limit + 0.5 + 2 * vmax * h
+@dataclass(frozen=True)
+class _DensePass:
+    """Everything the checks need, evaluated once over the whole show."""
+
+    tr: Trajectories
+    ts: FloatArray
+    """(T,) dense times: SAMPLES per knot segment, segment k is ts[k*S : (k+1)*S + 1]."""
+    pos: FloatArray
+    vel: FloatArray
+    acc: FloatArray
+    seg_sep: FloatArray
+    """(K-1,) min distance between any two drones in each segment (inf: nobody near)."""
+    seg_pair: NDArray[np.intp]
+    """(K-1, 2) 1-based drone numbers of that pair."""
+    seg_time: FloatArray
+    """(K-1,) when it happens."""
+
+
+def _dense_pass(tr: Trajectories, limit: float) -> _DensePass:
+    """Sample every segment densely once; find each segment's closest pair.
+
+    Per knot segment, a KD-tree at the segment start finds every pair that could
+    come within the limit during it (radius = limit + the most two drones can
+    close in it, from the segment's top speed); those pairs are read off the
+    dense samples, and the ones near the limit are refined on a much finer grid
+    of their own two trajectories only.
+    """
+    S = SAMPLES
+    ts = tr.dense_times(S)
+    pos, vel, acc = tr.evaluate(ts)
+    nseg = len(tr.times) - 1
+    seg_sep = np.full(nseg, np.inf)
+    seg_pair = np.zeros((nseg, 2), dtype=np.intp)
+    seg_time = tr.times[:-1].copy()
+    if tr.drones < 2:
+        return _DensePass(tr, ts, pos, vel, acc, seg_sep, seg_pair, seg_time)
+    speed = np.linalg.norm(vel, axis=2).max(axis=0)  # (T,) fastest drone at each sample
+    fine_frac = np.linspace(0.0, 1.0, REFINE + 1)
+    for k in range(nseg):
+        window = slice(k * S, (k + 1) * S + 1)
+        h = tr.times[k + 1] - tr.times[k]
+        radius = limit + 0.5 + 2 * float(speed[window].max()) * h
         pairs = cKDTree(tr.pos[:, k]).query_pairs(radius, output_type="ndarray")
         if not len(pairs):
             continue
-        ts = a + frac * h
-        pos, _, _ = tr.evaluate(ts)
-        d = np.linalg.norm(pos[pairs[:, 0]] - pos[pairs[:, 1]], axis=2)
+        d = np.linalg.norm(pos[pairs[:, 0], window] - pos[pairs[:, 1], window], axis=2)
         dmin = d.min(axis=1)
+        at = ts[window][np.argmin(d, axis=1)]
         near = np.flatnonzero(dmin < limit + 0.25)
         if len(near):
-            fine = a + np.linspace(0.0, 1.0, REFINE + 1) * h
-            pf, _, _ = tr.evaluate(fine)
-            dn = np.linalg.norm(pf[pairs[near, 0]] - pf[pairs[near, 1]], axis=2)
+            fine = tr.times[k] + fine_frac * h
+            pi, _, _ = tr.evaluate(fine, pairs[near, 0])
+            pj, _, _ = tr.evaluate(fine, pairs[near, 1])
+            dn = np.linalg.norm(pi - pj, axis=2)
             dmin[near] = dn.min(axis=1)
+            at[near] = fine[np.argmin(dn, axis=1)]
         q = int(np.argmin(dmin))
-        if dmin[q] < best[0]:
-            tq = float(ts[int(np.argmin(d[q]))])
-            best = (float(dmin[q]), (int(pairs[q, 0]) + 1, int(pairs[q, 1]) + 1), tq)
-    return best
+        seg_sep[k] = dmin[q]
+        seg_pair[k] = pairs[q] + 1
+        seg_time[k] = at[q]
+    return _DensePass(tr, ts, pos, vel, acc, seg_sep, seg_pair, seg_time)
 
 
-def window_metrics(tr: Trajectories, limits: Limits, t0: float, t1: float) -> WindowMetrics:
-    """Figures of the trajectories over show times [t0, t1]."""
-    mask = (tr.times >= t0 - 1e-9) & (tr.times <= t1 + 1e-9)
-    sub = Trajectories(tr.times[mask], tr.pos[:, mask], tr.vel[:, mask])
-    ts = sub.dense_times(SAMPLES)
-    pos, vel, acc = sub.evaluate(ts)
-    speed_h = np.linalg.norm(vel[..., :2], axis=2)
-    vmax = float(np.linalg.norm(vel, axis=2).max())
-    sep, pair, tsep = _separation(sub, limits.min_separation, vmax, t0, t1)
-    if not np.isfinite(sep) and sub.drones >= 2:
+def _window(dp: _DensePass, limits: Limits, t0: float, t1: float) -> WindowMetrics:
+    """Figures over show times [t0, t1] (knot-aligned), read off the dense pass."""
+    tr, S = dp.tr, SAMPLES
+    k0 = int(np.searchsorted(tr.times, t0 - 1e-9))
+    k1 = int(np.searchsorted(tr.times, t1 + 1e-9)) - 1  # last knot inside
+    k1 = max(k1, k0 + 1)
+    dense = slice(k0 * S, k1 * S + 1)
+    pos, vel, acc = dp.pos[:, dense], dp.vel[:, dense], dp.acc[:, dense]
+    segs = slice(k0, k1)
+    if np.isfinite(dp.seg_sep[segs]).any():
+        q = k0 + int(np.argmin(dp.seg_sep[segs]))
+        sep, pair, tsep = float(dp.seg_sep[q]), (int(dp.seg_pair[q, 0]),
+                                                 int(dp.seg_pair[q, 1])), float(dp.seg_time[q])
+    elif tr.drones >= 2:
         # Nobody came near anybody: report the closest pair at the window's start.
-        dist, idx = cKDTree(sub.pos[:, 0]).query(sub.pos[:, 0], k=2)
+        dist, idx = cKDTree(tr.pos[:, k0]).query(tr.pos[:, k0], k=2)
         q = int(np.argmin(dist[:, 1]))
-        sep, pair, tsep = float(dist[q, 1]), (q + 1, int(idx[q, 1]) + 1), float(sub.times[0])
+        sep, pair, tsep = float(dist[q, 1]), (q + 1, int(idx[q, 1]) + 1), float(tr.times[k0])
+    else:
+        sep, pair, tsep = np.inf, (0, 0), t0
     outside = 0
     if limits.geofence:
         poly = np.asarray(limits.geofence, dtype=float)
         outside = int((~_inside(poly, pos[..., :2])).sum())
     return WindowMetrics(
-        min_separation=float(sep), min_separation_pair=pair, min_separation_time=tsep,
-        max_speed_h=float(speed_h.max()), max_speed_up=float(max(vel[..., 2].max(), 0.0)),
+        min_separation=sep, min_separation_pair=pair, min_separation_time=tsep,
+        max_speed_h=float(np.linalg.norm(vel[..., :2], axis=2).max()),
+        max_speed_up=float(max(vel[..., 2].max(), 0.0)),
         max_speed_down=float(max(-vel[..., 2].min(), 0.0)),
         max_accel=float(np.linalg.norm(acc, axis=2).max()),
         min_alt=float(pos[..., 2].min()), max_alt=float(pos[..., 2].max()),
@@ -166,8 +200,9 @@ def verify(plan: Plan) -> Verification:
     """Check every limit of ``plan.limits`` on the continuous trajectories."""
     lim = plan.limits
     tr = plan.trajectories
-    windows = tuple(window_metrics(tr, lim, f.start, f.arrive) for f in plan.formations)
-    overall = window_metrics(tr, lim, tr.start, tr.end)
+    dense = _dense_pass(tr, lim.min_separation)
+    windows = tuple(_window(dense, lim, f.start, f.arrive) for f in plan.formations)
+    overall = _window(dense, lim, tr.start, tr.end)
     errors = []
     for f in plan.formations:
         pos, _, _ = tr.evaluate(f.arrive)
