@@ -5,6 +5,11 @@ the show's ENU is exactly ``enu = M_i @ ned + b_i`` with a per-vehicle rotation
 and offset computed once (pymap3d gives the ECEF points, the rotations are the
 textbook tangent-plane ones).  Altitudes are treated as heights above the
 WGS-84 ellipsoid and reported as AMSL, i.e. the geoid is ignored on both sides.
+
+This is deliberately not :mod:`groundctl.execute.frames`: the simulator is the
+executor's test oracle, and a conversion bug shared by both would cancel out in
+every dry-run.  The two are written differently on purpose (an exact affine map
+through ECEF here, pymap3d's geodetic round trip there).
 """
 
 from __future__ import annotations
