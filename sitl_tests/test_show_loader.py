@@ -412,3 +412,8 @@ def test_model_and_takeoff_errors():
         "'max_altitude' 40.0 m must be above 'min_altitude' 50.0 m")
     assert error(base(limits={"geofence": [[0, 0], [1, 1], [2, 2]]})).message.startswith(
         "'geofence' encloses no area")
+
+
+def test_planner_tolerance_above_what_keeps_the_scp_safe_is_refused():
+    err = error(base(planner={"tolerance": 0.2}))
+    assert str(err) == f"{PATH}: [planner]: 'tolerance' must be at most 0.09, got 0.2"

@@ -51,10 +51,22 @@ OSQP_SETTINGS: dict[str, float | int | bool] = {
 }
 #: SCP trust region on positions, m per iteration.
 TRUST_RADIUS = 1.0
-#: A pair-segment closer than separation + NEED_MARGIN must be in a QP (m).
-NEED_MARGIN = 0.3
-#: A group's QP gets rows for its pair-segments within separation + BUILD_MARGIN (m).
-BUILD_MARGIN = 1.5
+#: A pair-segment closer than separation + NEED_MARGIN must be in a QP (m).  The
+#: loop stops only after an iteration in which no sample moved more than the
+#: tolerance, so a pair left out (> NEED_MARGIN away) cannot have closed the gap
+#: as long as NEED_MARGIN > 2 x tolerance; the verifier checks it again anyway.
+NEED_MARGIN = 0.2
+#: A group's QP gets rows for its pair-segments within separation + BUILD_MARGIN (m),
+#: widened by BUILD_WIDEN steps.  Every separation row couples two drones at one
+#: step; many of them turn the KKT system into a 3D mesh (pairs x time) whose
+#: factorisation fills in badly (measured: 25 drones, 2 m grid, margin 1.5 m:
+#: 250 ms per refactorisation, 3.5 s per transition; margin 0.4 m: 0.17 s).  So
+#: rows go only where a pair can become active; a pair that gets closer later is
+#: caught by NEED_MARGIN and its group rebuilt.
+BUILD_MARGIN = 0.4
+BUILD_WIDEN = 1
+#: Largest convergence tolerance the NEED_MARGIN argument above allows, m.
+MAX_TOLERANCE = 0.09
 #: Max slack (m) still counted as "separation holds" at convergence.
 SLACK_TOL = 5e-3
 
@@ -130,6 +142,8 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
     qp_drones: set[int] = set()
     need_all = np.empty((0, 3), dtype=np.int64)
     violators_all = np.empty(0, dtype=np.intp)
+    if settings.tolerance > MAX_TOLERANCE:
+        raise ValueError(f"`tolerance` must be at most {MAX_TOLERANCE} m")
     for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 (used after)
         # Only pairs that actually come near join drones into a group; grid neighbours
         # that stay 3 m apart must not weld the whole fleet into one QP.
@@ -157,7 +171,7 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
                 # Rows for every pair-segment of the group that is anywhere near, so the
                 # QP (OSQP's factorisation, its warm start) lasts many iterations.
                 near = close_pair_segments(P[members], d_sep + BUILD_MARGIN)
-                near = widen(near, steps, 2)
+                near = widen(near, steps, BUILD_WIDEN)
                 glob = np.column_stack([members[near[:, 0]], members[near[:, 1]], near[:, 2]])
                 pairs = PairSegments(near[:, 0].astype(np.intp), near[:, 1].astype(np.intp),
                                      near[:, 2].astype(np.intp))

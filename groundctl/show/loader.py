@@ -35,6 +35,7 @@ import numpy as np
 from groundctl.errors import ShowFileError
 from groundctl.plan.assign import assign_chain
 from groundctl.plan.feasibility import min_transition_time
+from groundctl.plan.scp_quad import MAX_TOLERANCE
 from groundctl.show import checks
 from groundctl.show.colors import ColorError, parse_color
 from groundctl.show.formations import Context, formation_where, read_formation
@@ -155,6 +156,9 @@ def _read_planner(t: Table) -> PlannerSettings:
                   "alpha", "beta"))
     d = PlannerSettings()
     floats = {k: t.number(k, getattr(d, k), positive=True) for k in _PLANNER_FLOATS}
+    # Larger tolerances would let the SCP stop while a pair it left out drifts close.
+    floats["tolerance"] = t.number("tolerance", d.tolerance, positive=True,
+                                   maximum=MAX_TOLERANCE)
     return PlannerSettings(
         **floats,
         steps=t.integer("steps", 0, minimum=2) if t.has("steps") else d.steps,
