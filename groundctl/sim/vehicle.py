@@ -334,19 +334,25 @@ class Vehicle:
             base = self.ph.est_pos[self.i]
         else:
             return None
-        pos = vel = acc = None
+        pos = None
         if not mask & MASK_POS:
             ned = np.array([msg.x, msg.y, msg.z], dtype=float)
             if base is None:
                 pos = self.frames.ned_to_show(self.i, ned)
             else:
                 pos = base + self.frames.vec_ned_to_show(self.i, ned)
+        vel, acc = self._feed_forward(msg, mask)
+        return _finite(Setpoint(pos, vel, acc))
+
+    def _feed_forward(self, msg: Msg, mask: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Velocity and acceleration of a position target (NED) in the show frame."""
+        vel = acc = None
         if not mask & MASK_VEL:
             vel = self.frames.vec_ned_to_show(self.i, np.array([msg.vx, msg.vy, msg.vz], float))
         if not mask & MASK_ACC:
             acc = self.frames.vec_ned_to_show(
                 self.i, np.array([msg.afx, msg.afy, msg.afz], float))
-        return _finite(Setpoint(pos, vel, acc))
+        return vel, acc
 
     def decode_global(self, msg: Msg) -> Setpoint | None:
         """SET_POSITION_TARGET_GLOBAL_INT to the show frame; None if the frame is unsupported."""
@@ -360,15 +366,11 @@ class Vehicle:
         else:
             return None
         mask = msg.type_mask
-        pos = vel = acc = None
+        pos = None
         if not mask & MASK_POS:
             pos = self.frames.from_geodetic(msg.lat_int / 1e7, msg.lon_int / 1e7,
                                             alt_base + msg.alt)
-        if not mask & MASK_VEL:
-            vel = self.frames.vec_ned_to_show(self.i, np.array([msg.vx, msg.vy, msg.vz], float))
-        if not mask & MASK_ACC:
-            acc = self.frames.vec_ned_to_show(
-                self.i, np.array([msg.afx, msg.afy, msg.afz], float))
+        vel, acc = self._feed_forward(msg, mask)
         return _finite(Setpoint(pos, vel, acc))
 
     # -- message handlers ---------------------------------------------------------------------
