@@ -9,6 +9,24 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
 
+#: A pair-segment closer than separation + NEED_MARGIN must be in a QP (m).  The
+#: loop stops only after an iteration in which no sample moved more than the
+#: tolerance, so a pair left out (> NEED_MARGIN away) cannot have closed the gap
+#: as long as NEED_MARGIN > 2 x tolerance; the verifier checks it again anyway.
+NEED_MARGIN = 0.2
+#: Largest SCP convergence tolerance that argument allows, m (the loader enforces it).
+MAX_TOLERANCE = 0.09
+#: A group's QP gets rows for its pair-segments within separation + BUILD_MARGIN (m),
+#: widened by BUILD_WIDEN steps.  Every separation row couples two drones at one
+#: step; many of them turn the KKT system into a 3D mesh (pairs x time) whose
+#: factorisation fills in badly (measured: 25 drones, 2 m grid, margin 1.5 m:
+#: 250 ms per refactorisation, 3.5 s per transition; margin 0.4 m: 0.17 s; the paper's
+#: unicycle star: 0.31 s with margin 1.5 m and 3 steps, 0.19 s with these).  So
+#: rows go only where a pair can become active; a pair that gets closer later is
+#: caught by NEED_MARGIN and its group rebuilt.
+BUILD_MARGIN = 0.4
+BUILD_WIDEN = 1
+
 
 class RowBuilder:
     """Accumulates the constraint matrix as COO triplets, block by block."""

@@ -34,6 +34,7 @@ from groundctl.errors import InfeasibleTransition, PlanningError
 from groundctl.plan.conflicts import close_pair_segments, groups, segment_keys, widen
 from groundctl.plan.feasibility import min_transition_time
 from groundctl.plan.profile import rest_to_rest
+from groundctl.plan.qp_build import BUILD_MARGIN, BUILD_WIDEN, MAX_TOLERANCE, NEED_MARGIN
 from groundctl.plan.quad_qp import GroupQP, PairSegments
 from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import Limits, PlannerSettings, QuadrotorModel
@@ -51,22 +52,6 @@ OSQP_SETTINGS: dict[str, float | int | bool] = {
 }
 #: SCP trust region on positions, m per iteration.
 TRUST_RADIUS = 1.0
-#: A pair-segment closer than separation + NEED_MARGIN must be in a QP (m).  The
-#: loop stops only after an iteration in which no sample moved more than the
-#: tolerance, so a pair left out (> NEED_MARGIN away) cannot have closed the gap
-#: as long as NEED_MARGIN > 2 x tolerance; the verifier checks it again anyway.
-NEED_MARGIN = 0.2
-#: A group's QP gets rows for its pair-segments within separation + BUILD_MARGIN (m),
-#: widened by BUILD_WIDEN steps.  Every separation row couples two drones at one
-#: step; many of them turn the KKT system into a 3D mesh (pairs x time) whose
-#: factorisation fills in badly (measured: 25 drones, 2 m grid, margin 1.5 m:
-#: 250 ms per refactorisation, 3.5 s per transition; margin 0.4 m: 0.17 s).  So
-#: rows go only where a pair can become active; a pair that gets closer later is
-#: caught by NEED_MARGIN and its group rebuilt.
-BUILD_MARGIN = 0.4
-BUILD_WIDEN = 1
-#: Largest convergence tolerance the NEED_MARGIN argument above allows, m.
-MAX_TOLERANCE = 0.09
 #: Max slack (m) still counted as "separation holds" at convergence.
 SLACK_TOL = 5e-3
 

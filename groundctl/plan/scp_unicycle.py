@@ -34,7 +34,14 @@ from scipy.special import j0
 
 from groundctl.errors import InfeasibleTransition, PlanningError
 from groundctl.plan.conflicts import close_pair_segments, segment_keys, widen
-from groundctl.plan.qp_build import FixedPattern, RowBuilder, segment_normals
+from groundctl.plan.qp_build import (
+    BUILD_MARGIN,
+    BUILD_WIDEN,
+    NEED_MARGIN,
+    FixedPattern,
+    RowBuilder,
+    segment_normals,
+)
 from groundctl.plan.quad_qp import SLACK_WEIGHT, solve_checked
 from groundctl.plan.scp_quad import OSQP_SETTINGS, SLACK_TOL, TransitionResult
 from groundctl.plan.trajectory import Trajectories
@@ -46,10 +53,6 @@ FloatArray = NDArray[np.float64]
 TERMINAL_WEIGHT = 1e3
 #: Max heading change per SCP iteration, rad (keeps the linearisation honest).
 HEADING_TRUST = 0.5
-#: A pair-segment closer than separation + NEED_MARGIN must have QP rows (m).
-NEED_MARGIN = 0.3
-#: When the QP is (re)built, rows go to every pair-segment within separation + this (m).
-BUILD_MARGIN = 1.5
 #: Factor applied to the heading trust region after every feasible iteration.
 TRUST_DECAY = 0.5
 
@@ -268,7 +271,7 @@ def plan_unicycle_transition(index: int, name: str, start: FloatArray, goal: Flo
         if qp is None or not np.all(np.isin(need, have)):
             # Rows for every pair-segment that is anywhere near: generous, so that the
             # QP (and OSQP's factorisation and warm start) survives many iterations.
-            built = widen(close_pair_segments(P, d_sep + BUILD_MARGIN), steps, 3)
+            built = widen(close_pair_segments(P, d_sep + BUILD_MARGIN), steps, BUILD_WIDEN)
             have = segment_keys(built, n, steps)
             qp = UnicycleQP(s2, g2, heading0, ref, model, steps, dt, d_sep,
                             settings.pattern_tolerance, built, settings.alpha, settings.beta)

@@ -35,7 +35,7 @@ import numpy as np
 from groundctl.errors import ShowFileError
 from groundctl.plan.assign import assign_chain
 from groundctl.plan.feasibility import min_transition_time
-from groundctl.plan.scp_quad import MAX_TOLERANCE
+from groundctl.plan.qp_build import MAX_TOLERANCE
 from groundctl.show import checks
 from groundctl.show.colors import ColorError, parse_color
 from groundctl.show.formations import Context, formation_where, read_formation
