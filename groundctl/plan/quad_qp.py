@@ -88,13 +88,12 @@ class GroupQP:
 
     def __init__(self, start: FloatArray, goal: FloatArray, ref: FloatArray, steps: int,
                  dt: float, limits: Limits, pairs: PairSegments, alpha: float, beta: float,
-                 trust_radius: float, osqp_settings: dict[str, float | int | bool]) -> None:
+                 osqp_settings: dict[str, float | int | bool]) -> None:
         g = start.shape[0]
         n_steps = steps
         self.g, self.N, self.dt, self.limits = g, n_steps, dt, limits
         self.start, self.goal, self.ref = start, goal, ref
         self.pairs = pairs
-        self.trust_radius = trust_radius
         self._alpha, self._beta = alpha, beta
         m = len(pairs.i)
         self.nP = g * (n_steps + 1) * 3
@@ -241,8 +240,11 @@ class GroupQP:
         self.l[self.box_rows] = lo
         self.u[self.box_rows] = hi
 
-    def linearise(self, P: FloatArray, V: FloatArray, A: FloatArray) -> None:
-        """Relinearise every iterate-dependent row around (P, V, A) and push to OSQP."""
+    def linearise(self, P: FloatArray, V: FloatArray, A: FloatArray, trust: float) -> None:
+        """Relinearise every iterate-dependent row around (P, V, A) and push to OSQP.
+
+        ``trust`` bounds how far any interior position may move in this solve (m).
+        """
         g, N = self.g, self.N
         # Speed tangent planes at interior steps: normal of the previous horizontal velocity.
         ti, tk = self.tan_v
@@ -265,7 +267,7 @@ class GroupQP:
             self._values[self.sep_coo] = np.concatenate(
                 [coef[:, 0], coef[:, 1], coef[:, 2], -coef[:, 0], -coef[:, 1], -coef[:, 2]])
         # Trust region on interior positions, inside the altitude box.
-        tr = self.trust_radius
+        tr = trust
         P_lo = lo[: self.nP].reshape(g, N + 1, 3)
         P_hi = hi[: self.nP].reshape(g, N + 1, 3)
         P_lo[:, 1:-1] = np.maximum(P_lo[:, 1:-1], P[:, 1:-1] - tr)
@@ -285,4 +287,8 @@ class GroupQP:
         V = x[self.oV: self.oA].reshape(g, N + 1, 3).copy()
         A = x[self.oA: self.oS].reshape(g, N, 3).copy()
         S = x[self.oS:].copy()
+        # End states are equalities by construction; ADMM only meets them to its
+        # tolerance (1e-7 when polishing fails), so return them exactly.
+        P[:, 0], P[:, -1] = self.start, self.goal
+        V[:, [0, -1]] = 0.0
         return P, V, A, S
