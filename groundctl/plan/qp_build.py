@@ -3,12 +3,49 @@
 from __future__ import annotations
 
 import numpy as np
+import osqp
 import scipy.sparse as sp
 from numpy.typing import NDArray
+
+from groundctl.errors import PlanningError
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
 
+OSQP_SETTINGS: dict[str, float | int | bool] = {
+    "verbose": False,
+    "eps_abs": 1e-3,
+    "eps_rel": 1e-3,
+    "max_iter": 4000,
+    "polishing": True,
+    "adaptive_rho": True,
+    "rho": 1.0,
+}
+#: Penalty per metre of separation slack: large enough that any feasible
+#: separation is preferred to any saving in effort.
+SLACK_WEIGHT = 1e2
+#: OSQP outcomes the SCP accepts.
+ACCEPTED_STATUS = ("solved", "solved inaccurate")
+#: On "maximum iterations reached", ADMM resumes from its own iterate (warm start)
+#: this many more times before the planner gives up: an unfinished iterate does not
+#: meet the equality constraints (end states), so it is never used as a result.
+RESUMES = 4
+
+
+def solve_checked(solver: osqp.OSQP, transition: int, what: str) -> NDArray[np.float64]:
+    """Solve, resuming an unfinished ADMM run; PlanningError unless OSQP solved it."""
+    res = solver.solve(raise_error=False)
+    for _ in range(RESUMES):
+        if res.info.status != "maximum iterations reached":
+            break
+        res = solver.solve(raise_error=False)
+    if res.info.status not in ACCEPTED_STATUS:
+        raise PlanningError(transition, f"OSQP {res.info.status}", what)
+    return np.asarray(res.x)
+
+
+#: Max slack (m) still counted as "separation holds" at convergence.
+SLACK_TOL = 5e-3
 #: A pair-segment closer than separation + NEED_MARGIN must be in a QP (m).  The
 #: loop stops only after an iteration in which no sample moved more than the
 #: tolerance, so a pair left out (> NEED_MARGIN away) cannot have closed the gap

@@ -36,36 +36,18 @@ import osqp
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from groundctl.errors import PlanningError
 from groundctl.plan.profile import JERK_WEIGHT
-from groundctl.plan.qp_build import FixedPattern, RowBuilder, segment_normals
+from groundctl.plan.qp_build import (
+    SLACK_WEIGHT,
+    FixedPattern,
+    RowBuilder,
+    segment_normals,
+    solve_checked,
+)
 from groundctl.show.model import Limits
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
-
-#: Penalty per metre of separation slack: large enough that any feasible
-#: separation is preferred to any saving in effort.
-SLACK_WEIGHT = 1e2
-#: OSQP outcomes the SCP accepts.
-ACCEPTED_STATUS = ("solved", "solved inaccurate")
-#: On "maximum iterations reached", ADMM resumes from its own iterate (warm start)
-#: this many more times before the planner gives up: an unfinished iterate does not
-#: meet the equality constraints (end states), so it is never used as a result.
-RESUMES = 4
-
-
-def solve_checked(solver: osqp.OSQP, transition: int, what: str) -> NDArray[np.float64]:
-    """Solve, resuming an unfinished ADMM run; PlanningError unless OSQP solved it."""
-    res = solver.solve(raise_error=False)
-    for _ in range(RESUMES):
-        if res.info.status != "maximum iterations reached":
-            break
-        res = solver.solve(raise_error=False)
-    if res.info.status not in ACCEPTED_STATUS:
-        raise PlanningError(transition, f"OSQP {res.info.status}", what)
-    return np.asarray(res.x)
-
 
 #: Numerical buffer on separation on top of the geometric tightening, m.
 SEPARATION_BUFFER = 0.02

@@ -37,26 +37,22 @@ from groundctl.errors import InfeasibleTransition, PlanningError
 from groundctl.plan.conflicts import close_pair_segments, groups, segment_keys, widen
 from groundctl.plan.feasibility import min_transition_time
 from groundctl.plan.profile import rest_to_rest
-from groundctl.plan.qp_build import BUILD_MARGIN, BUILD_WIDEN, MAX_TOLERANCE, NEED_MARGIN
+from groundctl.plan.qp_build import (
+    BUILD_MARGIN,
+    BUILD_WIDEN,
+    MAX_TOLERANCE,
+    NEED_MARGIN,
+    OSQP_SETTINGS,
+    SLACK_TOL,
+)
 from groundctl.plan.quad_qp import GroupQP, PairSegments
 from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import Limits, PlannerSettings, QuadrotorModel
 
 FloatArray = NDArray[np.float64]
 
-OSQP_SETTINGS: dict[str, float | int | bool] = {
-    "verbose": False,
-    "eps_abs": 1e-3,
-    "eps_rel": 1e-3,
-    "max_iter": 4000,
-    "polishing": True,
-    "adaptive_rho": True,
-    "rho": 1.0,
-}
 #: SCP trust region on positions, m per iteration.
 TRUST_RADIUS = 1.0
-#: Max slack (m) still counted as "separation holds" at convergence.
-SLACK_TOL = 5e-3
 
 
 @dataclass(frozen=True)

@@ -38,12 +38,15 @@ from groundctl.plan.qp_build import (
     BUILD_MARGIN,
     BUILD_WIDEN,
     NEED_MARGIN,
+    OSQP_SETTINGS,
+    SLACK_TOL,
+    SLACK_WEIGHT,
     FixedPattern,
     RowBuilder,
     segment_normals,
+    solve_checked,
 )
-from groundctl.plan.quad_qp import SLACK_WEIGHT, solve_checked
-from groundctl.plan.scp_quad import OSQP_SETTINGS, SLACK_TOL, TransitionResult
+from groundctl.plan.scp_quad import TransitionResult
 from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import Limits, PlannerSettings, UnicycleModel
 
