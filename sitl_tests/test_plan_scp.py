@@ -91,3 +91,36 @@ def test_unicycle_keeps_constant_speed_and_reaches_the_pattern() -> None:
     theta = np.arctan2(np.diff(tr.pos[:, :, 1]), np.diff(tr.pos[:, :, 0]))
     theta = np.concatenate([theta, theta[:, -1:]], axis=1)
     assert np.allclose(rollout(start[:, :2], theta, 2.0, 15.0 / 80), tr.pos[:, :, :2], atol=1e-9)
+
+
+def test_swap_boxed_in_by_neighbours_merges_groups_and_stays_safe() -> None:
+    # Two drones swap head-on inside a "tube" of four neighbours flying parallel
+    # 1.7 m off their line (left, right, above, below): close enough to get rows but
+    # not in conflict, so they start as obstacles of the swapping pair's group.  Any
+    # dodge presses the pair against them, so the groups must merge and push the
+    # neighbours aside; the plan must stay separated in continuous time all along.
+    offsets = np.array([[0.0, 1.7, 0], [0.0, -1.7, 0], [0.0, 0, 1.7], [0.0, 0, -1.7]])
+    west, east = np.array([-5.0, 0, 10]), np.array([5.0, 0, 10])
+    start = np.vstack([west, east, west + offsets])
+    goal = np.vstack([east, west, east + offsets])
+    res = plan_quad_transition(1, "tube", start, goal, 12.0, LIM, PlannerSettings())
+    assert res.qp_drones > 2
+    assert min_pair_distance(res.trajectories) >= 1.5 - 1e-3
+    assert res.max_slack < 5e-3
+    assert np.allclose(res.trajectories.pos[:, -1], goal)
+
+
+def test_only_conflicting_drones_get_a_qp() -> None:
+    # A row of drones 1.7 m apart flying in parallel is close (within the need
+    # margin) but never in conflict: it flies the reference with no QP at all.  One
+    # head-on swap far from the row is the only group.
+    row = np.column_stack([np.arange(8) * 1.7, np.zeros(8), np.full(8, 10.0)])
+    swap = np.array([[40.0, -5, 10], [40.0, 5, 10]])
+    start = np.vstack([row, swap])
+    goal = np.vstack([row + np.array([0.0, 10, 0]), swap[::-1]])
+    res = plan_quad_transition(1, "row", start, goal, 10.0, LIM, PlannerSettings())
+    assert res.qp_drones == 2
+    assert min_pair_distance(res.trajectories) >= 1.5 - 1e-3
+    prof = rest_to_rest(res.steps, 10.0 / res.steps)
+    expected = row[:, None] + prof.s[None, :, None] * (goal[:8] - row)[:, None]
+    assert np.allclose(res.trajectories.pos[:8], expected)

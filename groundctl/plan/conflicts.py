@@ -11,24 +11,44 @@ from scipy.spatial import cKDTree
 IntArray = NDArray[np.intp]
 
 
+#: Up to this many pair-samples, :func:`close_pair_segments` computes every distance
+#: at once (one vectorised pass beats a KD-tree per step for small fleets).
+DENSE_PAIR_SAMPLES = 200_000
+
+
 def close_pair_segments(P: NDArray[np.float64], radius: float) -> NDArray[np.int64]:
     """(m, 3) rows (i, j, k), i < j: drones i and j are within ``radius`` at step k or k+1.
 
-    ``P`` is (n, N+1, d) sampled positions.  One KD-tree query per step.
+    ``P`` is (n, N+1, d) sampled positions.  Every pair at once for a small
+    fleet, one KD-tree query per step for a large one.
     """
-    _n, k1, _ = P.shape
+    n, k1, _ = P.shape
+    if n * (n - 1) // 2 * k1 <= DENSE_PAIR_SAMPLES:
+        i, j = np.triu_indices(n, 1)
+        close = np.zeros((len(i), k1 + 1), dtype=bool)
+        for c in range(P.shape[2]):  # per axis: no (pairs, steps, d) temporary
+            diff = P[i, :, c] - P[j, :, c]
+            if c == 0:
+                dist2 = diff * diff
+            else:
+                dist2 += diff * diff
+        close[:, 1:] = dist2 <= radius * radius
+        # A close sample makes both segments that touch it candidates.
+        seg = close[:, :-1] | close[:, 1:]  # (pairs, k1): segment k-1 and k around sample k
+        q, k = np.nonzero(seg[:, 1:k1])
+        return np.column_stack([i[q], j[q], k]).astype(np.int64)
     found: list[NDArray[np.int64]] = []
     for k in range(k1):
         pairs = cKDTree(P[:, k]).query_pairs(radius, output_type="ndarray")
         if len(pairs):
             pairs = np.sort(pairs, axis=1)
             # A close sample makes both segments that touch it candidates.
-            for seg in (k - 1, k):
-                if 0 <= seg < k1 - 1:
-                    found.append(np.column_stack([pairs, np.full(len(pairs), seg)]))
+            for seg_k in (k - 1, k):
+                if 0 <= seg_k < k1 - 1:
+                    found.append(np.column_stack([pairs, np.full(len(pairs), seg_k)]))
     if not found:
         return np.empty((0, 3), dtype=np.int64)
-    return np.unique(np.concatenate(found).astype(np.int64), axis=0)
+    return unique_segments(np.concatenate(found).astype(np.int64), n, k1 - 1)
 
 
 def widen(segments: NDArray[np.int64], steps: int, by: int) -> NDArray[np.int64]:
@@ -39,7 +59,7 @@ def widen(segments: NDArray[np.int64], steps: int, by: int) -> NDArray[np.int64]
     rows = np.repeat(segments, len(offsets), axis=0)
     rows[:, 2] += np.tile(offsets, len(segments))
     rows = rows[(rows[:, 2] >= 0) & (rows[:, 2] < steps)]
-    return np.unique(rows, axis=0)
+    return unique_segments(rows, int(rows[:, :2].max()) + 1, steps)
 
 
 def groups(n: int, pairs: NDArray[np.int64], extra: IntArray) -> list[IntArray]:
@@ -63,3 +83,15 @@ def groups(n: int, pairs: NDArray[np.int64], extra: IntArray) -> list[IntArray]:
 def segment_keys(segments: NDArray[np.int64], n: int, steps: int) -> NDArray[np.int64]:
     """One int64 per (i, j, k) row, for fast set membership tests."""
     return (segments[:, 0] * n + segments[:, 1]) * steps + segments[:, 2]
+
+
+def segments_from_keys(keys: NDArray[np.int64], n: int, steps: int) -> NDArray[np.int64]:
+    """The (m, 3) rows (i, j, k) of :func:`segment_keys` ``keys``."""
+    pair, k = np.divmod(keys, steps)
+    i, j = np.divmod(pair, n)
+    return np.column_stack([i, j, k]).astype(np.int64)
+
+
+def unique_segments(segments: NDArray[np.int64], n: int, steps: int) -> NDArray[np.int64]:
+    """Sorted distinct (i, j, k) rows (through 1-D keys: ``unique(axis=0)`` is slow)."""
+    return segments_from_keys(np.unique(segment_keys(segments, n, steps)), n, steps)

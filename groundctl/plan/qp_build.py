@@ -46,10 +46,12 @@ def solve_checked(solver: osqp.OSQP, transition: int, what: str) -> NDArray[np.f
 
 #: Max slack (m) still counted as "separation holds" at convergence.
 SLACK_TOL = 5e-3
-#: A pair-segment closer than separation + NEED_MARGIN must be in a QP (m).  The
-#: loop stops only after an iteration in which no sample moved more than the
-#: tolerance, so a pair left out (> NEED_MARGIN away) cannot have closed the gap
-#: as long as NEED_MARGIN > 2 x tolerance; the verifier checks it again anyway.
+#: A pair-segment closer than separation + NEED_MARGIN must have rows in the QP of
+#: every group it touches (coupled rows inside a group, obstacle rows across groups;
+#: a pair of two drones in no group does not move).  The loop stops only after an
+#: iteration in which no sample moved more than the tolerance, so a pair left out
+#: (> NEED_MARGIN away) cannot have closed the gap as long as NEED_MARGIN > 2 x
+#: tolerance; the verifier checks it again anyway.
 NEED_MARGIN = 0.2
 #: Largest SCP convergence tolerance that argument allows, m (the loader enforces it).
 MAX_TOLERANCE = 0.09
@@ -121,15 +123,37 @@ def segment_normals(P: FloatArray, i: IntArray, j: IntArray, k: IntArray) -> Flo
     """Unit normals (m, d) of the paper's linearised separation, one per pair-segment.
 
     The normal is drone i minus drone j at the middle of segment k of the previous
-    iterate ``P`` (n, N+1, d).  A straight line through the other drone gives a
-    zero midpoint vector: fall back to the segment start, then to a fixed
-    direction, so a row is never all zeros.
+    iterate ``P`` (n, N+1, d); see :func:`chord_normals`.
     """
-    start = P[i, k] - P[j, k]
-    mid = 0.5 * (start + P[i, k + 1] - P[j, k + 1])
+    return chord_normals(P[i, k] - P[j, k], P[i, k + 1] - P[j, k + 1])
+
+
+def chord_normals(rel0: FloatArray, rel1: FloatArray) -> FloatArray:
+    """Unit normals (m, d) of segments whose relative position runs from ``rel0`` to ``rel1``.
+
+    The normal is the relative position at the middle of the segment.  A straight
+    line through the other drone gives a zero midpoint vector: fall back to the
+    segment start, then to a fixed direction, so a row is never all zeros.
+    """
+    start = rel0
+    mid = 0.5 * (rel0 + rel1)
     norm = np.linalg.norm(mid, axis=1)
     mid = np.where(norm[:, None] > 1e-6, mid, start)
     norm = np.linalg.norm(mid, axis=1)
-    fallback = np.zeros(P.shape[-1])
+    fallback = np.zeros(rel0.shape[-1])
     fallback[1] = 1.0
     return np.where(norm[:, None] > 1e-6, mid / np.maximum(norm, 1e-12)[:, None], fallback)
+
+
+def chord_clearance(P: FloatArray, segments: NDArray[np.int64]) -> FloatArray:
+    """Value of each pair-segment's separation row at ``P`` itself, m.
+
+    ``segments`` is (m, 3) rows (i, j, k); the value is the smaller of
+    n.(p_i - p_j) at both segment ends with the normal of :func:`segment_normals`,
+    i.e. how much separation the linearised constraint sees at the iterate.
+    """
+    i, j, k = segments[:, 0], segments[:, 1], segments[:, 2]
+    rel0 = P[i, k] - P[j, k]
+    rel1 = P[i, k + 1] - P[j, k + 1]
+    nrm = chord_normals(rel0, rel1)
+    return np.minimum(np.einsum("md,md->m", nrm, rel0), np.einsum("md,md->m", nrm, rel1))

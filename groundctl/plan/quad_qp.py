@@ -3,7 +3,7 @@
 Decision variables (all flattened C-order): positions P (g, N+1, 3),
 velocities V (g, N+1, 3), accelerations A (g, N, 3) held constant over each
 step (a double integrator, exact discretisation), and one slack per
-separation pair-segment S (m,).
+separation pair-segment and per obstacle segment S (m + m_o,).
 
 Constraints (rows of OSQP's l <= Ax <= u):
 
@@ -20,9 +20,14 @@ Constraints (rows of OSQP's l <= Ax <= u):
   the safe side, and d' adds the most a double integrator can bulge from its
   chord (a_rel dt^2 / 8) so the continuous trajectory keeps d_min, not only
   the samples.  The slack s >= 0 (l1-penalised) keeps every QP feasible even
-  from a straight-line guess that runs two drones through each other.
+  from a straight-line guess that runs two drones through each other;
+* obstacle rows: the same segment rows for a pair whose other drone is outside
+  the group, with that drone's trajectory o held fixed, n.p_i + s >= n.o + d'
+  at both ends (the bound is refreshed from the other drone's latest position
+  at every linearisation).  They touch the group's own variables only, so they
+  add rows but no coupling to the KKT system.
 
-Only the values of the tangent and separation rows, the bounds and the linear
+Only the values of the tangent, separation and obstacle rows, the bounds and the linear
 cost change between SCP iterations: the sparsity pattern is fixed at build
 time, so OSQP factorises the KKT structure once and warm-starts each solve.
 """
@@ -41,6 +46,7 @@ from groundctl.plan.qp_build import (
     SLACK_WEIGHT,
     FixedPattern,
     RowBuilder,
+    chord_normals,
     segment_normals,
     solve_checked,
 )
@@ -65,19 +71,35 @@ class PairSegments:
     """(m,) segment index: the segment runs from step k to step k+1."""
 
 
+@dataclass(frozen=True)
+class ObstacleSegments:
+    """Separation rows against drones outside the group, whose trajectory is held fixed."""
+
+    i: IntArray
+    """(m,) the group's drone of each pair-segment (group-local index)."""
+    k: IntArray
+    """(m,) segment index: the segment runs from step k to step k+1."""
+
+    @staticmethod
+    def empty() -> ObstacleSegments:
+        return ObstacleSegments(np.empty(0, dtype=np.intp), np.empty(0, dtype=np.intp))
+
+
 class GroupQP:
     """The QP for ``g`` drones over one transition."""
 
     def __init__(self, start: FloatArray, goal: FloatArray, ref: FloatArray, steps: int,
                  dt: float, limits: Limits, pairs: PairSegments, alpha: float, beta: float,
-                 osqp_settings: dict[str, float | int | bool]) -> None:
+                 osqp_settings: dict[str, float | int | bool],
+                 obstacles: ObstacleSegments | None = None) -> None:
         g = start.shape[0]
         n_steps = steps
         self.g, self.N, self.dt, self.limits = g, n_steps, dt, limits
         self.start, self.goal, self.ref = start, goal, ref
         self.pairs = pairs
+        self.obstacles = obstacles if obstacles is not None else ObstacleSegments.empty()
         self._alpha, self._beta = alpha, beta
-        m = len(pairs.i)
+        m = len(pairs.i) + len(self.obstacles.i)
         self.nP = g * (n_steps + 1) * 3
         self.nV = self.nP
         self.nA = g * n_steps * 3
@@ -154,6 +176,17 @@ class GroupQP:
         else:
             self.sep_rows = slice(rows.count, rows.count)
             self.sep_coo = slice(rows.nnz, rows.nnz)
+        # Obstacle rows: the same two segment-end rows, on the group's drone only.
+        ob = self.obstacles
+        mo = len(ob.i)
+        end = np.concatenate([ob.k, ob.k + 1])
+        ii = np.concatenate([ob.i, ob.i])
+        rr = np.arange(2 * mo)
+        slack = self.oS + m + np.concatenate([np.arange(mo), np.arange(mo)])
+        self.obs_rows, obs_coo = rows.block(
+            2 * mo, np.concatenate([np.tile(rr, 3), rr]),
+            np.concatenate([*(self._ip(ii, end, c) for c in range(3)), slack]), np.ones(8 * mo))
+        self.obs_coo = slice(obs_coo.start, obs_coo.start + 6 * mo)
 
         self.n_rows = rows.count
         self._pattern = FixedPattern(rows, self.nx)
@@ -171,6 +204,7 @@ class GroupQP:
         self.u[self.tan_v_rows] = lim.max_speed_h
         self.u[self.tan_a_rows] = lim.max_accel
         self.l[self.sep_rows] = self.d_sep
+        self.l[self.obs_rows] = self.d_sep  # replaced by every linearise()
         self._static_boxes()
         self.solver = osqp.OSQP()
         self.solver.setup(P=self._P, q=self.q, A=self.A, l=self.l, u=self.u, **settings)
@@ -222,10 +256,13 @@ class GroupQP:
         self.l[self.box_rows] = lo
         self.u[self.box_rows] = hi
 
-    def linearise(self, P: FloatArray, V: FloatArray, A: FloatArray, trust: float) -> None:
+    def linearise(self, P: FloatArray, V: FloatArray, A: FloatArray, trust: float,
+                  others: FloatArray | None = None) -> None:
         """Relinearise every iterate-dependent row around (P, V, A) and push to OSQP.
 
         ``trust`` bounds how far any interior position may move in this solve (m).
+        ``others`` (m_o, 2, 3) are the positions of the drone outside the group at
+        both ends of each obstacle segment: fixed obstacles for this solve.
         """
         g, N = self.g, self.N
         # Speed tangent planes at interior steps: normal of the previous horizontal velocity.
@@ -241,6 +278,18 @@ class GroupQP:
         self._values[self.tan_a_coo] = n_a.T.ravel()
         p = self.pairs
         m = len(p.i)
+        ob = self.obstacles
+        if len(ob.i):
+            if others is None or others.shape != (len(ob.i), 2, 3):
+                raise ValueError("`others` must be (m_o, 2, 3): one segment per obstacle row")
+            rel0 = P[ob.i, ob.k] - others[:, 0]
+            rel1 = P[ob.i, ob.k + 1] - others[:, 1]
+            n_ob = chord_normals(rel0, rel1)
+            self._values[self.obs_coo] = np.tile(n_ob, (2, 1)).T.ravel()
+            # n.p_i >= n.o + d' at both ends: the chord of p_i - o stays on the safe side.
+            self.l[self.obs_rows] = self.d_sep + np.concatenate([
+                np.einsum("md,md->m", n_ob, others[:, 0]),
+                np.einsum("md,md->m", n_ob, others[:, 1])])
         lo = self._box_lo.copy()
         hi = self._box_hi.copy()
         if m:
@@ -262,8 +311,9 @@ class GroupQP:
 
     def solve(self, transition: int) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """Solve; return (P, V, A, slack).  Raises PlanningError unless OSQP solved it."""
-        x = solve_checked(self.solver, transition, f"{self.g} drones, {self.N} steps, "
-                                                   f"{len(self.pairs.i)} pair-segments")
+        x = solve_checked(self.solver, transition,
+                          f"{self.g} drones, {self.N} steps, {len(self.pairs.i)} pair-segments, "
+                          f"{len(self.obstacles.i)} obstacle segments")
         g, N = self.g, self.N
         P = x[: self.nP].reshape(g, N + 1, 3).copy()
         V = x[self.oV: self.oA].reshape(g, N + 1, 3).copy()

@@ -5,23 +5,39 @@ The paper's loop, at scale:
 1. straight-line initial guess: every drone on its own line with the
    minimum-effort rest-to-rest profile (which is also its reference);
 2. find the pair-segments that come near (KD-tree per step, within the
-   tightened separation + NEED_MARGIN) and group the drones they join into
-   connected components; drones in no group keep their straight line, which
-   is already their optimum;
+   tightened separation + NEED_MARGIN) and evaluate their linearised
+   separation rows at the current iterate.  Only *tight* pairs (row clearance
+   below LINK_MARGIN: violated, or held up against another drone) join their
+   two drones into a group; groups are the connected components of the tight
+   pairs, and links accumulate over the iterations.  Drones that break a limit
+   on their straight line form a group of one.  Drones in no group keep their
+   current trajectory: on the straight line that is their own optimum, and it
+   satisfies every row it is part of;
 3. per group, linearise the separation and norm limits around the previous
    iterate and solve the QP with OSQP (built once per group, updated in place,
-   warm-started); drones that break a limit on their straight line form a
-   group of one;
+   warm-started).  Close pairs inside the group get the paper's coupled rows;
+   close pairs with a drone outside the group get *obstacle rows* on the
+   group's drone only, against where the other drone is now (Gauss-Seidel:
+   groups solved earlier in the same iteration have already moved).  Each row
+   keeps its pair safe against the other drone's final trajectory of the
+   iteration whichever of the two groups is solved last, so every iterate with
+   zero slack is safe, and the KKT system of a group never couples it to its
+   neighbours: the QPs stay as small as the conflicts instead of growing into
+   one fleet-sized mesh.  A group pressed against an obstacle row makes that
+   pair tight, so the two groups merge and are optimised jointly next time;
 4. repeat per group until no sample moves more than the tolerance with every
    slack zero.  Once a group's iterate is feasible its trust region halves at
    every iteration: the separation rows are a convex restriction, so every
    feasible iterate is already safe and the rest only polishes (without this,
    large groups cycle on the tangent-plane linearisation of the norm limits).
-   A converged group is not solved again unless it merges with another.
+   A converged group is not solved again unless it merges with another or a
+   new close pair needs rows.
 
-The groups are independent QPs: the full problem is block-separable once the
-pairs that cannot come close are left out, so this is the exact problem, not
-a heuristic split.
+On the straight-line guess of a 1000-drone grid-to-sphere transition, 13,000
+pair-segments come within NEED_MARGIN and chain 541 drones into one component,
+but only ~350 rows are violated, in clusters of two or three drones: grouping
+by tight pairs solves ~130 drones in groups of a few, instead of one QP whose
+LDL factorisation fills in over a pairs-by-time mesh.
 """
 
 from __future__ import annotations
@@ -34,7 +50,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from groundctl.errors import InfeasibleTransition, PlanningError
-from groundctl.plan.conflicts import close_pair_segments, groups, segment_keys, widen
+from groundctl.plan.conflicts import (
+    close_pair_segments,
+    groups,
+    segment_keys,
+    unique_segments,
+    widen,
+)
 from groundctl.plan.feasibility import min_transition_time
 from groundctl.plan.profile import rest_to_rest
 from groundctl.plan.qp_build import (
@@ -44,8 +66,9 @@ from groundctl.plan.qp_build import (
     NEED_MARGIN,
     OSQP_SETTINGS,
     SLACK_TOL,
+    chord_clearance,
 )
-from groundctl.plan.quad_qp import GroupQP, PairSegments
+from groundctl.plan.quad_qp import SEPARATION_BUFFER, GroupQP, ObstacleSegments, PairSegments
 from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import Limits, PlannerSettings, QuadrotorModel
 
@@ -53,6 +76,10 @@ FloatArray = NDArray[np.float64]
 
 #: SCP trust region on positions, m per iteration.
 TRUST_RADIUS = 1.0
+#: A close pair-segment whose separation row has less than this much clearance at
+#: the current iterate (violated, or held up against an obstacle row) joins its two
+#: drones into one group, m.
+LINK_MARGIN = 0.05
 
 
 @dataclass(frozen=True)
@@ -88,6 +115,10 @@ class _Group:
     qp: GroupQP
     keys: NDArray[np.int64]
     """Pair-segment keys the QP has rows for."""
+    rows: NDArray[np.int64]
+    """(m, 3) the pair-segments (i, j, k) themselves, global drone indices."""
+    obs_other: NDArray[np.intp]
+    """(m_o,) global index of the drone outside the group, per obstacle row."""
     trust: float = TRUST_RADIUS
     """Trust region on positions for the next solve, m."""
     slack: float = np.inf
@@ -111,6 +142,36 @@ def _limit_violators(V: FloatArray, A: FloatArray, lim: Limits) -> NDArray[np.in
     return np.flatnonzero(bad)
 
 
+def _build_group(members: NDArray[np.intp], inside: NDArray[np.bool_],
+                 near_build: NDArray[np.int64], had_rows: NDArray[np.int64],
+                 start: FloatArray, goal: FloatArray, ref: FloatArray, steps: int, dt: float,
+                 limits: Limits, settings: PlannerSettings, trust: float) -> _Group:
+    """A group's QP with rows for every pair-segment of its drones within BUILD_MARGIN.
+
+    Pairs inside the group get coupled rows, pairs with a drone outside it obstacle
+    rows on the group's drone.  Rows only ever grow: a pair-segment that had rows
+    keeps them, so a rebuild happens only for pairs that are really new.
+    """
+    n = len(inside)
+    touch = near_build[inside[near_build[:, 0]] | inside[near_build[:, 1]]]
+    glob = widen(touch, steps, BUILD_WIDEN)
+    mine = inside[had_rows[:, 0]] | inside[had_rows[:, 1]]
+    glob = unique_segments(np.concatenate([glob, had_rows[mine]]), n, steps)
+    local = np.full(n, -1, dtype=np.intp)
+    local[members] = np.arange(len(members))
+    both = inside[glob[:, 0]] & inside[glob[:, 1]]
+    internal, external = glob[both], glob[~both]
+    pairs = PairSegments(local[internal[:, 0]], local[internal[:, 1]],
+                         internal[:, 2].astype(np.intp))
+    first_in = inside[external[:, 0]]
+    mine_drone = np.where(first_in, external[:, 0], external[:, 1])
+    other = np.where(first_in, external[:, 1], external[:, 0]).astype(np.intp)
+    obstacles = ObstacleSegments(local[mine_drone], external[:, 2].astype(np.intp))
+    qp = GroupQP(start[members], goal[members], ref[members], steps, dt, limits, pairs,
+                 settings.alpha, settings.beta, OSQP_SETTINGS, obstacles)
+    return _Group(qp, segment_keys(glob, n, steps), rows=glob, obs_other=other, trust=trust)
+
+
 def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatArray,
                          duration: float, limits: Limits,
                          settings: PlannerSettings) -> TransitionResult:
@@ -132,58 +193,57 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
     A = prof.dds[None, :, None] * delta[:, None, :]
 
     d_sep = limits.min_separation + limits.max_accel * dt * dt / 4
+    d_row = d_sep + SEPARATION_BUFFER  # what the QP's separation rows ask for
     states: dict[tuple[int, ...], _Group] = {}
     iterations = 0
     qp_drones: set[int] = set()
-    need_all = np.empty((0, 3), dtype=np.int64)
+    links = np.empty((0, 3), dtype=np.int64)
     violators_all = np.empty(0, dtype=np.intp)
     had_rows = np.empty((0, 3), dtype=np.int64)
     if settings.tolerance > MAX_TOLERANCE:
         raise ValueError(f"`tolerance` must be at most {MAX_TOLERANCE} m")
     for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 (used after)
-        # Only pairs that actually come near join drones into a group; grid neighbours
-        # that stay 3 m apart must not weld the whole fleet into one QP.  Needed pairs
-        # accumulate, so a group keeps its members (and its QP) until it converges.
-        need_all = np.unique(
-            np.concatenate([need_all, close_pair_segments(P, d_sep + NEED_MARGIN)]), axis=0)
+        need = close_pair_segments(P, d_sep + NEED_MARGIN)
+        # Only pairs whose row is violated or nearly active join drones into a group;
+        # the other close pairs become obstacle rows.  Links accumulate, so a group
+        # keeps its members (and its QP) until it converges.
+        tight = need[chord_clearance(P, need) < d_row + LINK_MARGIN]
+        links = unique_segments(np.concatenate([links, tight]), n, steps)
         violators_all = np.union1d(violators_all, _limit_violators(V, A, limits))
-        grouped = groups(n, need_all[:, :2], violators_all)
+        grouped = groups(n, links[:, :2], violators_all)
         # Which group each drone was in, so a grown or merged group inherits the
         # smallest trust region of its parts: resetting it would let a group that
         # keeps picking up neighbours cycle for ever.
         trust_of = np.full(n, TRUST_RADIUS)
         for key, st in states.items():
             trust_of[list(key)] = st.trust
+        near_build: NDArray[np.int64] | None = None
         new_states: dict[tuple[int, ...], _Group] = {}
         for members in grouped:
             key = tuple(int(x) for x in members)
             qp_drones.update(key)
-            mine_need = need_all[np.isin(need_all[:, 0], members)]
+            inside = np.zeros(n, dtype=bool)
+            inside[members] = True
+            mine_need = need[inside[need[:, 0]] | inside[need[:, 1]]]
             state = states.get(key)
             if state is None or not np.all(np.isin(segment_keys(mine_need, n, steps),
                                                    state.keys)):
-                # Rows for every pair-segment of the group within BUILD_MARGIN, so the
-                # QP (OSQP's factorisation, its warm start) lasts many iterations.
-                near = widen(close_pair_segments(P[members], d_sep + BUILD_MARGIN), steps,
-                             BUILD_WIDEN)
-                glob = np.column_stack([members[near[:, 0]], members[near[:, 1]], near[:, 2]])
-                # Rows only ever grow: a pair-segment that had rows keeps them, so a
-                # rebuild happens only for pairs that are really new.
-                inside = np.isin(had_rows[:, 0], members) & np.isin(had_rows[:, 1], members)
-                glob = np.unique(np.concatenate([glob, had_rows[inside]]), axis=0)
-                had_rows = np.unique(np.concatenate([had_rows, glob]), axis=0)
-                local = np.full(n, -1, dtype=np.intp)
-                local[members] = np.arange(len(members))
-                pairs = PairSegments(local[glob[:, 0]], local[glob[:, 1]],
-                                     glob[:, 2].astype(np.intp))
-                qp = GroupQP(start[members], goal[members], ref[members], steps, dt, limits,
-                             pairs, settings.alpha, settings.beta, OSQP_SETTINGS)
-                state = _Group(qp, segment_keys(glob.astype(np.int64), n, steps),
-                               trust=float(trust_of[members].min()))
+                if near_build is None:
+                    near_build = close_pair_segments(P, d_sep + BUILD_MARGIN)
+                state = _build_group(members, inside, near_build, had_rows, start, goal, ref,
+                                     steps, dt, limits, settings,
+                                     trust=float(trust_of[members].min()))
+                had_rows = unique_segments(np.concatenate([had_rows, state.rows]), n, steps)
             new_states[key] = state
             if state.converged:
                 continue
-            state.qp.linearise(P[members], V[members], A[members], state.trust)
+            # Gauss-Seidel: obstacles are where the other drones are now, including
+            # groups solved earlier in this iteration.  Every group keeps the rows
+            # against them, so each pair is safe after whichever of its two groups
+            # was solved last, and a group's current iterate is always feasible.
+            others = np.stack([P[state.obs_other, state.qp.obstacles.k],
+                               P[state.obs_other, state.qp.obstacles.k + 1]], axis=1)
+            state.qp.linearise(P[members], V[members], A[members], state.trust, others)
             Pg, Vg, Ag, Sg = state.qp.solve(index)
             change = float(np.abs(Pg - P[members]).max())
             state.slack = float(Sg.max(initial=0.0))
