@@ -144,12 +144,23 @@ class SimFleet:
                     position=_t3(ph.pos[i]), velocity=_t3(ph.vel[i]),
                     estimated_position=_t3(ph.est_pos[i]), armed=v.armed, mode=v.mode,
                     landed=bool(ph.on_ground[i]), crashed=bool(ph.crashed[i]), led=v.led,
-                    led_blink_hz=v.led_blink_hz, battery=float(ph.battery[i]),
+                    led_blink_hz=v.led_blink_hz, led_changed_at=v.led_changed_at,
+                    battery=float(ph.battery[i]),
                     gcs_address=self._gcs[i], packets_in=c.packets_in,
                     packets_out=c.packets_out, bad_packets=c.bad_packets,
                     rejected_signature=c.rejected_signature,
                     setpoints_dropped=v.setpoints_dropped))
             return out
+
+    def positions(self) -> np.ndarray:
+        """(count, 3) true show-frame ENU positions now, in vehicle order (a copy)."""
+        with self._lock:
+            return self.physics.pos.copy()
+
+    def leds(self) -> list[tuple[tuple[int, int, int], float | None]]:
+        """Each vehicle's LED colour and the clock time it last changed, in vehicle order."""
+        with self._lock:
+            return [(v.led, v.led_changed_at) for v in self.vehicles]
 
     def state(self, sysid: int) -> VehicleState:
         """Snapshot of the (first) vehicle with system id ``sysid``."""
@@ -197,6 +208,14 @@ class SimFleet:
                    at: float | None = None, duration: float | None = None) -> None:
         """The position estimate jumps by ``offset`` (ENU m); the vehicle flies off by -offset."""
         self.inject(FaultEvent(FaultKind.GPS_GLITCH, self._at(at), sysid, _v3(offset), duration))
+
+    def refuse_arming(self, sysid: int | None = None, times: int = 1,
+                      reason: str = "PreArm: Gyros inconsistent") -> None:
+        """The next ``times`` arm commands are refused with ``reason`` (an arming-time check
+        that SYS_STATUS's pre-arm bit did not show, as real autopilots have)."""
+        with self._lock:
+            for i in self._indices(sysid):
+                self.vehicles[int(i)].arm_refusals.extend([reason] * times)
 
     def motor_failure(self, sysid: int | None = None, at: float | None = None) -> None:
         """Thrust lost: the vehicle falls (and is disarmed by its crash check on impact)."""

@@ -133,6 +133,9 @@ class PX4Vehicle(Vehicle):
             if self.armed:
                 return ACCEPTED
             if not forced:
+                if self.arm_refusals:  # an arming-time check failing (a fault)
+                    self.statustext(mavlink.MAV_SEVERITY_CRITICAL, self.arm_refusals.pop(0))
+                    return TEMP_REJECTED
                 if not self.ready_to_arm(now):
                     self.statustext(mavlink.MAV_SEVERITY_CRITICAL,
                                     "Arming denied: Resolve system health failures first")

@@ -97,8 +97,11 @@ class Vehicle:
         self.failsafe = False
         self.led: tuple[int, int, int] = (0, 0, 0)
         self.led_blink_hz = 0.0
+        self.led_changed_at: float | None = None
         self.streams: dict[int, Stream] = {}
         self.setpoints_dropped = 0
+        self.arm_refusals: list[str] = []
+        """Reasons (STATUSTEXT) to refuse the next arm commands with, one each (a fault)."""
         self.last_gcs_heartbeat: float | None = None
         self.last_setpoint: float | None = None
         self.setpoint_kind = "none"  # "pos", "posvel", "vel", "acc"
@@ -526,7 +529,9 @@ class Vehicle:
         if msg.custom_len not in (3, 4):
             return
         b = list(msg.custom_bytes)
-        self.led = (int(b[0]), int(b[1]), int(b[2]))
+        colour = (int(b[0]), int(b[1]), int(b[2]))
+        if colour != self.led:
+            self.led, self.led_changed_at = colour, now
         self.led_blink_hz = float(b[3]) if msg.custom_len == 4 else 0.0
 
     def _on_ping(self, msg: Msg, now: float) -> None:

@@ -1,0 +1,158 @@
+"""A SimFleet in its own process: the simulator on one core, the ground station on another.
+
+In one process the simulator's thread and the ground station's event loop
+share the GIL, and the dry-run of a 64-drone show cannot even keep real
+time on a small machine.  :class:`SimProcess` runs the same
+:class:`~groundctl.sim.fleet.SimFleet` in a child process (``spawn``, so no
+thread or socket of the parent leaks into it) and forwards calls over a
+pipe: ``proc.call("cut_link", 3)`` is ``fleet.cut_link(3)`` over there,
+``proc.get("overruns")`` reads an attribute.  Both sides share the
+:class:`~groundctl.clock.ScaledClock` (it is defined on CLOCK_MONOTONIC, which
+every process of the machine sees alike).
+
+The child ignores Ctrl-C: the ground station decides what a Ctrl-C means
+(land every vehicle) and the simulated vehicles must keep flying meanwhile.
+It stops when told, or when the parent goes away (its pipe closes).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing as mp
+import signal
+import threading
+from multiprocessing.connection import Connection
+from types import TracebackType
+from typing import Any
+
+from groundctl.clock import ScaledClock
+from groundctl.errors import SimulatorError
+from groundctl.sim.config import SimConfig
+
+#: Seconds to wait for the child to build its fleet, or to answer a call.
+START_TIMEOUT_S = 60.0
+CALL_TIMEOUT_S = 10.0
+
+
+def _serve(conn: Connection, config: SimConfig, clock: ScaledClock) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    from groundctl.sim.fleet import SimFleet
+
+    try:
+        fleet = SimFleet(config, clock)
+        fleet.start()
+    except Exception as exc:  # reported to the parent, which raises it
+        conn.send(("err", SimulatorError(f"the simulator process could not start: {exc}")))
+        return
+    conn.send(("ok", {"ports": fleet.ports, "sysids": list(fleet.sysids)}))
+    try:
+        while True:
+            try:
+                kind, name, args, kwargs = conn.recv()
+            except (EOFError, OSError):
+                break  # the parent is gone
+            if kind == "stop":
+                break
+            try:
+                if name.startswith("_"):
+                    raise SimulatorError(f"{name} is not part of the simulator's interface")
+                attr = getattr(fleet, name)
+                conn.send(("ok", attr(*args, **kwargs) if kind == "call" else attr))
+            except Exception as exc:
+                conn.send(("err", exc))
+    finally:
+        error: Exception | None = None
+        try:
+            fleet.stop()
+        except SimulatorError as exc:
+            error = exc
+        with contextlib.suppress(OSError, ValueError):
+            conn.send(("stopped", error))
+
+
+class SimProcess:
+    """A :class:`~groundctl.sim.fleet.SimFleet` running in a child process."""
+
+    def __init__(self, config: SimConfig, clock: ScaledClock) -> None:
+        if not isinstance(clock, ScaledClock):
+            raise SimulatorError("a simulator process needs a ScaledClock (shared by both "
+                                 "processes)")
+        self.config = config
+        self.clock = clock
+        ctx = mp.get_context("spawn")
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_serve, args=(child, config, clock),
+                                 name="groundctl-sim", daemon=True)
+        self._lock = threading.Lock()
+        self._proc.start()
+        child.close()
+        info = self._receive(START_TIMEOUT_S, "start")
+        self.ports: list[int] = info["ports"]
+        """UDP port of each vehicle, in vehicle order."""
+        self.sysids: list[int] = info["sysids"]
+        """System ids, in vehicle order."""
+        self._stopped = False
+
+    def _receive(self, timeout: float, what: str) -> Any:
+        if not self._conn.poll(timeout):
+            self._kill()
+            raise SimulatorError(f"the simulator process did not answer {what} within "
+                                 f"{timeout:.0f} s")
+        try:
+            kind, value = self._conn.recv()
+        except (EOFError, OSError) as exc:
+            self._kill()
+            raise SimulatorError(f"the simulator process died during {what}") from exc
+        if kind == "err":
+            raise value
+        return value
+
+    def call(self, name: str, *args: Any, **kwargs: Any) -> Any:
+        """``fleet.name(*args, **kwargs)`` in the child; its exception is raised here."""
+        with self._lock:
+            if self._stopped:
+                raise SimulatorError("the simulator process has stopped")
+            self._conn.send(("call", name, args, kwargs))
+            return self._receive(CALL_TIMEOUT_S, name)
+
+    def get(self, name: str) -> Any:
+        """``fleet.name`` (an attribute or property) in the child."""
+        with self._lock:
+            if self._stopped:
+                raise SimulatorError("the simulator process has stopped")
+            self._conn.send(("get", name, (), {}))
+            return self._receive(CALL_TIMEOUT_S, name)
+
+    def stop(self) -> None:
+        """Stop the fleet and the process; raises the loop's failure if it had one."""
+        with self._lock:
+            if self._stopped:
+                return
+            self._stopped = True
+            error: Exception | None = None
+            try:
+                self._conn.send(("stop", "", (), {}))
+                while self._conn.poll(CALL_TIMEOUT_S):
+                    kind, value = self._conn.recv()
+                    if kind == "stopped":
+                        error = value
+                        break
+            except (EOFError, OSError):
+                pass
+            self._proc.join(CALL_TIMEOUT_S)
+            self._kill()
+            self._conn.close()
+        if error is not None:
+            raise error
+
+    def _kill(self) -> None:
+        if self._proc.is_alive():
+            self._proc.kill()
+            self._proc.join(5.0)
+
+    def __enter__(self) -> SimProcess:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.stop()
