@@ -1,10 +1,14 @@
-"""Fleet files: explicit vehicle endpoints, for vehicles that do not find us first.
+"""Fleet files: which vehicles fly, where they listen, which plan track each flies.
 
 ::
 
     [[vehicle]]
     system_id = 3
-    address = "127.0.0.1:14561"
+    address = "127.0.0.1:14561"   # optional: vehicles that do not find us first
+    track = 0                      # optional: the plan track it flies (else by position)
+
+Either every entry names a track or none does: a half-mapped fleet is a
+mistake, not a request for mixed assignment.
 """
 
 from __future__ import annotations
@@ -58,12 +62,34 @@ def parse_address(text: str) -> tuple[str, int]:
     return host.strip("[]"), port
 
 
+@dataclass(frozen=True)
+class FleetFile:
+    """Everything a fleet file says."""
+
+    system_ids: tuple[int, ...]
+    """Every vehicle listed, in file order."""
+    endpoints: tuple[Endpoint, ...]
+    """The vehicles listed with an address."""
+    tracks: dict[int, int]
+    """System id -> plan track (empty when the file maps none)."""
+
+
 def parse_fleet(data: dict[str, object], path: str | Path = "<fleet>") -> list[Endpoint]:
     """Endpoints from an already-parsed fleet TOML document."""
+    return list(parse_fleet_file(data, path).endpoints)
+
+
+def parse_fleet_file(data: dict[str, object], path: str | Path = "<fleet>") -> FleetFile:
+    """The whole fleet file from an already-parsed TOML document."""
+    unknown = sorted(set(data) - {"vehicle"})
+    if unknown:
+        raise FleetFileError(path, unknown[0], "unknown table (expected [[vehicle]] entries)")
     vehicles = data.get("vehicle", [])
     if not isinstance(vehicles, list):
         raise FleetFileError(path, "vehicle", "must be an array of tables ([[vehicle]])")
     endpoints: list[Endpoint] = []
+    ids: list[int] = []
+    tracks: dict[int, int] = {}
     seen: set[int] = set()
     for i, entry in enumerate(vehicles, start=1):
         where = f"vehicle {i}"
@@ -76,7 +102,22 @@ def parse_fleet(data: dict[str, object], path: str | Path = "<fleet>") -> list[E
         if sysid in seen:
             raise FleetFileError(path, f"{where}: system_id", f"{sysid} appears twice")
         seen.add(sysid)
+        ids.append(sysid)
+        extra = sorted(set(entry) - {"system_id", "address", "track"})
+        if extra:
+            raise FleetFileError(path, f"{where}: {extra[0]}",
+                                 "unknown key (expected system_id, address, track)")
+        track = entry.get("track")
+        if track is not None:
+            if not isinstance(track, int) or isinstance(track, bool) or track < 0:
+                raise FleetFileError(path, f"{where}: track",
+                                     f"must be a non-negative integer, got {track!r}")
+            if track in tracks.values():
+                raise FleetFileError(path, f"{where}: track", f"track {track} appears twice")
+            tracks[sysid] = track
         address = entry.get("address")
+        if address is None:
+            continue
         if not isinstance(address, str):
             raise FleetFileError(path, f"{where}: address",
                                  f"must be a string 'host:port', got {address!r}")
@@ -85,11 +126,20 @@ def parse_fleet(data: dict[str, object], path: str | Path = "<fleet>") -> list[E
         except ValueError as exc:
             raise FleetFileError(path, f"{where}: address", str(exc)) from exc
         endpoints.append(Endpoint(sysid, host, port))
-    return endpoints
+    if tracks and len(tracks) != len(ids):
+        missing = [s for s in ids if s not in tracks]
+        raise FleetFileError(path, "track", f"vehicle(s) {missing} have no track: give every "
+                                            "vehicle a track, or none (assign by position)")
+    return FleetFile(tuple(ids), tuple(endpoints), tracks)
 
 
 def load_fleet(path: str | Path) -> list[Endpoint]:
     """Endpoints listed in the fleet file at ``path``."""
+    return list(load_fleet_file(path).endpoints)
+
+
+def load_fleet_file(path: str | Path) -> FleetFile:
+    """Everything the fleet file at ``path`` says."""
     try:
         with open(path, "rb") as f:
             data = tomllib.load(f)
@@ -97,4 +147,4 @@ def load_fleet(path: str | Path) -> list[Endpoint]:
         raise FleetFileError(path, "", f"cannot read: {exc.strerror or exc}") from exc
     except tomllib.TOMLDecodeError as exc:
         raise FleetFileError(path, "", f"not valid TOML: {exc}") from exc
-    return parse_fleet(data, path)
+    return parse_fleet_file(data, path)

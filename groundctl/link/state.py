@@ -100,6 +100,8 @@ class VehicleState:
     """Remaining battery, percent (SYS_STATUS or BATTERY_STATUS)."""
     battery_voltage_v: float | None = None
     """Battery voltage, volts."""
+    prearm_ok: bool | None = None
+    """SYS_STATUS pre-arm check bit: True passing, False failing, None not reported."""
     gps_fix_type: int | None = None
     """GPS_RAW_INT.fix_type (GPS_FIX_TYPE; 3 = 3D fix)."""
     gps_satellites: int | None = None
@@ -227,6 +229,12 @@ def _global_position(
 
 
 def _sys_status(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
+    prearm = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+    if msg.onboard_control_sensors_present & prearm:
+        ok = bool(msg.onboard_control_sensors_health & prearm)
+        if ok is not state.prearm_ok:
+            changes.append(StateChange("prearm", {"ok": ok}))
+        state.prearm_ok = ok
     # -1 and UINT16_MAX mean "not measured": keep what BATTERY_STATUS may have said.
     if msg.battery_remaining >= 0:
         state.battery_remaining_pct = float(msg.battery_remaining)
