@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from test_execute_support import make_plan, make_vehicle, set_altitude
@@ -21,6 +23,7 @@ from groundctl.execute.sequence import (
 )
 from groundctl.link.flavours import Flavour
 from groundctl.link.state import VehicleState
+from groundctl.plan.trajectory import Trajectories
 
 ARDU, PX4 = Flavour.ARDUPILOT, Flavour.PX4
 
@@ -70,17 +73,19 @@ def test_ardupilot_sequence_guided_before_arming_then_show_then_landing() -> Non
     assert seq.stream_request(1.0).sysids == frozenset({1})
     assert not seq.stream_request(1.0).moving  # hovering at plan time 0 until everyone is up
     set_altitude(states[2], 2.95)
-    assert seq.update(2.0, states) == [Notice(None, "show started with 2 vehicle(s)")]
+    assert seq.update(2.0, states) == []  # vehicle 1 still 0.2 m below its first plan point
+    set_altitude(states[1], 2.9)
+    assert seq.update(2.5, states) == [Notice(None, "show started with 2 vehicle(s)")]
     assert seq.phase is ShowPhase.SHOW
 
-    req = seq.stream_request(5.0)
+    req = seq.stream_request(5.5)
     assert req.sysids == frozenset({1, 2}) and req.moving and req.fixed == {}
     assert req.show_time == pytest.approx(3.0)
 
-    assert seq.update(12.0, states) == [
+    assert seq.update(12.5, states) == [
         Notice(None, "show finished: returning to the landing slots")]
     assert seq.phase is ShowPhase.LANDING
-    req = seq.stream_request(12.0)
+    req = seq.stream_request(12.5)
     assert req.fixed == {1: (0.0, 0.0, 3.0), 2: (3.0, 0.0, 3.0)}
     assert not req.moving and req.show_time == plan.duration
 
@@ -94,6 +99,23 @@ def test_ardupilot_sequence_guided_before_arming_then_show_then_landing() -> Non
     assert seq.update(20.0, states) == [Notice(1, "vehicle 1 landed"),
                                         Notice(2, "vehicle 2 landed")]
     assert seq.phase is ShowPhase.LANDED
+
+
+def test_the_show_clock_starts_without_a_straggler_once_the_settle_time_is_over() -> None:
+    states = _fleet(ARDU)
+    seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    seq.start(0.0)
+    for v in states.values():
+        v.mode = "GUIDED"
+    seq.update(0.1, states)
+    for v in states.values():
+        v.armed = True
+    seq.update(0.2, states)
+    set_altitude(states[1], 3.0)
+    set_altitude(states[2], 2.75)  # takeoff done (within 0.3 m) but not settled (0.15 m)
+    assert seq.update(1.0, states) == []
+    assert seq.update(10.9, states) == []
+    assert seq.update(11.0, states) == [Notice(None, "show started with 2 vehicle(s)")]
 
 
 def test_px4_streams_setpoints_before_asking_for_offboard() -> None:
@@ -172,20 +194,38 @@ def test_wrong_mode_with_no_effect_is_resent_after_the_step_timeout() -> None:
     assert seq.update(6.0, states) == [SetMode(1, "GUIDED")]
 
 
-def test_a_lost_vehicle_is_dropped_from_streaming_and_the_show_goes_on() -> None:
+def test_a_lost_vehicle_is_still_streamed_its_plan_and_rejoins_when_heard_again() -> None:
     states = _fleet(ARDU, n=2)
     seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
     t0 = _airborne_ardupilot(seq, states, 0.0)
     states[2].lost = True
     states[2].last_heard = 0.0
     actions = seq.update(t0 + 2.0, states)
-    assert actions == [Notice(2, "vehicle 2 lost during show (silent for 2.3 s); no longer "
-                                 "streamed, its failsafe is in charge; the show goes on")]
-    assert seq.stream_request(t0 + 2.0).sysids == frozenset({1})
+    assert actions == [Notice(2, "vehicle 2 lost during show (silent for 2.3 s); still "
+                                 "streamed its plan in case it hears us, otherwise its "
+                                 "failsafe is in charge; the show goes on")]
+    assert seq.vehicles[2].phase is VehiclePhase.LOST
+    # Its plan is the one place sure to be clear of the others: keep sending it.
+    req = seq.stream_request(t0 + 2.0)
+    assert req.sysids == frozenset({1, 2}) and req.moving and not req.fixed
     assert seq.phase is ShowPhase.SHOW
-    states[2].lost = False  # it comes back: still not streamed blindly
-    assert seq.update(t0 + 3.0, states) == []
-    assert seq.stream_request(t0 + 3.0).sysids == frozenset({1})
+    states[2].lost = False
+    assert seq.update(t0 + 3.0, states) == [
+        Notice(2, "vehicle 2 heard again: back in the sequence (show)")]
+    assert seq.vehicles[2].phase is VehiclePhase.SHOW
+
+
+def test_a_vehicle_lost_during_the_show_is_sent_its_landing_point_after_the_end() -> None:
+    states = _fleet(ARDU, n=2)
+    plan = make_plan()
+    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    t0 = _airborne_ardupilot(seq, states, 0.0)
+    states[2].lost = True
+    seq.update(t0 + 1.0, states)
+    seq.update(t0 + plan.duration + 0.1, states)
+    req = seq.stream_request(t0 + plan.duration + 0.2)
+    assert 2 in req.sysids
+    np.testing.assert_allclose(req.fixed[2], plan.landing_hover[1])
 
 
 def test_hold_freezes_the_show_clock_and_resume_continues_from_there() -> None:
@@ -283,3 +323,105 @@ def test_a_vehicle_lost_on_its_slot_next_to_a_climber_aborts_the_show() -> None:
                            Notice(1, "vehicle 1 stood down on the ground")]
     assert seq.phase is ShowPhase.LANDED
     assert seq.start(2.0) == [Notice(None, "the sequence has already started or been stopped")]
+
+
+def test_land_all_mid_show_hovers_until_a_return_plan_is_given_then_follows_it() -> None:
+    states = _fleet(ARDU, n=2)
+    plan = make_plan()
+    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    t0 = _airborne_ardupilot(seq, states, 0.0)
+    seq.land_all(t0 + 2.0)
+    assert seq.return_needed == [(1, 0), (2, 1)]
+    req = seq.stream_request(t0 + 2.5)  # hover on the frozen plan point meanwhile
+    assert req.sysids == frozenset({1, 2}) and not req.moving and not req.fixed
+    assert req.show_time == pytest.approx(2.0) and not req.follow
+    start = plan.state_at(2.0).pos[:2]
+    goal = plan.landing_hover[:2]
+    back = Trajectories(np.array([0.0, 4.0]), np.stack([start, goal], axis=1),
+                        np.zeros((2, 2, 3)))
+    assert seq.set_return(back, [2, 1], t0 + 3.0) == [
+        Notice(None, "flying the 4.0 s return to the landing points")]
+    assert seq.return_needed is None
+    req = seq.stream_request(t0 + 4.0)
+    assert req.follow == {1: 1, 2: 0} and req.follow_trajectories is back
+    assert req.follow_time == pytest.approx(1.0)
+    req = seq.stream_request(t0 + 7.5)  # the return is over: hold over the landing points
+    assert not req.follow and set(req.fixed) == {1, 2}
+
+
+def test_a_failed_return_plan_falls_back_to_straight_lines_with_a_warning() -> None:
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    t0 = _airborne_ardupilot(seq, states, 0.0)
+    seq.land_all(t0 + 2.0)
+    (notice,) = seq.return_failed("planner gave up")
+    assert "no collision-free return could be planned (planner gave up)" in notice.text
+    assert seq.return_needed is None
+    assert set(seq.stream_request(t0 + 2.5).fixed) == {1, 2}
+
+
+def test_an_abort_before_the_show_brings_drones_down_their_own_takeoff_column() -> None:
+    # Track 0 is planned to land on track 1's takeoff spot; vehicle 2 (track 1)
+    # never arms and stands there, so the show is aborted during takeoff.
+    plan = make_plan()
+    swapped = plan.trajectories.pos.copy()
+    swapped[0, -1], swapped[1, -1] = plan.trajectories.pos[1, -1], plan.trajectories.pos[0, -1]
+    plan = replace(plan, trajectories=Trajectories(plan.trajectories.times, swapped,
+                                                   plan.trajectories.vel))
+    np.testing.assert_allclose(plan.landing[0], plan.home[1])
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU}, SequenceConfig(max_attempts=1))
+    seq.start(0.0)
+    states[1].mode = states[2].mode = "GUIDED"
+    seq.update(0.1, states)
+    states[1].armed = True
+    seq.update(0.2, states)
+    set_altitude(states[1], 3.0)
+    seq.update(0.3, states)
+    assert seq.vehicles[1].phase is VehiclePhase.READY
+    actions = seq.command_failed(Arm(2), "PreArm: Compass not calibrated", 0.4)
+    assert any("aborting the show" in a.text for a in actions if isinstance(a, Notice))
+    req = seq.stream_request(0.5)
+    assert req.fixed == {1: (0.0, 0.0, 3.0)}  # its own column, not vehicle 2's spot
+
+
+def test_a_refused_repeat_of_an_accepted_takeoff_is_not_a_failure() -> None:
+    # The first NAV_TAKEOFF's ACK was lost; the link's resend is refused because
+    # the vehicle is already climbing.  The climb is what counts.
+    states = _fleet(ARDU, n=1)
+    seq = ShowSequence(make_plan(), {1: 0}, {1: ARDU}, SequenceConfig(max_attempts=1))
+    seq.start(0.0)
+    states[1].mode = "GUIDED"
+    seq.update(0.1, states)
+    states[1].armed = True
+    assert seq.update(0.2, states) == [Takeoff(1, 3.0)]
+    set_altitude(states[1], 1.2)
+    assert seq.update(1.0, states) == []
+    assert seq.command_failed(Takeoff(1, 3.0), "MAV_RESULT_FAILED", 1.1) == []
+    assert seq.vehicles[1].phase is VehiclePhase.TAKEOFF
+    set_altitude(states[1], 3.0)
+    seq.update(2.0, states)
+    assert seq.vehicles[1].phase in (VehiclePhase.READY, VehiclePhase.SHOW)
+
+
+def test_a_takeoff_given_up_near_a_landing_spot_aborts_the_show() -> None:
+    # Vehicle 2 lands back on its own takeoff spot, where track 0 is planned to land.
+    plan = make_plan()
+    swapped = plan.trajectories.pos.copy()
+    swapped[0, -1], swapped[1, -1] = plan.trajectories.pos[1, -1], plan.trajectories.pos[0, -1]
+    plan = replace(plan, trajectories=Trajectories(plan.trajectories.times, swapped,
+                                                   plan.trajectories.vel))
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU}, SequenceConfig(max_attempts=1))
+    seq.start(0.0)
+    for v in states.values():
+        v.mode = "GUIDED"
+    seq.update(0.1, states)
+    for v in states.values():
+        v.armed = True
+    seq.update(0.2, states)
+    actions = seq.command_failed(Takeoff(2, 3.0), "MAV_RESULT_FAILED", 0.3)
+    assert actions[:2] == [Notice(2, "vehicle 2: takeoff failed 1 times: MAV_RESULT_FAILED"),
+                           Land(2)]
+    assert any(isinstance(a, Notice) and "aborting the show" in a.text for a in actions)
+    assert Land(1) in actions  # vehicle 1 was still climbing: straight back down

@@ -81,12 +81,22 @@ def check_gps(state: VehicleState, th: Thresholds) -> CheckResult:
 
 
 def check_position(state: VehicleState) -> CheckResult:
-    """The EKF has an origin and a local position: setpoints can be placed."""
+    """The EKF has an origin and a local position, and the autopilot's own pre-arm checks pass.
+
+    The pre-arm bit of SYS_STATUS is how ArduPilot and PX4 say "I would arm
+    now"; an EKF origin alone comes well before that (SITL: 20 s vs 40 s).
+    """
     if state.ekf_origin is None:
         return CheckResult("position", False, "EKF origin unknown (no GPS_GLOBAL_ORIGIN)")
     if state.position_ned is None:
         return CheckResult("position", False, "no local position (no LOCAL_POSITION_NED)")
-    return CheckResult("position", True, "EKF origin and local position known")
+    if state.prearm_ok is False:
+        last = next((t.text for t in reversed(state.statustexts)
+                     if t.text.lower().startswith(("prearm", "arm:", "preflight"))), None)
+        why = f" ({last})" if last else ""
+        return CheckResult("position", False, f"autopilot pre-arm checks failing{why}")
+    return CheckResult("position", True, "EKF origin and local position known, pre-arm "
+                       + ("ok" if state.prearm_ok else "not reported"))
 
 
 def check_battery(state: VehicleState, th: Thresholds) -> CheckResult:
@@ -262,10 +272,10 @@ def remaining_plan_conflicts(plan: Plan, excluded_tracks: Collection[int],
             t = float(times if np.ndim(times) == 0 else times[i, e])  # type: ignore[index]
             conflicts.append(Conflict(int(keep[i]), excl[e], phase, t, float(dist[i, e]), sep))
 
-    up = plan.home[keep] + np.array([0.0, 0.0, plan.takeoff_altitude])
-    column = _segment_distance(obstacles, plan.home[keep], up)
-    collect("takeoff", column, 0.0)
-    collect("landing", column, plan.duration)
+    rise = np.array([0.0, 0.0, plan.takeoff_altitude])
+    collect("takeoff", _segment_distance(obstacles, plan.home[keep], plan.home[keep] + rise), 0.0)
+    down = plan.landing[keep]  # a drone may land on another's takeoff spot
+    collect("landing", _segment_distance(obstacles, down, down + rise), plan.duration)
 
     n_steps = max(int(np.ceil(min(window_s, plan.duration) / step_s)), 1)
     windows: list[tuple[str, np.ndarray]] = [

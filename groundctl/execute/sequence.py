@@ -15,24 +15,31 @@ Streaming is not an action: :meth:`ShowSequence.stream_request` is the one
 source of truth for who gets setpoints each tick, so a start/stop event can
 never be missed or applied twice.
 
-Operator commands (:meth:`ShowSequence.hold`, ``resume``, ``land_all``,
-``land_one``, ``kill``) return actions the same way; bad operator input comes
-back as a :class:`Notice`, never an exception.
+Operator commands (:meth:`ShowSequence.hold`, ``resume``, ``land_all`` (every
+vehicle to its landing slot, then down), ``land_one`` (one vehicle to its
+slot, then down), ``land_here`` (one vehicle straight down), ``kill``) return
+actions the same way; bad operator input comes back as a :class:`Notice`,
+never an exception.
 
 Per vehicle: ARMING (ArduPilot: GUIDED, then arm; PX4: arm) -> TAKEOFF
 (NAV_TAKEOFF, wait until within ``takeoff_tolerance_m`` of the takeoff
 altitude; PX4 then gets setpoints for ``offboard_lead_s`` before OFFBOARD,
 because PX4 refuses OFFBOARD without a setpoint stream) -> READY -> SHOW ->
-RETURNING (to its landing slot: home at takeoff altitude) -> LANDING (land
+RETURNING (to the point above its landing spot, where the plan ends) -> LANDING (land
 mode) -> LANDED (disarmed).  ArduCopter's guided takeoff needs GUIDED before
 arming, which is why the order differs.  Every step waits for its effect in
 telemetry (mode, armed, altitude), not just for the command's ACK; a step is
 re-sent after a refusal or ``step_timeout_s`` without effect, up to
 ``max_attempts`` times, keeping the last reason.
 
-A vehicle whose link is lost is marked LOST, no longer streamed to and
-reported; the show goes on for the others (the vehicle's own failsafe is in
-charge of it).  A vehicle that fails to arm stays on its slot: if that puts
+A vehicle whose link is lost is marked LOST and reported; the show goes on
+for the others.  It is still streamed what it would have flown (its plan,
+then its landing point): the plan is collision-free, so if our packets still
+reach it (a link lost one way only, or our own receive path stalling) that is
+the one place guaranteed to be out of everyone's way, whereas a vehicle left
+without setpoints hovers where it is, in the others' paths.  If it is heard
+again it rejoins where the sequence is.  If it hears nothing, its own
+failsafe is in charge.  A vehicle that fails to arm stays on its slot: if that puts
 it in a neighbour's takeoff or landing path the whole show is aborted.
 """
 
@@ -49,6 +56,7 @@ from groundctl.execute.preflight import remaining_plan_conflicts
 from groundctl.link.flavours import Flavour
 from groundctl.link.state import VehicleState
 from groundctl.plan.plan import Plan
+from groundctl.plan.trajectory import Trajectories
 
 # -- actions -----------------------------------------------------------------------------
 
@@ -147,6 +155,9 @@ class ShowPhase(enum.StrEnum):
     LANDED = "landed"
 
 
+#: Above this height above home a vehicle is taking off (or flying), m.
+AIRBORNE_M = 0.5
+
 _DONE = {VehiclePhase.LANDED, VehiclePhase.LOST, VehiclePhase.FAILED, VehiclePhase.KILLED}
 _STREAMED = {VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.RETURNING}
 _LAND_MODES = {"LAND", "AUTO.LAND"}  # ArduCopter's and PX4's, as decoded by the link
@@ -170,6 +181,10 @@ class SequenceConfig:
     """A takeoff that has not reached altitude after this has failed, s."""
     offboard_lead_s: float = 1.0
     """PX4: setpoints stream this long before OFFBOARD is requested, s."""
+    start_tolerance_m: float = 0.15
+    """The show clock starts once every ready vehicle is this close to its first plan point."""
+    settle_timeout_s: float = 10.0
+    """...or once they have been ready this long, whatever their distance, s."""
 
 
 @dataclass
@@ -196,6 +211,10 @@ class VehicleRun:
     """Our time setpoints started flowing to it."""
     reason: str | None = None
     """The last refusal or failure reason."""
+    lost_from: VehiclePhase | None = None
+    """While LOST: the phase it was lost in (what it is still streamed as)."""
+    altitude: float | None = None
+    """Last altitude above home seen in telemetry, m."""
 
 
 @dataclass(frozen=True)
@@ -210,6 +229,12 @@ class StreamRequest:
     """Vehicles to send setpoints to."""
     fixed: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     """Vehicles held at a show-frame point (landing slots) instead of the plan."""
+    follow: dict[int, int] = field(default_factory=dict)
+    """Vehicles flying the return trajectories instead: system id -> row."""
+    follow_trajectories: Trajectories | None = None
+    """The return trajectories (after a land-all), or None."""
+    follow_time: float = 0.0
+    """Time along them, s."""
 
 
 class ShowSequence:
@@ -231,7 +256,12 @@ class ShowSequence:
             sysid: VehicleRun(sysid, track, flavours[sysid])
             for sysid, track in sorted(tracks.items())}
         self.grounded_tracks: set[int] = set(grounded_tracks)
-        self._slots = plan.home + np.array([0.0, 0.0, plan.takeoff_altitude])
+        self._slots = plan.landing_hover  # where each track's descent starts
+        self._home_hover = plan.home + np.array([0.0, 0.0, plan.takeoff_altitude])
+        self._first = plan.trajectories.evaluate(0.0)[0]  # where each track's show starts
+        self._ready_since: float | None = None
+        self._return_wanted = False  # land-all mid-show: a return plan is needed
+        self._return: tuple[Trajectories, dict[int, int], float] | None = None
         self._started = False
         self._t0: float | None = None  # our time of show time 0 while the clock runs
         self._paused_at: float | None = None  # show time frozen by hold
@@ -239,6 +269,11 @@ class ShowSequence:
         self._frozen_at: float | None = None  # show time at which land_all stopped the show
 
     # -- clock -----------------------------------------------------------------------
+    @property
+    def started_at(self) -> float | None:
+        """Our time of show time 0 (moves on resume), None before the show clock started."""
+        return self._t0
+
     @property
     def paused(self) -> bool:
         return self._paused_at is not None
@@ -288,22 +323,28 @@ class ShowSequence:
         # Losses first: one may abort the show, and then nobody should be
         # told to arm or take off in the same breath.
         for v in self.vehicles.values():
+            state = states.get(v.sysid)
+            if v.phase is VehiclePhase.LOST and v.lost_from in _STREAMED \
+                    and state is not None and not state.lost:
+                actions += self._rejoin(v)
+                continue
             if v.phase in _DONE or v.phase is VehiclePhase.PREFLIGHT:
                 continue
-            state = states.get(v.sysid)
             if state is None or state.lost:
                 actions += self._lose(v, now, state)
         for v in self.vehicles.values():
             if v.phase in _DONE or v.phase is VehiclePhase.PREFLIGHT:
                 continue
             actions += self._advance(v, states[v.sysid], now)
-        actions += self._maybe_start_show(now)
+        actions += self._maybe_start_show(now, states)
         if self._t0 is not None and not self.paused and not self._ended \
                 and now - self._t0 >= self.plan.duration:
             self._ended = True
             for v in self.vehicles.values():
                 if v.phase is VehiclePhase.SHOW:
                     v.phase = VehiclePhase.RETURNING
+                if v.lost_from is VehiclePhase.SHOW:
+                    v.lost_from = VehiclePhase.RETURNING
             actions.append(Notice(None, "show finished: returning to the landing slots"))
         return actions
 
@@ -312,6 +353,10 @@ class ShowSequence:
         v = self.vehicles.get(command.sysid)
         if v is None or v.pending != command:
             return []  # a stale answer: the vehicle has moved on
+        if isinstance(command, Takeoff) and (v.altitude or 0.0) > AIRBORNE_M:
+            # Climbing already: the first NAV_TAKEOFF was accepted but its ACK lost,
+            # and the autopilot refuses a repeat in flight.  Its effect is what counts.
+            return []
         v.reason = reason
         if v.attempts >= self.config.max_attempts:
             return self._give_up(v, f"{_describe(command)} failed {v.attempts} times: {reason}",
@@ -322,12 +367,53 @@ class ShowSequence:
     def stream_request(self, now: float) -> StreamRequest:
         """Whom to send setpoints to this tick, and for which show time."""
         sysids = frozenset(v.sysid for v in self.vehicles.values()
-                           if v.phase in _STREAMED
+                           if self._streamed_as(v) in _STREAMED
                            or (v.phase is VehiclePhase.TAKEOFF and v.stream_since is not None))
-        fixed = {v.sysid: tuple(map(float, self._slots[v.track]))
-                 for v in self.vehicles.values() if v.phase is VehiclePhase.RETURNING}
+        returning = [v.sysid for v in self.vehicles.values()
+                     if self._streamed_as(v) is VehiclePhase.RETURNING]
+        follow: dict[int, int] = {}
+        traj, t_ret = None, 0.0
+        if self._return is not None:
+            traj, rows, t0 = self._return
+            t_ret = now - t0
+            if t_ret < traj.end:
+                follow = {s: rows[s] for s in returning if s in rows}
+        elif self._return_wanted:
+            # Waiting for the return plan: hover on the frozen plan point (not fixed).
+            returning = []
+        fixed = {s: tuple(map(float, self._landing_point(self.vehicles[s].track)))
+                 for s in returning if s not in follow}
         moving = self._t0 is not None and not self.paused and not self._ended
-        return StreamRequest(self.show_time(now), moving, sysids, fixed)  # type: ignore[arg-type]
+        return StreamRequest(self.show_time(now), moving, sysids, fixed,  # type: ignore[arg-type]
+                             follow, traj if follow else None, t_ret)
+
+    # -- land-all return ---------------------------------------------------------------
+    @property
+    def return_needed(self) -> list[tuple[int, int]] | None:
+        """(system id, track) of the vehicles needing a return plan, if one is awaited.
+
+        After :meth:`land_all` interrupts the show, straight lines home could
+        cross; the driver plans a return (from the frozen plan points at
+        :meth:`show_time`) and hands it over with :meth:`set_return`, or calls
+        :meth:`return_failed`.
+        """
+        if not self._return_wanted or self._return is not None:
+            return None
+        return [(v.sysid, v.track) for v in self.vehicles.values()
+                if self._streamed_as(v) is VehiclePhase.RETURNING]
+
+    def set_return(self, trajectories: Trajectories, sysids: list[int],
+                   now: float) -> list[Action]:
+        """Fly ``trajectories`` (row i for ``sysids[i]``) from ``now``, then land."""
+        self._return = (trajectories, {s: i for i, s in enumerate(sysids)}, now)
+        return [Notice(None, f"flying the {trajectories.end:.1f} s return to the landing "
+                             "points")]
+
+    def return_failed(self, reason: str) -> list[Action]:
+        """No return plan: fly straight to the landing points (the old way), loudly."""
+        self._return_wanted = False
+        return [Notice(None, f"no collision-free return could be planned ({reason}); flying "
+                             "straight to the landing points: watch the fleet")]
 
     # -- operator --------------------------------------------------------------------
     def hold(self, now: float) -> list[Action]:
@@ -350,6 +436,9 @@ class ShowSequence:
         """Every vehicle back to its landing slot and down; the show is over."""
         if self._frozen_at is None:
             self._frozen_at = self.show_time(now)
+            # Interrupted mid-show: the way home needs planning (see return_needed).
+            self._return_wanted = (self._t0 is not None and not self._ended
+                                   and self._frozen_at < self.plan.duration)
         self._ended = True
         actions: list[Action] = [Notice(None, "landing all vehicles")]
         for v in self.vehicles.values():
@@ -362,6 +451,23 @@ class ShowSequence:
         if v is None:
             return [Notice(None, f"no vehicle {sysid} in this show")]
         return [Notice(sysid, f"landing vehicle {sysid}"), *self._land(v, now)]
+
+    def land_here(self, sysid: int, now: float) -> list[Action]:
+        """Vehicle ``sysid`` straight down where it is (not over its slot); the others go on.
+
+        For a drone that misbehaves: it stops following the plan at once, so
+        the operator must know the column below it is clear.
+        """
+        v = self.vehicles.get(sysid)
+        if v is None:
+            return [Notice(None, f"no vehicle {sysid} in this show")]
+        if v.phase in _DONE or v.phase is VehiclePhase.LANDING:
+            return [Notice(sysid, f"vehicle {sysid} is already {v.phase}")]
+        if v.phase in (VehiclePhase.PREFLIGHT, VehiclePhase.ARMING):
+            return [Notice(sysid, f"landing vehicle {sysid} here"), *self._land(v, now)]
+        v.phase = VehiclePhase.LANDING
+        return [Notice(sysid, f"landing vehicle {sysid} where it is"),
+                self._send(v, Land(sysid), now)]
 
     def kill(self, sysid: int, now: float, confirm: bool = False) -> list[Action]:
         """Stop ``sysid``'s motors in flight; needs ``confirm`` because the drone falls."""
@@ -396,18 +502,36 @@ class ShowSequence:
             return [self._send(v, Land(v.sysid), now)]
         if v.phase in (VehiclePhase.READY, VehiclePhase.SHOW):
             v.phase, v.pending = VehiclePhase.RETURNING, None
+        if v.phase is VehiclePhase.LOST and v.lost_from in (VehiclePhase.READY,
+                                                             VehiclePhase.SHOW):
+            v.lost_from = VehiclePhase.RETURNING
         return []
+
+    @staticmethod
+    def _streamed_as(v: VehicleRun) -> VehiclePhase:
+        return v.lost_from if v.phase is VehiclePhase.LOST and v.lost_from else v.phase
 
     def _lose(self, v: VehicleRun, now: float, state: VehicleState | None) -> list[Action]:
         silent = "never heard" if state is None else f"silent for {state.silent_for(now):.1f} s"
         was = v.phase
         v.phase, v.pending, v.reason = VehiclePhase.LOST, None, f"link lost ({silent})"
+        v.lost_from = was
+        still = ("still streamed its plan in case it hears us, otherwise its failsafe is in "
+                 "charge" if was in _STREAMED else "its failsafe is in charge")
         actions: list[Action] = [
-            Notice(v.sysid, f"vehicle {v.sysid} lost during {was} ({silent}); no longer "
-                            "streamed, its failsafe is in charge; the show goes on")]
+            Notice(v.sysid, f"vehicle {v.sysid} lost during {was} ({silent}); {still}; "
+                            "the show goes on")]
         if was is VehiclePhase.ARMING:
             actions += self._left_on_slot(v, now)
         return actions
+
+    def _rejoin(self, v: VehicleRun) -> list[Action]:
+        assert v.lost_from is not None
+        v.phase, v.lost_from, v.reason = v.lost_from, None, None
+        if v.phase is VehiclePhase.READY and self._t0 is not None:
+            v.phase = VehiclePhase.SHOW if not self._ended else VehiclePhase.RETURNING
+        return [Notice(v.sysid, f"vehicle {v.sysid} heard again: back in the sequence "
+                                f"({v.phase})")]
 
     def _give_up(self, v: VehicleRun, why: str, now: float) -> list[Action]:
         was, v.reason, v.pending = v.phase, why, None
@@ -419,6 +543,10 @@ class ShowSequence:
             # In the air (or may be): bring it down where it is, straight below.
             v.phase = VehiclePhase.LANDING
             actions.append(self._send(v, Land(v.sysid), now))
+            if was is VehiclePhase.TAKEOFF:
+                # Straight below is its own takeoff spot, which may be where another
+                # drone lands: the same obstacle as a drone that never took off.
+                actions += self._left_on_slot(v, now)
             return actions
         return actions + self._left_on_slot(v, now)
 
@@ -440,6 +568,7 @@ class ShowSequence:
 
     def _advance(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
         cfg = self.config
+        v.altitude = self._altitude(state)
         cmd = v.pending
         if v.retry_at is not None and now >= v.retry_at and cmd is not None:
             return [self._send(v, cmd, now)]
@@ -483,16 +612,34 @@ class ShowSequence:
             return self.command_failed(cmd, f"no effect after {cfg.step_timeout_s:.0f} s", now)
         return []
 
+    def _landing_point(self, track: int) -> np.ndarray:
+        """Where ``track`` descends from.
+
+        Once the show has started, above the plan's landing spot.  Before
+        (an abort during takeoff), straight back down its own takeoff column:
+        the plan's landing spot may be another drone's takeoff spot, and that
+        drone may still be standing on it (the very reason for the abort).
+        """
+        if self._t0 is None:
+            return self._home_hover[track]
+        return self._slots[track]
+
+    def _settled(self, v: VehicleRun, state: VehicleState | None) -> bool:
+        if state is None or state.ekf_origin is None or state.position_ned is None:
+            return False
+        pos = ned_to_show(self.plan.origin, state.ekf_origin, state.position_ned)
+        return bool(np.linalg.norm(pos - self._first[v.track]) <= self.config.start_tolerance_m)
+
     def _returning(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
         if state.ekf_origin is None or state.position_ned is None:
             return []
         pos = ned_to_show(self.plan.origin, state.ekf_origin, state.position_ned)
-        if np.linalg.norm(pos - self._slots[v.track]) <= self.config.arrive_tolerance_m:
+        if np.linalg.norm(pos - self._landing_point(v.track)) <= self.config.arrive_tolerance_m:
             v.phase = VehiclePhase.LANDING
             return [self._send(v, Land(v.sysid), now)]
         return []
 
-    def _maybe_start_show(self, now: float) -> list[Action]:
+    def _maybe_start_show(self, now: float, states: Mapping[int, VehicleState]) -> list[Action]:
         if self._t0 is not None or self._ended or not self._started or self.paused:
             return []
         phases = [v.phase for v in self.vehicles.values()]
@@ -500,6 +647,14 @@ class ShowSequence:
             return []
         ready = [v for v in self.vehicles.values() if v.phase is VehiclePhase.READY]
         if not ready:
+            return []
+        # Takeoff ends within takeoff_tolerance_m of the altitude; starting the
+        # clock before the fleet has settled on the plan's first points would
+        # put that whole offset into the first seconds of the show.
+        if self._ready_since is None:
+            self._ready_since = now
+        if now - self._ready_since < self.config.settle_timeout_s \
+                and not all(self._settled(v, states.get(v.sysid)) for v in ready):
             return []
         self._t0 = now
         for v in ready:

@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 from groundctl.execute.frames import show_to_ned, show_vel_to_ned
 from groundctl.link.state import GeoPoint, Vec3
 from groundctl.plan.plan import Plan
+from groundctl.plan.trajectory import Trajectories
 
 FloatArray = NDArray[np.float64]
 
@@ -110,18 +111,22 @@ class SetpointStream:
         self._index = {t.sysid: i for i, t in enumerate(targets)}
 
     def landing_slots(self) -> FloatArray:
-        """(n, 3) show-frame landing slots of the targets: home at takeoff altitude."""
-        return self.plan.home[self._tracks] + np.array([0.0, 0.0, self.plan.takeoff_altitude])
+        """(n, 3) show-frame points the targets descend from: above their landing spots."""
+        return self.plan.landing_hover[self._tracks]
 
     def at(self, show_time: float, now: float, clock_offsets: Mapping[int, float | None],
-           moving: bool = True, fixed: Mapping[int, ArrayLike] | None = None) -> Setpoints:
+           moving: bool = True, fixed: Mapping[int, ArrayLike] | None = None,
+           follow: Mapping[int, int] | None = None, follow_trajectories: Trajectories | None = None,
+           follow_time: float = 0.0) -> Setpoints:
         """Setpoints for show time ``show_time`` at our time ``now``.
 
         ``moving`` False means the show clock is paused: the plan position at
         ``show_time`` itself, with zero velocity and acceleration, so the
         fleet hovers in a planned (separated) configuration.  ``fixed`` holds
         vehicles (system id -> show-frame point) at a point instead, with
-        zero feed-forward, e.g. over their landing slots.
+        zero feed-forward, e.g. over their landing slots.  ``follow`` has
+        vehicles (system id -> row) fly ``follow_trajectories`` at
+        ``follow_time`` instead (a land-all's return), with the same lead.
         """
         t = min(show_time + self.lead_s, self.plan.duration) if moving else show_time
         state = self.plan.state_at(t)
@@ -138,7 +143,21 @@ class SetpointStream:
                     raise ValueError(f"`fixed` names vehicle {sysid}, which is not streamed")
                 i = self._index[sysid]
                 pos[i], vel[i], acc[i] = np.asarray(point, dtype=float), 0.0, 0.0
-        stamp_s = now + (self.lead_s if moving else 0.0)
+        if follow:
+            if follow_trajectories is None:
+                raise ValueError("`follow` needs `follow_trajectories`")
+            pos, vel, acc = pos.copy(), vel.copy(), acc.copy()
+            tf = follow_time + self.lead_s
+            rows = np.array(list(follow.values()))
+            fp, fv, fa = follow_trajectories.evaluate(min(tf, follow_trajectories.end), rows)
+            if tf >= follow_trajectories.end:
+                fv, fa = np.zeros_like(fp), np.zeros_like(fp)
+            for k, sysid in enumerate(follow):
+                if sysid not in self._index:
+                    raise ValueError(f"`follow` names vehicle {sysid}, which is not streamed")
+                i = self._index[sysid]
+                pos[i], vel[i], acc[i] = fp[k], fv[k], fa[k]
+        stamp_s = now + (self.lead_s if moving or follow else 0.0)
         offsets = np.array([np.nan if (o := clock_offsets.get(s)) is None else o
                             for s in self.sysids], dtype=float)
         # Unknown offset: 0 is what autopilots read as "no timestamp" (both

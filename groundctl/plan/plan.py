@@ -92,6 +92,21 @@ class Plan:
     def duration(self) -> float:
         return self.trajectories.end
 
+    @property
+    def landing(self) -> FloatArray:
+        """(n, 3) ground spots each track lands on: below its final plan point.
+
+        Not its own takeoff spot: the landing formation is assigned like any
+        other, so a drone may land on a neighbour's takeoff spot.
+        """
+        end = self.trajectories.evaluate(self.duration)[0]
+        return np.column_stack([end[:, :2], self.home[:, 2]])
+
+    @property
+    def landing_hover(self) -> FloatArray:
+        """(n, 3) the points above :attr:`landing` at takeoff altitude (where the plan ends)."""
+        return self.landing + np.array([0.0, 0.0, self.takeoff_altitude])
+
     def colors_at(self, t: float) -> FloatArray:
         """(n, 3) colours at show time ``t`` (held before the first and after the last key)."""
         times = self.color_times
