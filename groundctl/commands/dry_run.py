@@ -1,0 +1,119 @@
+"""``groundctl dry-run [SHOW]``: rehearse a show against the built-in simulator, over UDP."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+from pathlib import Path
+
+from groundctl.commands.flying import (
+    BUNDLED_DEMO,
+    Interrupts,
+    add_runner_options,
+    finish,
+    load_or_plan,
+    positive,
+    runner_config,
+    say,
+)
+from groundctl.errors import GroundctlError
+from groundctl.link.flavours import Flavour
+
+
+def wind_spec(text: str) -> tuple[float, float, float]:
+    """``E,N[,U]`` m/s, or ``SPEED@FROM`` (m/s, the compass direction it blows from)."""
+    try:
+        if "@" in text:
+            speed_text, _, from_text = text.partition("@")
+            speed, frm = float(speed_text), math.radians(float(from_text))
+            return (-speed * math.sin(frm), -speed * math.cos(frm), 0.0)
+        parts = [float(x) for x in text.split(",")]
+    except ValueError:
+        parts = []
+    if len(parts) not in (2, 3):
+        raise argparse.ArgumentTypeError(
+            f"--wind must be EAST,NORTH[,UP] in m/s or SPEED@FROM_DEGREES, not {text!r}")
+    return (parts[0], parts[1], parts[2] if len(parts) == 3 else 0.0)
+
+
+def probability(text: str) -> float:
+    try:
+        p = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--loss must be a number, not {text!r}") from None
+    if not 0.0 <= p < 1.0:
+        raise argparse.ArgumentTypeError(f"--loss must be in [0, 1), not {text!r}")
+    return p
+
+
+def non_negative(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, not {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must not be negative, not {text!r}")
+    return value
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "dry-run", help="rehearse a show against the built-in simulator",
+        description="Plan the show, start a simulated fleet on loopback standing on its "
+                    "takeoff slots, fly the whole show through the real executor over UDP "
+                    "and report what was flown. Exit 0 only if the flight was safe.")
+    p.add_argument("show", nargs="?", type=Path, default=BUNDLED_DEMO,
+                   help="show file (TOML) or plan file (.npz); default: the bundled demo")
+    p.add_argument("--autopilot", choices=[f.value for f in Flavour], default="ardupilot",
+                   help="autopilot the simulated vehicles imitate (default ardupilot)")
+    p.add_argument("--speed", type=positive, default=1.0, metavar="K",
+                   help="simulated seconds per real second (default 1)")
+    p.add_argument("--wind", type=wind_spec, default=(0.0, 0.0, 0.0), metavar="SPEC",
+                   help="mean wind EAST,NORTH[,UP] m/s or SPEED@FROM_DEGREES")
+    p.add_argument("--gust", type=non_negative, default=0.0, metavar="STD",
+                   help="random gusts, m/s standard deviation per axis")
+    p.add_argument("--loss", type=probability, default=0.0, metavar="P",
+                   help="packet loss probability each way, e.g. 0.1")
+    p.add_argument("--latency", type=non_negative, default=0.0, metavar="MS",
+                   help="one-way link latency in ms")
+    p.add_argument("--jitter", type=non_negative, default=0.0, metavar="MS",
+                   help="latency standard deviation in ms")
+    p.add_argument("--seed", type=int, default=0, metavar="S",
+                   help="seed of every random process (default 0)")
+    p.add_argument("--ready-delay", type=non_negative, default=40.0, metavar="S",
+                   help="simulated seconds until vehicles may arm (SITL: 40); the EKF "
+                        "origin comes at half of it")
+    p.add_argument("--no-record", action="store_true", help="record nothing")
+    add_runner_options(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from groundctl.flight.dryrun import DryRunOptions, default_record_dir, fly_dry_run
+
+    plan = load_or_plan(args.show, args.quiet)
+    record = None if args.no_record else (args.record or default_record_dir(plan.show_name))
+    options = DryRunOptions(
+        flavour=Flavour(args.autopilot), speed=args.speed, wind=args.wind, gust_std=args.gust,
+        loss=args.loss, latency_ms=args.latency, jitter_ms=args.jitter, seed=args.seed,
+        signing_key=args.signing_key, ekf_origin_delay_s=args.ready_delay / 2,
+        ready_delay_s=args.ready_delay, runner=runner_config(args), record_dir=record)
+    notify = say(args.quiet)
+    interrupts = Interrupts(notify)
+
+    async def main() -> tuple[dict[str, object], GroundctlError | None, bool]:
+        interrupts.install()
+        try:
+            result = await fly_dry_run(plan, options, notify=notify,
+                                       on_runner=interrupts.attach)
+        finally:
+            interrupts.uninstall()
+        return result.report, result.error, result.flown
+
+    notify(f"dry-run of {plan.show_name}: {plan.drones} simulated {args.autopilot} vehicles "
+           f"on 127.0.0.1, speed x{args.speed:g}")
+    report, error, flown = asyncio.run(main())
+    if error is not None and not flown:
+        raise error  # nothing flew: one line and the error's exit code
+    return finish(report, args, interrupts.aborted)

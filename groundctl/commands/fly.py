@@ -1,0 +1,146 @@
+"""``groundctl fly SHOW --connect ENDPOINT``: fly a show with real vehicles.
+
+Or with a ``groundctl sim`` in another terminal: the same executor either way.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import datetime as dt
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from groundctl.clock import ScaledClock
+from groundctl.commands.flying import (
+    Interrupts,
+    add_runner_options,
+    finish,
+    load_or_plan,
+    runner_config,
+    say,
+)
+from groundctl.errors import FlightError, GroundctlError
+from groundctl.flight.report import flight_report
+from groundctl.flight.runner import ShowRunner
+from groundctl.link.fleet import FleetLink
+from groundctl.link.fleetfile import FleetFile, FleetFileError, load_fleet_file, parse_address
+from groundctl.record.events import EventLog
+from groundctl.record.tlog import TlogWriter
+
+
+def endpoint(text: str) -> tuple[str, int]:
+    """``[udp:|udpin:]HOST:PORT``: the local address to listen on."""
+    for prefix in ("udpin:", "udp:"):
+        if text.startswith(prefix):
+            text = text[len(prefix):]
+            break
+    else:
+        if ":" in text.split(":", 1)[0] or text.startswith(("tcp:", "udpout:", "serial:")):
+            raise argparse.ArgumentTypeError(
+                f"--connect {text!r}: only UDP listening is supported (udp:HOST:PORT)")
+    try:
+        return parse_address(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"--connect: {exc}") from None
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
+    p = sub.add_parser(
+        "fly", help="fly a show with real vehicles",
+        description="Plan (or load) the show, wait for the vehicles on the MAVLink endpoint, "
+                    "run the pre-flight checks and fly the show. Ctrl-C once lands every "
+                    "vehicle; twice abandons the flight to the vehicles' failsafes.")
+    p.add_argument("show", type=Path, help="show file (TOML) or plan file (.npz)")
+    p.add_argument("--connect", type=endpoint, default=("0.0.0.0", 14550), metavar="ENDPOINT",
+                   help="UDP address to listen on, udp:HOST:PORT (default udp:0.0.0.0:14550)")
+    p.add_argument("--fleet", type=Path, default=None, metavar="FILE",
+                   help="fleet file: system ids, addresses, tracks")
+    p.add_argument("--connect-timeout", type=float, default=30.0, metavar="S",
+                   help="wait this long for every vehicle's HEARTBEAT (default 30)")
+    add_runner_options(p)
+    p.set_defaults(func=run)
+
+
+def _record_dir(args: argparse.Namespace, show: str) -> Path:
+    if args.record is not None:
+        return Path(args.record)
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+    return Path("recordings") / f"{show}-fly-{stamp}"
+
+
+def run(args: argparse.Namespace) -> int:
+    fleet: FleetFile | None = load_fleet_file(args.fleet) if args.fleet is not None else None
+    plan = load_or_plan(args.show, args.quiet)
+    if fleet is not None and fleet.tracks:
+        bad = sorted(t for t in fleet.tracks.values() if t >= plan.drones)
+        if bad:
+            raise FleetFileError(args.fleet, "track", f"track(s) {bad} do not exist: the plan "
+                                                      f"has tracks 0..{plan.drones - 1}")
+    record = _record_dir(args, plan.show_name)
+    try:
+        record.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise FlightError(f"{record}: cannot create the recording directory: "
+                             f"{exc.strerror or exc}") from exc
+    clock = ScaledClock(1.0)
+    notify = say(args.quiet)
+    interrupts = Interrupts(notify)
+    config = runner_config(args, fleet.tracks if fleet is not None and fleet.tracks else None)
+    config = type(config)(**{**vars(config), "connect_timeout_s": args.connect_timeout})
+    ids = list(fleet.system_ids) if fleet is not None else None
+
+    async def main() -> tuple[dict[str, Any], GroundctlError | None, bool]:
+        tlog = TlogWriter(record / "flight.tlog")
+        events = EventLog(record / "events.jsonl", clock.now)
+        link = FleetLink(args.connect, clock=clock,
+                         endpoints=fleet.endpoints if fleet is not None else (),
+                         expected_ids=ids, signing_key=args.signing_key, tlog=tlog,
+                         events=events)
+        runner = ShowRunner(plan, link, clock, config, events=events, notify=notify,
+                            expected_ids=ids)
+        interrupts.attach(runner)
+        interrupts.install()
+        error: GroundctlError | None = None
+        status = asyncio.create_task(_status(runner, args.quiet))
+        try:
+            await link.start()
+            notify(f"listening on {args.connect[0]}:{args.connect[1]} for "
+                   f"{len(ids) if ids else plan.drones} vehicle(s)")
+            try:
+                await runner.run()
+            except asyncio.CancelledError:
+                task = asyncio.current_task()
+                if task is not None:
+                    task.uncancel()
+                raise FlightError("flight abandoned by the operator") from None
+        except GroundctlError as exc:
+            error = exc
+            events.emit("error", kind=type(exc).__name__, text=str(exc))
+        finally:
+            interrupts.uninstall()
+            status.cancel()
+            await link.close()
+            report = flight_report(runner, None if error is None else str(error))
+            report["record_dir"] = str(record)
+            (record / "report.json").write_text(json.dumps(report, indent=1) + "\n")
+            events.emit("report", safe=report["safe"])
+            events.close()
+            tlog.close()
+        return report, error, runner.sequence is not None
+
+    report, error, flown = asyncio.run(main())
+    if error is not None and not flown:
+        raise error
+    return finish(report, args, interrupts.aborted)
+
+
+async def _status(runner: ShowRunner, quiet: bool) -> None:
+    """A plain status line on stderr every second (until the console exists)."""
+    while not quiet:
+        await asyncio.sleep(1.0)
+        print(f"{time.strftime('%H:%M:%S')} {runner.status_line()}", file=sys.stderr,
+              flush=True)

@@ -1,0 +1,163 @@
+"""What ``groundctl dry-run`` and ``groundctl fly`` share: options, planning, Ctrl-C, output."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import json
+import signal
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from groundctl.commands.progress import ProgressBar
+from groundctl.errors import EXIT_ABORTED, EXIT_OK, EXIT_UNSAFE, UnsafePlan
+from groundctl.execute.preflight import Thresholds
+from groundctl.flight.report import render_report
+from groundctl.flight.runner import RunnerConfig, ShowRunner
+from groundctl.plan.plan import Plan
+
+#: The show ``groundctl dry-run`` flies when none is given.
+BUNDLED_DEMO = Path(__file__).resolve().parents[2] / "shows" / "demo.toml"
+
+
+def signing_key(text: str) -> bytes:
+    try:
+        key = bytes.fromhex(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError("--signing-key must be 64 hex digits") from None
+    if len(key) != 32:
+        raise argparse.ArgumentTypeError("--signing-key must be 64 hex digits (32 bytes)")
+    return key
+
+
+def positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, not {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be positive, not {text!r}")
+    return value
+
+
+def add_runner_options(p: argparse.ArgumentParser) -> None:
+    """Options of the executor itself, common to both commands."""
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object")
+    p.add_argument("--record", type=Path, default=None, metavar="DIR",
+                   help="write flight.tlog, events.jsonl and report.json here "
+                        "(default recordings/<show>-<command>-<UTC time>)")
+    p.add_argument("--exclude", type=int, action="append", default=[], metavar="SYSID",
+                   help="keep this vehicle on the ground (repeatable); the rest must still "
+                        "be safe without it")
+    p.add_argument("--rate", type=positive, default=10.0, metavar="HZ",
+                   help="setpoint rate per vehicle (default 10)")
+    p.add_argument("--lead", type=float, default=150.0, metavar="MS",
+                   help="setpoints are taken this far ahead to cover link latency (default 150)")
+    p.add_argument("--min-battery", type=float, default=Thresholds.min_battery_pct,
+                   metavar="PCT", help="pre-flight battery minimum (default %(default)s %%)")
+    p.add_argument("--preflight-timeout", type=positive, default=120.0, metavar="S",
+                   help="give up if the pre-flight checks have not all passed after this "
+                        "(default 120)")
+    p.add_argument("--signing-key", type=signing_key, default=None, metavar="HEX",
+                   help="MAVLink 2 signing key, 64 hex digits")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+
+
+def runner_config(args: argparse.Namespace, tracks: dict[int, int] | None = None) -> RunnerConfig:
+    return RunnerConfig(rate_hz=args.rate, lead_s=args.lead / 1000.0,
+                        preflight_timeout_s=args.preflight_timeout,
+                        excluded=frozenset(args.exclude), tracks=tracks,
+                        thresholds=Thresholds(min_battery_pct=args.min_battery))
+
+
+def load_or_plan(path: Path, quiet: bool) -> Plan:
+    """A plan file as is, or a show file planned now; UnsafePlan if it does not verify."""
+    if path.suffix == ".npz":
+        from groundctl.plan.verify import verify
+        plan = Plan.load(path)
+        ver = verify(plan)
+        if not ver.safe:
+            raise UnsafePlan(ver.violations)
+        return plan
+    from groundctl.plan.planner import plan_show
+    from groundctl.show.loader import load_show
+    show = load_show(path)
+    if not quiet:
+        print(f"planning {show.name}: {show.drones} drones", file=sys.stderr, flush=True)
+    bar = ProgressBar(f"planning {show.name}")
+    try:
+        result = plan_show(show, progress=bar)
+    finally:
+        bar.close()
+    if not result.verification.safe:
+        raise UnsafePlan(result.verification.violations)
+    if not quiet:
+        print(f"planned and verified in {result.seconds:.1f} s: {result.plan.duration:.0f} s "
+              f"show", file=sys.stderr, flush=True)
+    return result.plan
+
+
+def say(quiet: bool) -> Callable[[str], None]:
+    def notify(text: str) -> None:
+        if not quiet:
+            print(text, file=sys.stderr, flush=True)
+    return notify
+
+
+class Interrupts:
+    """Ctrl-C during a flight: the first lands every vehicle, the second abandons the flight.
+
+    Abandoning only stops the ground station: the vehicles' own failsafes
+    (GCS or offboard loss) take over, which is why it takes a second press.
+    """
+
+    def __init__(self, notify: Callable[[str], None]) -> None:
+        self.notify = notify
+        self.runner: ShowRunner | None = None
+        self.presses = 0
+        self.aborted = False
+        self._task: asyncio.Task[Any] | None = None
+
+    def attach(self, runner: ShowRunner) -> None:
+        self.runner = runner
+
+    def install(self) -> None:
+        self._task = asyncio.current_task()
+        loop = asyncio.get_running_loop()
+        # Not the main thread, or a platform without signals: Ctrl-C then simply stops.
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(signal.SIGINT, self._on_sigint)
+
+    def uninstall(self) -> None:
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            asyncio.get_running_loop().remove_signal_handler(signal.SIGINT)
+
+    def _on_sigint(self) -> None:
+        self.presses += 1
+        self.aborted = True
+        if self.presses == 1 and self.runner is not None and self.runner.sequence is not None:
+            print("\nCtrl-C: landing every vehicle (press again to abandon the flight)",
+                  file=sys.stderr, flush=True)
+            self.runner.land_all()
+            return
+        print("\nCtrl-C: abandoning the flight; vehicles' failsafes are in charge",
+              file=sys.stderr, flush=True)
+        if self._task is not None:
+            self._task.cancel()
+
+
+def finish(report: dict[str, Any], args: argparse.Namespace, aborted: bool) -> int:
+    """Print the report; the exit code says whether the flight was safe."""
+    if args.json:
+        json.dump(report, sys.stdout)
+        sys.stdout.write("\n")
+    else:
+        print(render_report(report))
+    if report.get("record_dir") and not args.quiet:
+        print(f"recordings in {report['record_dir']}", file=sys.stderr)
+    if aborted:  # the operator stopped the show (Ctrl-C): not the show that was planned
+        return EXIT_ABORTED
+    return EXIT_OK if report.get("safe") else EXIT_UNSAFE

@@ -1,0 +1,259 @@
+"""The pre-flight dry-run: the real executor against the built-in simulator, over UDP.
+
+Nothing is mocked: the ground station binds a loopback socket, the
+simulated fleet (one socket per vehicle, ArduPilot or PX4 behaviour) stands
+on the plan's takeoff slots and talks to it, and :class:`ShowRunner` flies
+the show exactly as it would fly real drones.  The one difference is the
+clock: a :class:`~groundctl.clock.ScaledClock` shared by both sides lets the
+rehearsal run faster than real time.
+
+Besides the telemetry-based report the ground station can make for any
+flight, the dry-run knows the truth: where the simulated drones really were
+(true minimum separation), whether one crashed, and when each LED actually
+changed colour (timing against the plan).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import datetime as dt
+import json
+import math
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from groundctl.clock import ScaledClock
+from groundctl.errors import FlightError, GroundctlError, SimulatorError
+from groundctl.execute.frames import enu_to_show, show_to_enu
+from groundctl.flight.report import flight_report
+from groundctl.flight.runner import RunnerConfig, ShowRunner
+from groundctl.link.flavours import Flavour
+from groundctl.link.fleet import FleetLink
+from groundctl.plan.plan import Plan
+from groundctl.record.events import EventLog
+from groundctl.record.tlog import TlogWriter
+from groundctl.sim import LinkFaults, SimConfig
+from groundctl.sim.process import SimProcess
+
+#: Loopback only: the dry-run never sends a packet off this machine.
+LOOPBACK = "127.0.0.1"
+
+
+@dataclass(frozen=True)
+class DryRunOptions:
+    """How to rehearse."""
+
+    flavour: Flavour = Flavour.ARDUPILOT
+    """Autopilot every simulated vehicle imitates."""
+    speed: float = 1.0
+    """Simulated seconds per real second."""
+    wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Mean wind, east-north-up m/s (the direction the air moves to)."""
+    gust_std: float = 0.0
+    """Seeded random gusts, m/s per axis."""
+    loss: float = 0.0
+    """Packet loss probability, each way."""
+    latency_ms: float = 0.0
+    """One-way latency, ms."""
+    jitter_ms: float = 0.0
+    """Latency standard deviation, ms."""
+    seed: int = 0
+    """Seed of every random process of the simulator."""
+    signing_key: bytes | None = None
+    """MAVLink 2 signing on both sides with this key."""
+    ekf_origin_delay_s: float = 20.0
+    """Simulated time until the vehicles have an EKF origin (SITL: 20 s)."""
+    ready_delay_s: float = 40.0
+    """Simulated time until the vehicles accept arming (SITL: 40 s)."""
+    runner: RunnerConfig = field(default_factory=RunnerConfig)
+    """The executor's settings."""
+    record_dir: Path | None = None
+    """Where flight.tlog, events.jsonl and report.json go (None: nothing recorded)."""
+
+    def __post_init__(self) -> None:
+        if not self.speed > 0:
+            raise SimulatorError(f"--speed must be positive, got {self.speed}")
+        if not 0 <= self.loss < 1:
+            raise SimulatorError(f"--loss must be in [0, 1), got {self.loss}")
+        if self.latency_ms < 0 or self.jitter_ms < 0:
+            raise SimulatorError("--latency and --jitter must be non-negative")
+
+
+@dataclass
+class DryRunResult:
+    """The report, and the error that stopped the flight early (if one did)."""
+
+    report: dict[str, Any]
+    """The flight report (see :mod:`groundctl.flight.report`) plus the dry-run's truth."""
+    error: GroundctlError | None
+    """Why the run stopped before every vehicle was down, or None."""
+    flown: bool
+    """True once the sequence started (arming was commanded)."""
+    record_dir: Path | None
+    """Where the recordings are."""
+
+
+def default_record_dir(show_name: str, root: Path = Path("recordings")) -> Path:
+    """``recordings/<show>-dry-run-<UTC time>``."""
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+    return root / f"{show_name}-dry-run-{stamp}"
+
+
+def sim_config(plan: Plan, options: DryRunOptions, gcs: tuple[str, int]) -> SimConfig:
+    """A simulated fleet standing on the plan's takeoff slots, talking to ``gcs``."""
+    if plan.drones > 254:
+        raise SimulatorError(f"the dry-run simulates at most 254 vehicles (one system id "
+                             f"each); the plan has {plan.drones}")
+    o = plan.origin
+    return SimConfig(
+        count=plan.drones, flavour=options.flavour, origin=(o.lat, o.lon, o.alt),
+        positions=show_to_enu(o, plan.home), system_ids=list(range(1, plan.drones + 1)),
+        gcs=gcs, bind_host=LOOPBACK, ekf_origin_delay_s=options.ekf_origin_delay_s,
+        ready_delay_s=options.ready_delay_s, wind=options.wind,
+        gust_std=options.gust_std, seed=options.seed, signing_key=options.signing_key,
+        link_faults=LinkFaults(options.loss, options.latency_ms, options.jitter_ms, 0.0))
+
+
+During = Callable[[ShowRunner, SimProcess], Awaitable[None]]
+
+
+async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
+                      customise: Callable[[SimConfig], SimConfig] | None = None,
+                      during: During | None = None,
+                      notify: Callable[[str], None] | None = None,
+                      on_runner: Callable[[ShowRunner], None] | None = None) -> DryRunResult:
+    """Fly ``plan`` against a simulated fleet; always returns the report (and recordings).
+
+    ``customise`` may change the simulator's configuration (a vehicle off its
+    slot, other EKF origins); ``during`` runs alongside the flight (faults,
+    operator commands) and is cancelled when the flight ends; ``on_runner``
+    gets the runner before it starts (the CLI hooks Ctrl-C to it).
+    """
+    clock = ScaledClock(options.speed)
+    record = options.record_dir
+    tlog = events = None
+    if record is not None:
+        try:
+            record.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise GroundctlError(f"{record}: cannot create the recording directory: "
+                                 f"{exc.strerror or exc}") from exc
+        tlog = TlogWriter(record / "flight.tlog")
+        events = EventLog(record / "events.jsonl", clock.now)
+    link = FleetLink((LOOPBACK, 0), clock=clock, expected_ids=range(1, plan.drones + 1),
+                     signing_key=options.signing_key, tlog=tlog, events=events)
+    fleet: SimProcess | None = None
+    runner: ShowRunner | None = None
+    helper: asyncio.Task[None] | None = None
+    error: GroundctlError | None = None
+    crashed: list[int] = []
+    try:
+        await link.start()
+        assert link.local_address is not None
+        config = sim_config(plan, options, link.local_address)
+        if customise is not None:
+            config = customise(config)
+        fleet = await asyncio.to_thread(SimProcess, config, clock)  # starts flying now
+        runner = ShowRunner(plan, link, clock, options.runner, events=events, notify=notify,
+                            expected_ids=config.sysids())
+        runner.on_tick = _truth_probe(runner, fleet)
+        if on_runner is not None:
+            on_runner(runner)
+        if events is not None:
+            events.emit("dry_run", show=plan.show_name, vehicles=plan.drones,
+                        autopilot=str(options.flavour), speed=options.speed,
+                        loss=options.loss, latency_ms=options.latency_ms, seed=options.seed,
+                        wind=list(options.wind), gcs=f"{link.local_address[0]}:"
+                                                     f"{link.local_address[1]}")
+        if during is not None:
+            helper = asyncio.create_task(during(runner, fleet))
+        try:
+            await runner.run()
+        except asyncio.CancelledError:
+            # The operator abandoned the flight (second Ctrl-C): still report and record.
+            task = asyncio.current_task()
+            if task is not None:
+                task.uncancel()
+            raise FlightError("flight abandoned by the operator") from None
+    except GroundctlError as exc:
+        error = exc
+        if events is not None:
+            events.emit("error", kind=type(exc).__name__, text=str(exc))
+    finally:
+        if helper is not None:
+            helper.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await helper
+        truth: dict[str, Any] = {}
+        if fleet is not None:
+            try:
+                states = fleet.call("snapshot")
+                crashed = [s.sysid for s in states if s.crashed]
+                truth = {"crashed": crashed,
+                         "down_and_disarmed": sum(s.landed and not s.armed for s in states),
+                         "sim_overruns": fleet.get("overruns"),
+                         "sim_max_lag_s": round(fleet.get("max_lag"), 3)}
+            except SimulatorError as exc:
+                truth["error"] = str(exc)
+            try:
+                fleet.stop()
+            except SimulatorError as exc:
+                truth["error"] = str(exc)
+                if error is None:
+                    error = exc
+        await link.close()
+        report: dict[str, Any] = {
+            "show": plan.show_name, "safe": False, "landed": False, "vehicles": [],
+            "min_separation_m": None, "max_tracking_error_m": None,
+            "unsafe_reasons": [str(error) if error is not None else "the flight never started"]}
+        if runner is not None:
+            report = flight_report(runner, None if error is None else str(error))
+            mon = runner.monitor
+            true_sep = mon.true_separation.distance_m if mon is not None else math.inf
+            report["true_min_separation_m"] = (round(true_sep, 3) if math.isfinite(true_sep)
+                                               else None)
+            if crashed:
+                report["unsafe_reasons"].append(f"vehicle(s) {crashed} crashed")
+            if true_sep < plan.limits.min_separation:
+                report["unsafe_reasons"].append(
+                    f"true separation {true_sep:.2f} m (limit {plan.limits.min_separation:.2f} m)")
+            report["safe"] = not report["unsafe_reasons"]
+        report.update({"autopilot": str(options.flavour), "speed": options.speed,
+                       "simulator": truth,
+                       "record_dir": None if record is None else str(record)})
+        if record is not None:
+            (record / "report.json").write_text(json.dumps(report, indent=1) + "\n")
+        if events is not None:
+            events.emit("report", safe=report.get("safe"),
+                        min_separation_m=report.get("min_separation_m"),
+                        max_tracking_error_m=report.get("max_tracking_error_m"))
+            events.close()
+        if tlog is not None:
+            tlog.close()
+    flown = runner is not None and runner.sequence is not None
+    return DryRunResult(report, error, flown, record)
+
+
+def _truth_probe(runner: ShowRunner, fleet: SimProcess) -> Callable[[float, float], None]:
+    origin = runner.plan.origin
+    ids = list(fleet.sysids)
+
+    def probe(now: float, show_time: float) -> None:
+        mon, seq = runner.monitor, runner.sequence
+        if mon is None or seq is None:
+            return
+        mon.observe_truth(now, ids, enu_to_show(origin, fleet.call("positions")))
+        t0 = seq.started_at
+        for sysid, (led, when) in zip(ids, fleet.call("leds"), strict=True):
+            shown_at = None if t0 is None or when is None or when < t0 else when - t0
+            mon.observe_led(sysid, led, when, shown_at)
+
+    return probe
+
+
+def with_sim(config: SimConfig, **changes: Any) -> SimConfig:
+    """``config`` with some fields replaced (a helper for ``customise``)."""
+    return replace(config, **changes)

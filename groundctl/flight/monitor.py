@@ -1,0 +1,236 @@
+"""What the flight actually did, measured from telemetry: a pure accumulator.
+
+The driver calls :meth:`FlightMonitor.observe` every tick with the link's
+vehicle states; nothing here does I/O or reads a clock.  Telemetry arrives
+at different instants per vehicle (LOCAL_POSITION_NED at 10 Hz), so each
+vehicle's last sample is carried to the tick's instant with its own velocity:
+the sample's vehicle timestamp (``time_boot_ms``) is put on our clock with
+the TIMESYNC offset.  Without that, two drones passing each other at 4 m/s
+would be compared 50 ms apart on average, an error of 0.2 m in their
+distance.
+
+Measured: min separation (any two vehicles heard, flying or on the ground),
+per-vehicle max and RMS tracking error against the plan at the show clock,
+the worst distance to the formation slots while each formation is held, and
+(when the LEDs can be observed, as in the dry-run) how early or late each
+colour change appeared.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Collection, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from groundctl.execute.frames import ned_to_show
+from groundctl.link.state import VehicleState
+from groundctl.plan.plan import Plan
+
+FloatArray = NDArray[np.float64]
+
+#: Telemetry older than this is not used (the vehicle is as good as unheard), s.
+MAX_SAMPLE_AGE_S = 1.0
+#: LED change matched against plan colours within this window either side, s.
+LED_WINDOW_S = 2.0
+#: Plan colours sampled this finely when matching an LED change, s.
+LED_STEP_S = 0.02
+#: Two 0-255 colours closer than this per channel are the same colour.
+LED_COLOUR_TOL = 3
+
+
+@dataclass
+class VehicleTrack:
+    """Running tracking-error figures of one vehicle."""
+
+    max_error_m: float = 0.0
+    """Largest distance from the plan while in the show, m."""
+    max_error_at_s: float | None = None
+    """Show time of the largest distance, s."""
+    sum_sq: float = 0.0
+    """Sum of squared errors, m^2."""
+    samples: int = 0
+    """Ticks measured."""
+    led_errors_s: list[float] = field(default_factory=list)
+    """Per observed LED change: shown time minus planned time, s (negative: early)."""
+    led_unmatched: int = 0
+    """LED changes to a colour the plan does not show nearby."""
+
+    @property
+    def rms_error_m(self) -> float:
+        return math.sqrt(self.sum_sq / self.samples) if self.samples else 0.0
+
+
+@dataclass
+class FormationError:
+    """Distance to the formation's slots while it is held."""
+
+    index: int
+    """1-based formation index."""
+    name: str
+    """Formation name."""
+    max_m: float = 0.0
+    """Worst vehicle's distance to its slot, m."""
+    sum_m: float = 0.0
+    """Sum of per-vehicle distances, m."""
+    samples: int = 0
+    """Vehicle-ticks measured."""
+
+    @property
+    def mean_m(self) -> float:
+        return self.sum_m / self.samples if self.samples else 0.0
+
+
+@dataclass(frozen=True)
+class Separation:
+    """The closest approach seen."""
+
+    distance_m: float
+    """Distance, m (inf until two vehicles were seen at once)."""
+    pair: tuple[int, int] | None = None
+    """System ids of the two vehicles."""
+    at_s: float | None = None
+    """Our time it happened."""
+
+
+def nearest_pair(ids: list[int], pos: FloatArray) -> Separation:
+    """The closest two of ``pos`` (rows for ``ids``), by KD-tree."""
+    if len(ids) < 2:
+        return Separation(math.inf)
+    dist, idx = cKDTree(pos).query(pos, k=2)
+    i = int(np.argmin(dist[:, 1]))
+    j = int(idx[i, 1])
+    return Separation(float(dist[i, 1]), (min(ids[i], ids[j]), max(ids[i], ids[j])))
+
+
+def telemetry_positions(plan: Plan, states: Mapping[int, VehicleState],
+                        now: float) -> tuple[list[int], FloatArray]:
+    """Show-frame positions of every vehicle with fresh telemetry, carried to ``now``.
+
+    Vehicles that are lost, have no EKF origin or local position, or whose
+    sample is older than :data:`MAX_SAMPLE_AGE_S` are left out.
+    """
+    ids: list[int] = []
+    origins = []
+    ned = []
+    for sysid, s in states.items():
+        if s.lost or s.ekf_origin is None or s.position_ned is None:
+            continue
+        age = 0.0
+        offset = s.clock_offset_s
+        if s.local_time_boot_ms is not None and offset is not None:
+            age = now - (s.local_time_boot_ms / 1000.0 - offset)
+        elif s.last_heard is not None:
+            age = now - s.last_heard
+        if age > MAX_SAMPLE_AGE_S:
+            continue
+        p = np.asarray(s.position_ned, dtype=float)
+        if s.velocity_ned is not None and age > 0:
+            p = p + np.asarray(s.velocity_ned, dtype=float) * age
+        ids.append(sysid)
+        origins.append(s.ekf_origin)
+        ned.append(p)
+    if not ids:
+        return [], np.zeros((0, 3))
+    return ids, ned_to_show(plan.origin, origins, np.array(ned))
+
+
+class FlightMonitor:
+    """Accumulates what the flight did; see the module docstring."""
+
+    def __init__(self, plan: Plan, tracks: Mapping[int, int]) -> None:
+        self.plan = plan
+        self.tracks = dict(tracks)
+        self.vehicles: dict[int, VehicleTrack] = {s: VehicleTrack() for s in self.tracks}
+        self.formations = [FormationError(w.index, w.name) for w in plan.formations]
+        self.separation = Separation(math.inf)
+        self.true_separation = Separation(math.inf)
+        self.ticks = 0
+        self._led_shown: dict[int, float | None] = {}
+
+    def observe(self, now: float, show_time: float, in_show: Collection[int],
+                states: Mapping[int, VehicleState]) -> None:
+        """One tick: ``in_show`` are the vehicles flying the plan (tracking error counts)."""
+        self.ticks += 1
+        ids, pos = telemetry_positions(self.plan, states, now)
+        sep = nearest_pair(ids, pos)
+        if sep.distance_m < self.separation.distance_m:
+            self.separation = Separation(sep.distance_m, sep.pair, now)
+        rows = [k for k, s in enumerate(ids) if s in in_show and s in self.tracks]
+        if not rows:
+            return
+        tracks = np.array([self.tracks[ids[k]] for k in rows])
+        here = pos[rows]
+        planned = self.plan.trajectories.evaluate(show_time, tracks)[0]
+        err = np.linalg.norm(here - planned, axis=1)
+        for k, e in zip(rows, err, strict=True):
+            v = self.vehicles[ids[k]]
+            if e > v.max_error_m:
+                v.max_error_m, v.max_error_at_s = float(e), show_time
+            v.sum_sq += float(e) ** 2
+            v.samples += 1
+        for w, f in zip(self.plan.formations, self.formations, strict=True):
+            if w.arrive <= show_time <= w.end:
+                d = np.linalg.norm(here - w.goals[tracks], axis=1)
+                f.max_m = max(f.max_m, float(d.max()))
+                f.sum_m += float(d.sum())
+                f.samples += len(d)
+
+    def observe_truth(self, now: float, ids: list[int], pos: FloatArray) -> None:
+        """Ground truth positions (dry-run only: the simulator knows where drones really are)."""
+        sep = nearest_pair(ids, pos)
+        if sep.distance_m < self.true_separation.distance_m:
+            self.true_separation = Separation(sep.distance_m, sep.pair, now)
+
+    def observe_led(self, sysid: int, rgb: tuple[int, int, int], changed_at: float | None,
+                    show_time_of: float | None) -> None:
+        """A vehicle's LED as observed (dry-run): colour and when it last changed.
+
+        ``show_time_of`` is ``changed_at`` on the show clock (None before the
+        show clock started: takeoff colours are not timed).
+        """
+        if sysid not in self.tracks or changed_at is None:
+            return
+        if self._led_shown.get(sysid) == changed_at:
+            return
+        self._led_shown[sysid] = changed_at
+        if show_time_of is None:
+            return
+        v = self.vehicles[sysid]
+        error = self._led_error(self.tracks[sysid], np.asarray(rgb, dtype=float), show_time_of)
+        if error is None:
+            v.led_unmatched += 1
+        else:
+            v.led_errors_s.append(error)
+
+    def _led_error(self, track: int, rgb: FloatArray, shown_at: float) -> float | None:
+        times = np.arange(shown_at - LED_WINDOW_S, shown_at + LED_WINDOW_S + 1e-9, LED_STEP_S)
+        keys, cols = self.plan.color_times, self.plan.colors[track]
+        plan_rgb = np.rint(np.column_stack(
+            [np.interp(times, keys, cols[:, c]) for c in range(3)]) * 255.0)
+        match = np.all(np.abs(plan_rgb - rgb) <= LED_COLOUR_TOL, axis=1)
+        if not match.any():
+            return None
+        # The instant the plan first shows this colour in the window's matching
+        # run nearest to when it was shown.
+        hits = np.flatnonzero(match)
+        k = hits[np.argmin(np.abs(times[hits] - shown_at))]
+        while k > 0 and match[k - 1]:
+            k -= 1
+        if k == 0:
+            return None  # the plan showed it since before the window: no change to time
+        return float(shown_at - times[k])
+
+    # -- results ---------------------------------------------------------------------
+    def max_tracking_error(self) -> float:
+        return max((v.max_error_m for v in self.vehicles.values()), default=0.0)
+
+    def rms_tracking_error(self) -> float:
+        n = sum(v.samples for v in self.vehicles.values())
+        return math.sqrt(sum(v.sum_sq for v in self.vehicles.values()) / n) if n else 0.0
+
+    def led_errors(self) -> list[float]:
+        return [e for v in self.vehicles.values() for e in v.led_errors_s]

@@ -1,0 +1,143 @@
+"""The flight report: one JSON-able dict, and its text rendering.
+
+Keys relied on elsewhere (scripts, CI): ``safe``, ``vehicles``,
+``min_separation_m``, ``max_tracking_error_m``, ``landed``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from groundctl.execute.sequence import VehiclePhase
+from groundctl.flight.runner import ShowRunner
+
+
+def _r(x: float | None, nd: int = 3) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(float(x), nd)
+
+
+def flight_report(runner: ShowRunner, error: str | None = None) -> dict[str, Any]:
+    """Everything measured about the flight; ``error`` is why it stopped early, if it did."""
+    plan = runner.plan
+    seq, mon = runner.sequence, runner.monitor
+    limit = plan.limits.min_separation
+    vehicles: list[dict[str, Any]] = []
+    flown = seq.vehicles if seq is not None else {}
+    for sysid in sorted(set(flown) | set(runner.link.vehicles)):
+        state = runner.link.vehicles.get(sysid)
+        run = flown.get(sysid)
+        rec = runner.records.get(sysid)
+        track = mon.vehicles.get(sysid) if mon is not None else None
+        leds = track.led_errors_s if track is not None else []
+        vehicles.append({
+            "system_id": sysid,
+            "track": run.track if run is not None else None,
+            "phase": str(run.phase) if run is not None else
+            ("excluded" if sysid in runner.config.excluded else "not flown"),
+            "landed": run is not None and run.phase is VehiclePhase.LANDED,
+            "reason": run.reason if run is not None else None,
+            "max_tracking_error_m": _r(track.max_error_m) if track else None,
+            "rms_tracking_error_m": _r(track.rms_error_m) if track else None,
+            "max_tracking_error_at_s": _r(track.max_error_at_s, 2) if track else None,
+            "led_timing_error_max_s": _r(max(map(abs, leds))) if leds else None,
+            "commands_refused": rec.commands_refused if rec is not None else 0,
+            "last_refusal": rec.last_refusal if rec is not None else None,
+            "late": rec.late if rec is not None else False,
+            "loss_ratio": _r(state.loss_ratio, 4) if state is not None else None,
+            "rtt_ms": _r(state.rtt_s * 1000, 1) if state and state.rtt_s is not None else None,
+            "bad_packets": state.bad_packets if state is not None else 0,
+        })
+    landed = seq is not None and bool(flown) and all(
+        v.phase is VehiclePhase.LANDED for v in flown.values())
+    min_sep = mon.separation.distance_m if mon is not None else math.inf
+    reasons: list[str] = []
+    if error is not None:
+        reasons.append(error)
+    if seq is None:
+        reasons.append("the flight never started")
+    elif not landed:
+        down = [s for s, v in flown.items() if v.phase is not VehiclePhase.LANDED]
+        reasons.append(f"vehicle(s) {down} did not land under control")
+    if min_sep < limit:
+        pair = mon.separation.pair if mon is not None else None
+        reasons.append(f"separation {min_sep:.2f} m between vehicles {pair} "
+                       f"(limit {limit:.2f} m)")
+    led = mon.led_errors() if mon is not None else []
+    unmatched = sum(v.led_unmatched for v in mon.vehicles.values()) if mon is not None else 0
+    late = np.array(runner.lateness_s) * 1000.0
+    stats = runner.link.stats
+    report: dict[str, Any] = {
+        "show": plan.show_name,
+        "safe": not reasons,
+        "unsafe_reasons": reasons,
+        "landed": landed,
+        "vehicles": vehicles,
+        "min_separation_m": _r(min_sep),
+        "min_separation_pair": list(mon.separation.pair) if mon and mon.separation.pair else None,
+        "min_separation_at_s": _r(mon.separation.at_s - seq.started_at, 2)
+        if mon and seq and seq.started_at is not None and mon.separation.at_s is not None
+        else None,
+        "separation_limit_m": limit,
+        "max_tracking_error_m": _r(mon.max_tracking_error()) if mon is not None else None,
+        "rms_tracking_error_m": _r(mon.rms_tracking_error()) if mon is not None else None,
+        "pattern_error_m": [
+            {"formation": f.name, "index": f.index, "max_m": _r(f.max_m), "mean_m": _r(f.mean_m)}
+            for f in (mon.formations if mon is not None else [])],
+        "led_timing_error_s": {
+            "changes": len(led),
+            "unmatched": unmatched,
+            "mean_abs": _r(float(np.mean(np.abs(led)))) if led else None,
+            "max_abs": _r(float(np.max(np.abs(led)))) if led else None,
+        },
+        "commands_refused": sum(r.commands_refused for r in runner.records.values()),
+        "setpoint_lateness_ms": {
+            "p50": _r(float(np.percentile(late, 50)), 2) if late.size else None,
+            "p99": _r(float(np.percentile(late, 99)), 2) if late.size else None,
+            "max": _r(float(late.max()), 2) if late.size else None,
+            "ticks": int(late.size),
+            "overruns": runner.overruns,
+        },
+        "link": {k: int(v) for k, v in vars(stats).items()},
+    }
+    return report
+
+
+def render_report(report: dict[str, Any]) -> str:
+    """The report as a few lines and a per-vehicle table for the terminal."""
+    lines = [f"show {report['show']}: {'SAFE' if report['safe'] else 'NOT SAFE'}"]
+    for why in report["unsafe_reasons"]:
+        lines.append(f"  - {why}")
+    sep = report["min_separation_m"]
+    lines.append(f"min separation flown {sep if sep is not None else '-'} m "
+                 f"(limit {report['separation_limit_m']} m)"
+                 + (f", true {report['true_min_separation_m']} m"
+                    if report.get("true_min_separation_m") is not None else ""))
+    lines.append(f"tracking error max {report['max_tracking_error_m']} m, "
+                 f"RMS {report['rms_tracking_error_m']} m")
+    for f in report["pattern_error_m"]:
+        lines.append(f"  formation {f['index']} {f['formation']}: pattern error max "
+                     f"{f['max_m']} m, mean {f['mean_m']} m")
+    led = report["led_timing_error_s"]
+    if led["changes"]:
+        lines.append(f"LED colour timing: {led['changes']} changes, mean |error| "
+                     f"{led['mean_abs']} s, max {led['max_abs']} s, unmatched {led['unmatched']}")
+    lat = report["setpoint_lateness_ms"]
+    lines.append(f"setpoint lateness p50 {lat['p50']} ms, p99 {lat['p99']} ms, max {lat['max']} "
+                 f"ms over {lat['ticks']} ticks; commands refused {report['commands_refused']}")
+    link = report["link"]
+    lines.append(f"link: {link['packets']} packets in, {link['sent']} out, {link['bad_packets']} "
+                 f"bad, {link['unknown_system_packets']} from unknown systems")
+    lines.append(f"{'sysid':>5} {'track':>5} {'phase':<9} {'max err':>7} {'rms':>6} "
+                 f"{'loss':>6} {'rtt ms':>6} {'refused':>7}  note")
+    for v in report["vehicles"]:
+        def f(x: Any, fmt: str) -> str:
+            return "-" if x is None else format(x, fmt)
+        note = v["reason"] or ("late" if v["late"] else "")
+        lines.append(f"{v['system_id']:>5} {f(v['track'], 'd'):>5} {v['phase']:<9} "
+                     f"{f(v['max_tracking_error_m'], '.2f'):>7} "
+                     f"{f(v['rms_tracking_error_m'], '.2f'):>6} {f(v['loss_ratio'], '.1%'):>6} "
+                     f"{f(v['rtt_ms'], '.0f'):>6} {v['commands_refused']:>7}  {note}")
+    return "\n".join(lines)

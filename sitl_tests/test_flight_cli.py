@@ -1,0 +1,150 @@
+"""The ``groundctl dry-run`` and ``groundctl fly`` commands, run as an operator runs them."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from flight_fixtures import QUICK_SHOW, REPO
+
+from groundctl.errors import EXIT_ABORTED, EXIT_LINK, EXIT_OK, EXIT_USAGE
+from groundctl.record.events import read_events
+
+GROUNDCTL = [sys.executable, "-m", "groundctl"]
+
+#: Four drones on the simulator's default grid (`groundctl sim --count 4`: 3 m apart
+#: from its default origin), out to a line and back.
+FLY_SHOW = """
+[show]
+name = "four"
+drones = 4
+takeoff_altitude = 3.0
+
+[origin]
+lat = -35.363261
+lon = 149.165230
+alt = 584.0
+
+[limits]
+min_separation = 1.5
+min_altitude = 2.0
+max_altitude = 20.0
+
+[takeoff]
+layout = "points"
+points = [[0.0, 0.0], [3.0, 0.0], [0.0, 3.0], [3.0, 3.0]]
+
+[[formation]]
+name = "line"
+shape = "line"
+center = [1.5, 1.5, 6.0]
+size = 9.0
+transition = 8.0
+hold = 4.0
+color = "#ff0000"
+
+[landing]
+transition = 8.0
+"""
+
+
+def _run(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*GROUNDCTL, *args], capture_output=True, text=True, cwd=REPO,
+                          timeout=timeout, check=False)
+
+
+def _free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_dry_run_json_report_and_recordings(tmp_path: Path) -> None:
+    out = _run("dry-run", str(QUICK_SHOW), "--speed", "6", "--ready-delay", "2", "--json",
+               "--record", str(tmp_path), "--seed", "3")
+    assert out.returncode == EXIT_OK, out.stderr
+    report = json.loads(out.stdout)
+    for key in ("safe", "vehicles", "min_separation_m", "max_tracking_error_m", "landed"):
+        assert key in report
+    assert report["safe"] and report["landed"] and len(report["vehicles"]) == 9
+    assert report["autopilot"] == "ardupilot" and report["speed"] == 6.0
+    assert json.loads((tmp_path / "report.json").read_text())["safe"]
+    assert (tmp_path / "flight.tlog").stat().st_size > 10_000
+
+
+def test_dry_run_of_a_malformed_show_is_one_clear_line(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text(QUICK_SHOW.read_text().replace("takeoff_altitude", "takeof_altitude"))
+    out = _run("dry-run", str(bad), "--no-record")
+    assert out.returncode == EXIT_USAGE
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("groundctl dry-run: error: ")
+    assert "takeof_altitude" in lines[0] and "takeoff_altitude" in lines[0]
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--loss", "1.5"], "--loss must be in [0, 1)"),
+    (["--wind", "north"], "--wind must be EAST,NORTH[,UP]"),
+    (["--speed", "0"], "must be positive"),
+    (["--autopilot", "inav"], "invalid choice: 'inav'"),
+])
+def test_dry_run_refuses_bad_options(args: list[str], message: str) -> None:
+    out = _run("dry-run", str(QUICK_SHOW), *args)
+    assert out.returncode == EXIT_USAGE
+    assert message in out.stderr
+
+
+def test_fly_without_vehicles_gives_up_with_a_link_error(tmp_path: Path) -> None:
+    show = tmp_path / "four.toml"
+    show.write_text(FLY_SHOW)
+    port = _free_udp_port()
+    out = _run("fly", str(show), "--connect", f"udp:127.0.0.1:{port}", "--connect-timeout",
+               "1", "--record", str(tmp_path / "rec"))
+    assert out.returncode == EXIT_LINK
+    assert "only 0 of 4 vehicles sent a HEARTBEAT within 1.0 s" in out.stderr
+    events = [e["event"] for e in read_events(tmp_path / "rec" / "events.jsonl")]
+    assert "error" in events and events[-1] == "report"  # flushed and closed on the way out
+
+
+def test_fly_against_groundctl_sim_and_ctrl_c_lands_everyone(tmp_path: Path) -> None:
+    """Real time, two processes, as in the README: `groundctl sim` and `groundctl fly`."""
+    show = tmp_path / "four.toml"
+    show.write_text(FLY_SHOW)
+    port = _free_udp_port()
+    sim = subprocess.Popen([*GROUNDCTL, "sim", "--count", "4", "--gcs", f"127.0.0.1:{port}",
+                            "--ekf-delay", "1", "--ready-delay", "2"],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO)
+    fly = subprocess.Popen([*GROUNDCTL, "fly", str(show), "--connect", f"udp:127.0.0.1:{port}",
+                            "--record", str(tmp_path / "rec"), "--json"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+                           env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        assert fly.stderr is not None
+        deadline = time.monotonic() + 90
+        for line in fly.stderr:
+            if "show started" in line:
+                break
+            assert time.monotonic() < deadline, "the show never started"
+        time.sleep(4.0)  # mid-transition
+        fly.send_signal(signal.SIGINT)
+        stdout, stderr = fly.communicate(timeout=120)
+    finally:
+        if fly.poll() is None:
+            fly.kill()
+        sim.send_signal(signal.SIGINT)
+        sim.wait(timeout=20)
+    assert fly.returncode == EXIT_ABORTED, stderr
+    report = json.loads(stdout)
+    assert [v["phase"] for v in report["vehicles"]] == ["landed"] * 4
+    assert report["min_separation_m"] >= 1.5
+    events = read_events(tmp_path / "rec" / "events.jsonl")
+    kinds = [e["event"] for e in events]
+    assert "return_planning" in kinds and kinds[-1] == "report"
+    assert any(e["event"] == "operator" and e["command"] == "land all" for e in events)

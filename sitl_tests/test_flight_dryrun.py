@@ -1,0 +1,243 @@
+"""End to end: the real executor flies the quick show against the simulator over UDP.
+
+Each test is one dry-run (about 8-10 s of wall time at six times real time).
+Faults are injected into the simulator process while the flight goes on;
+what is checked is the report and the recordings, as an operator would.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pymap3d
+import pytest
+from flight_fixtures import dry_run, quick_plan, show_time, until, vehicle
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from groundctl.errors import FlightError, LinkError, PreflightFailed
+from groundctl.flight.runner import RunnerConfig, ShowRunner
+from groundctl.link.flavours import Flavour
+from groundctl.record.events import read_events
+from groundctl.sim import SimConfig
+from groundctl.sim.process import SimProcess
+
+FLAVOURS = [Flavour.ARDUPILOT, Flavour.PX4]
+KEY = bytes(range(32))
+
+
+def _assert_flown_safely(report: dict, drones: int = 9) -> None:
+    assert report["safe"], report["unsafe_reasons"]
+    assert report["landed"]
+    assert [v["phase"] for v in report["vehicles"]] == ["landed"] * drones
+    assert report["min_separation_m"] >= report["separation_limit_m"]
+    assert report["true_min_separation_m"] >= report["separation_limit_m"]
+    assert report["simulator"]["crashed"] == []
+    assert report["simulator"]["down_and_disarmed"] == drones
+
+
+@pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
+def test_quick_show_is_flown_landed_and_recorded(flavour: Flavour, tmp_path: Path) -> None:
+    result = dry_run(tmp_path, flavour=flavour)
+    assert result.error is None and result.flown
+    report = result.report
+    _assert_flown_safely(report)
+    assert report["max_tracking_error_m"] < 0.5
+    assert all(f["max_m"] < 0.3 for f in report["pattern_error_m"])
+    assert report["commands_refused"] == 0
+    assert report["link"]["bad_packets"] == 0
+    if flavour is Flavour.ARDUPILOT:  # PX4 ignores LED_CONTROL, as the real one does
+        led = report["led_timing_error_s"]
+        assert led["changes"] > 9 and led["max_abs"] < 0.5
+    # The recordings: the report, every event, and a tlog pymavlink reads back.
+    assert json.loads((tmp_path / "report.json").read_text())["safe"] is True
+    events = [e["event"] for e in read_events(tmp_path / "events.jsonl")]
+    for name in ("dry_run", "connected", "preflight_passed", "sequence_started",
+                 "sequence_finished", "report"):
+        assert name in events
+    log = mavutil.mavlink_connection(str(tmp_path / "flight.tlog"), dialect="ardupilotmega")
+    kinds: set[tuple[int, str]] = set()
+    while (msg := log.recv_match()) is not None:
+        kinds.add((msg.get_srcSystem(), msg.get_type()))
+    assert (255, "SET_POSITION_TARGET_LOCAL_NED") in kinds
+    assert (1, "LOCAL_POSITION_NED") in kinds
+
+
+def test_preflight_refuses_a_vehicle_off_its_slot() -> None:
+    def move_vehicle_4(config: SimConfig) -> SimConfig:
+        homes = config.homes_enu().copy()
+        homes[3, :2] += (12.0, 0.0)
+        return replace(config, positions=homes)
+
+    result = dry_run(customise=move_vehicle_4)
+    assert isinstance(result.error, PreflightFailed) and not result.flown
+    assert list(result.error.failures) == [4]
+    assert "from the nearest takeoff slot" in result.error.failures[4][0]
+
+
+def test_preflight_refuses_a_low_battery() -> None:
+    async def drain(runner: ShowRunner, sim: SimProcess) -> None:
+        sim.call("low_battery", 0.3, 6)
+
+    result = dry_run(during=drain)
+    assert isinstance(result.error, PreflightFailed) and not result.flown
+    assert result.error.failures == {6: ["battery: 30 % (minimum 60 %)"]}
+
+
+def test_preflight_gives_up_on_vehicles_that_never_get_ready() -> None:
+    result = dry_run(ekf_origin_delay_s=1000.0, ready_delay_s=1000.0,
+                     runner=RunnerConfig(preflight_timeout_s=5.0))
+    assert isinstance(result.error, PreflightFailed) and not result.flown
+    assert sorted(result.error.failures) == list(range(1, 10))
+    assert "EKF origin unknown" in result.error.failures[1][0]
+
+
+@pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
+def test_an_arming_refusal_is_retried_with_its_reason_shown(flavour: Flavour) -> None:
+    async def refuse(runner: ShowRunner, sim: SimProcess) -> None:
+        sim.call("refuse_arming", 2, 2, "PreArm: Gyros inconsistent")
+
+    result = dry_run(flavour=flavour, during=refuse)
+    _assert_flown_safely(result.report)
+    v2 = vehicle(result.report, 2)
+    assert v2["commands_refused"] == 2
+    assert v2["last_refusal"] == "PreArm: Gyros inconsistent"
+
+
+@pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
+def test_ten_percent_loss_and_100_ms_latency_are_still_flown_safely(flavour: Flavour) -> None:
+    result = dry_run(flavour=flavour, loss=0.1, latency_ms=100.0, seed=7)
+    _assert_flown_safely(result.report)
+    losses = [v["loss_ratio"] for v in result.report["vehicles"]]
+    assert 0.05 < float(np.mean(losses)) < 0.15
+    assert all(v["rtt_ms"] > 190 for v in result.report["vehicles"])
+
+
+@pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
+def test_a_vehicle_whose_link_is_cut_is_marked_lost_and_the_others_land(
+        flavour: Flavour) -> None:
+    async def cut(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 4.0)
+        sim.call("cut_link", 5)
+
+    result = dry_run(flavour=flavour, during=cut)
+    report = result.report
+    assert vehicle(report, 5)["phase"] == "lost"
+    assert "link lost" in vehicle(report, 5)["reason"]
+    others = [v for v in report["vehicles"] if v["system_id"] != 5]
+    assert [v["phase"] for v in others] == ["landed"] * 8
+    assert not report["landed"] and not report["safe"]  # the operator must see it
+    assert any("did not land" in r for r in report["unsafe_reasons"])
+    assert report["min_separation_m"] >= report["separation_limit_m"]
+
+
+def test_hold_resume_and_land_all() -> None:
+    frozen: list[float] = []
+
+    async def operate(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 3.0)
+        runner.hold()
+        start = runner.clock.now()
+        await until(runner, lambda: runner.clock.now() - start > 3.0)
+        frozen.append(show_time(runner))
+        await until(runner, lambda: runner.clock.now() - start > 5.0)
+        frozen.append(show_time(runner))
+        runner.resume()
+        await until(runner, lambda: show_time(runner) > frozen[-1] + 2.0)
+        runner.land_all()
+
+    result = dry_run(during=operate)
+    assert frozen[0] == frozen[1]  # the show clock stood still while holding
+    _assert_flown_safely(result.report)
+
+
+def test_vehicles_with_different_ekf_origins_fly_the_same_show() -> None:
+    rng = np.random.default_rng(3)
+
+    def scatter_origins(config: SimConfig) -> SimConfig:
+        lat0, lon0, alt0 = config.origin
+        origins = []
+        for e, n, u in rng.uniform((-300, -300, -20), (300, 300, 20), size=(config.count, 3)):
+            lat, lon, alt = pymap3d.enu2geodetic(e, n, u, lat0, lon0, alt0)
+            origins.append((float(lat), float(lon), float(alt)))
+        return replace(config, ekf_origins=origins)
+
+    result = dry_run(customise=scatter_origins)
+    _assert_flown_safely(result.report)
+    assert result.report["max_tracking_error_m"] < 0.5
+
+
+def test_signed_link_flies_and_a_wrong_key_is_refused() -> None:
+    result = dry_run(signing_key=KEY)
+    _assert_flown_safely(result.report)
+
+    def other_key(config: SimConfig) -> SimConfig:
+        return replace(config, signing_key=bytes(32))
+
+    result = dry_run(signing_key=KEY, customise=other_key,
+                     runner=RunnerConfig(connect_timeout_s=5.0))
+    assert isinstance(result.error, LinkError) and not result.flown
+    assert "no HEARTBEAT from vehicles" in str(result.error)
+    assert result.report["safe"] is False
+
+
+def test_malformed_and_unexpected_packets_at_the_ground_station_are_ignored() -> None:
+    async def garbage(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 2.0)
+        assert runner.link.local_address is not None
+        target = ("127.0.0.1", runner.link.local_address[1])
+        stranger = mavlink.MAVLink(None, srcSystem=200, srcComponent=1)
+        stranger.robust_parsing = True
+        hb = mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 0, 3, 3)
+        good = hb.pack(stranger)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for _ in range(5):
+                s.sendto(b"\xfd\xff\x00garbage" * 3, target)  # junk with a v2 start byte
+                s.sendto(good[:-4], target)  # truncated
+                s.sendto(good[:10] + bytes([good[10] ^ 0xFF]) + good[11:], target)  # bad CRC
+                s.sendto(good, target)  # well formed, from a system not in the show
+                await asyncio.sleep(0.01)
+
+    result = dry_run(during=garbage)
+    _assert_flown_safely(result.report)
+    link = result.report["link"]
+    assert link["bad_packets"] >= 10
+    assert link["unknown_system_packets"] >= 5
+
+
+def _landing_on_other_spots() -> dict[int, int]:
+    """Track t -> the other track that lands on t's takeoff spot (where one does)."""
+    plan = quick_plan()
+    d = np.linalg.norm(plan.landing[:, None, :2] - plan.home[None, :, :2], axis=2)
+    return {int(t): int(u) for u, t in zip(*np.nonzero(d < 0.1), strict=True) if u != t}
+
+
+def test_an_exclusion_that_leaves_the_show_unsafe_is_refused_before_arming() -> None:
+    landing_on = _landing_on_other_spots()
+    assert landing_on, "the quick show's landing assignment moves no drone: pick another show"
+    track = min(landing_on)
+    sysid = track + 1  # the dry-run stands vehicle k on track k - 1
+    result = dry_run(runner=RunnerConfig(excluded=frozenset({sysid})))
+    assert isinstance(result.error, FlightError) and not result.flown
+    assert f"excluding vehicle(s) [{sysid}] leaves the show unsafe" in str(result.error)
+    assert f"track {landing_on[track]} passes" in str(result.error)
+
+
+def test_an_excluded_vehicle_stays_on_the_ground_and_the_rest_fly() -> None:
+    landing_on = _landing_on_other_spots()
+    plan = quick_plan()
+    track = next(t for t in range(plan.drones) if t not in landing_on)
+    sysid = track + 1
+    result = dry_run(runner=RunnerConfig(excluded=frozenset({sysid})))
+    report = result.report
+    assert result.error is None, report["unsafe_reasons"]
+    assert vehicle(report, sysid)["phase"] == "excluded"
+    flown = [v for v in report["vehicles"] if v["system_id"] != sysid]
+    assert [v["phase"] for v in flown] == ["landed"] * 8
+    assert report["safe"] and report["true_min_separation_m"] >= 1.5
