@@ -19,6 +19,16 @@ stalls with a terminal error of V T - d.  We therefore start from the line
 plus a heading weave theta = theta_line + a sin(2 pi t / T) whose amplitude
 solves J0(a) = d / (V T): its mean along-track speed is exactly d / T and its
 lateral drift integrates to zero, so the guess ends on the target.
+
+Convergence.  Feasibility is judged on the rollout the plan will fly, not on the
+QP's linear model: every drone within eps of its slot, and every pair-segment
+(of all pairs, not only those with QP rows) with a separation-row value
+>= d_min + margin - SLACK_TOL at the rollout itself, which bounds the distance
+along the whole straight segment between samples.  A feasible iterate ends the
+SCP when no sample moved more than the tolerance (the paper's test) or when it
+follows a feasible iterate and lowered the cost J by less than COST_TOL: once
+feasible, the trust region shrinks geometrically and the remaining iterations
+only polish J by a few per cent (paper transitions: 9 iterations -> 5-7).
 """
 
 from __future__ import annotations
@@ -43,6 +53,7 @@ from groundctl.plan.qp_build import (
     SLACK_WEIGHT,
     FixedPattern,
     RowBuilder,
+    chord_clearance,
     segment_normals,
     solve_checked,
 )
@@ -62,12 +73,21 @@ HEADING_TRUST = 0.5
 #: convergence tolerance in ~4 polishing iterations instead of ~7 (paper star: 9
 #: SCP iterations instead of 11, same separation and pattern error).
 TRUST_DECAY = 0.3
+#: Relative cost decrease below which a feasible iterate that follows a feasible one
+#: ends the SCP (see the module docstring).
+COST_TOL = 1e-2
 #: OSQP settings of the unicycle QP: no solution polishing.  The QP only proposes
 #: headings; positions are rolled out through the nonlinear dynamics and checked
 #: after every solve, so ADMM's 1e-3 accuracy is enough, and polishing (one more
 #: KKT factorisation per solve, ~40 % of the solve time, and it often fails on
 #: these problems anyway) bought nothing.
-UNICYCLE_OSQP_SETTINGS: dict[str, float | int | bool] = {**OSQP_SETTINGS, "polishing": False}
+#:
+#: rho starts at 0.1, where OSQP's own estimate settles on these QPs (0.03-0.2), and
+#: is adapted every 50 ADMM iterations rather than on OSQP's timing heuristic: from
+#: rho 1.0 the first solve after a build needed up to 4 rho updates, each one more
+#: KKT factorisation (~5 ms).
+UNICYCLE_OSQP_SETTINGS: dict[str, float | int | bool] = {
+    **OSQP_SETTINGS, "polishing": False, "rho": 0.1, "adaptive_rho_interval": 50}
 
 
 def _wrap(a: FloatArray) -> FloatArray:
@@ -103,6 +123,23 @@ def initial_headings(start: FloatArray, goal: FloatArray, heading0: FloatArray,
         turn = np.clip(_wrap(desired[:, k + 1] - theta[:, k]), -max_step, max_step)
         theta[:, k + 1] = theta[:, k] + turn
     return theta
+
+
+def separation_clearance(P: FloatArray, radius: float) -> float:
+    """Smallest separation-row value (see :func:`chord_clearance`) over all pair-segments
+    of ``P`` (n, N+1, 2) with a sample within ``radius``; inf if there are none.
+
+    A row value >= d means the straight segment between the samples keeps >= d.
+    """
+    segs = close_pair_segments(P, radius)
+    return float(chord_clearance(P, segs).min()) if len(segs) else np.inf
+
+
+def rollout_cost(theta: FloatArray, P: FloatArray, ref: FloatArray, dt: float, alpha: float,
+                 beta: float) -> float:
+    """The paper's cost J of headings ``theta`` and their rollout ``P``."""
+    return (alpha / dt * float(np.sum(np.diff(theta, axis=1) ** 2))
+            + beta * dt * float(np.sum((P - ref) ** 2)))
 
 
 class UnicycleQP:
@@ -275,11 +312,16 @@ def plan_unicycle_transition(index: int, name: str, start: FloatArray, goal: Flo
     theta = initial_headings(s2, g2, heading0, model, steps, dt)
     P = rollout(s2, theta, model.speed, dt)
     d_sep = limits.min_separation + 0.05
+    # Pair-segments whose ends are both farther apart than this cannot come within
+    # d_sep in between: each drone moves dt V per step, so the relative position
+    # moves at most 2 dt V and its midpoint is at least sqrt(r^2 - (dt V)^2) > d_sep away.
+    check_radius = d_sep + model.speed * dt
     qp: UnicycleQP | None = None
     have = np.empty(0, dtype=np.int64)
-    iterations, slack_max, err = 0, 0.0, np.inf
+    iterations, err, clearance = 0, np.inf, -np.inf
     trust = np.full(n, HEADING_TRUST)
     errs = np.full(n, np.inf)
+    prev_cost, feasible, prev_feasible = np.inf, False, False
     for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 (used after)
         need = segment_keys(close_pair_segments(P, d_sep + NEED_MARGIN), n, steps)
         if qp is None or not np.all(np.isin(need, have)):
@@ -290,30 +332,37 @@ def plan_unicycle_transition(index: int, name: str, start: FloatArray, goal: Flo
             qp = UnicycleQP(s2, g2, heading0, ref, model, steps, dt, d_sep,
                             settings.pattern_tolerance, built, settings.alpha, settings.beta)
         qp.linearise(P, theta, trust)
-        new_theta, slack = qp.solve(index)
-        P_new = rollout(s2, new_theta, model.speed, dt)
+        theta_new, slack = qp.solve(index)
+        P_new = rollout(s2, theta_new, model.speed, dt)
         change = float(np.abs(P_new - P).max())
-        theta, P = new_theta, P_new
-        slack_max = float(slack.max(initial=0.0))
+        theta, P = theta_new, P_new
         prev_errs, errs = errs, np.linalg.norm(P[:, -1] - g2, axis=1)
         err = float(errs.max())
+        # Feasibility is judged on the rollout the plan will fly, over every pair, not
+        # on the QP's linearised positions and separation slacks.
+        clearance = separation_clearance(P, check_radius)
+        feasible = err <= settings.pattern_tolerance and clearance >= d_sep - SLACK_TOL
+        cost = rollout_cost(theta, P, ref, dt, settings.alpha, settings.beta)
         # Per-drone trust regions: a drone whose end point got worse overshot (the
         # linearisation promised more than the nonlinear rollout gave) and gets half
         # the room; one that improved gets a little more; once the whole fleet is
         # feasible every region shrinks fast so the last iterations only polish.
-        if err <= settings.pattern_tolerance and slack_max < SLACK_TOL:
+        if err <= settings.pattern_tolerance and float(slack.max(initial=0.0)) < SLACK_TOL:
             trust = np.maximum(trust * TRUST_DECAY, 1e-3)
         else:
             worse = errs > prev_errs
             trust = np.where(worse, np.maximum(trust * 0.5, 1e-3),
                              np.minimum(trust * 1.2, HEADING_TRUST))
-        if change < settings.tolerance and slack_max < SLACK_TOL \
-                and err <= settings.pattern_tolerance:
+        # Converged: a feasible iterate that either stopped moving (the paper's test)
+        # or, following a feasible one, improved the cost by less than COST_TOL.
+        if feasible and (change < settings.tolerance
+                         or (prev_feasible and prev_cost - cost < COST_TOL * prev_cost)):
             break
-    if err > settings.pattern_tolerance or slack_max >= SLACK_TOL:
+        prev_cost, prev_feasible = cost, feasible
+    if not feasible:
         raise PlanningError(index, "did not converge",
-                            f"pattern error {err:.2f} m, separation slack {slack_max:.3f} m "
-                            f"after {iterations} SCP iterations")
+                            f"pattern error {err:.2f} m, separation {clearance:.3f} m "
+                            f"(needs {d_sep:.2f} m) after {iterations} SCP iterations")
     # Knot velocities along the polyline's tangent (mean of the two segment headings).
     head = theta.copy()
     head[:, 1:-1] = np.arctan2(np.sin(theta[:, :-2]) + np.sin(theta[:, 1:-1]),
@@ -325,5 +374,5 @@ def plan_unicycle_transition(index: int, name: str, start: FloatArray, goal: Flo
     result = TransitionResult(
         index=index, name=name, trajectories=Trajectories(times, pos, vel), steps=steps,
         iterations=iterations, seconds=time.perf_counter() - t0, qp_drones=n, groups=1,
-        max_slack=slack_max, straight_length=float(d.mean()))
+        max_slack=max(0.0, d_sep - clearance), straight_length=float(d.mean()))
     return result, theta[:, -1]
