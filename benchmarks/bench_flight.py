@@ -129,8 +129,8 @@ def bench_demo(speed: float, flavours: list[Flavour]) -> None:
               f"{r['max_tracking_error_m']} m (RMS {r['rms_tracking_error_m']}), min separation "
               f"{r['min_separation_m']} m (truth {r['true_min_separation_m']}), worst pattern "
               f"{max(f['max_m'] for f in r['pattern_error_m'])} m, lateness p99 {lat['p99']} "
-              f"ms (show clock), LED max |error| {led['max_abs']} s over {led['changes']} "
-              f"changes, {time.perf_counter() - t:.0f} s wall", flush=True)
+              f"ms (show clock), LED |error| mean {led['mean_abs']} s, max {led['max_abs']} s "
+              f"over {led['changes']} changes, {time.perf_counter() - t:.0f} s wall", flush=True)
         if r["unsafe_reasons"]:
             print("   ", "; ".join(r["unsafe_reasons"]))
 

@@ -123,16 +123,22 @@ def test_fly_against_groundctl_sim_and_ctrl_c_lands_everyone(tmp_path: Path) -> 
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO)
     fly = subprocess.Popen([*GROUNDCTL, "fly", str(show), "--connect", f"udp:127.0.0.1:{port}",
                             "--record", str(tmp_path / "rec"), "--json"],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
-                           env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                           stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           text=True, cwd=REPO, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:
-        assert fly.stderr is not None
+        assert fly.stderr is not None and fly.stdin is not None
         deadline = time.monotonic() + 90
         for line in fly.stderr:
             if "show started" in line:
                 break
             assert time.monotonic() < deadline, "the show never started"
-        time.sleep(4.0)  # mid-transition
+        # Operator commands typed on stdin: hold, an unconfirmed kill, resume.
+        fly.stdin.write("hold\nkill 2\n")
+        fly.stdin.flush()
+        time.sleep(1.5)
+        fly.stdin.write("resume\n")
+        fly.stdin.flush()
+        time.sleep(3.0)  # mid-transition
         fly.send_signal(signal.SIGINT)
         stdout, stderr = fly.communicate(timeout=120)
     finally:
@@ -147,4 +153,6 @@ def test_fly_against_groundctl_sim_and_ctrl_c_lands_everyone(tmp_path: Path) -> 
     events = read_events(tmp_path / "rec" / "events.jsonl")
     kinds = [e["event"] for e in events]
     assert "return_planning" in kinds and kinds[-1] == "report"
-    assert any(e["event"] == "operator" and e["command"] == "land all" for e in events)
+    operator = [e["command"] for e in events if e["event"] == "operator"]
+    assert operator == ["hold", "kill 2", "resume", "land all"]
+    assert any("confirm to kill" in e.get("text", "") for e in events)

@@ -32,7 +32,9 @@ KEY = bytes(range(32))
 
 
 def _assert_flown_safely(report: dict, drones: int = 9) -> None:
-    assert report["safe"], report["unsafe_reasons"]
+    why = (report["unsafe_reasons"], report.get("min_separation_at_s"),
+           [(v["system_id"], v["phase"], v["reason"]) for v in report["vehicles"]])
+    assert report["safe"], why
     assert report["landed"]
     assert [v["phase"] for v in report["vehicles"]] == ["landed"] * drones
     assert report["min_separation_m"] >= report["separation_limit_m"]

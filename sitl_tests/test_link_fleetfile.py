@@ -6,7 +6,13 @@ from pathlib import Path
 
 import pytest
 
-from groundctl.link.fleetfile import Endpoint, FleetFileError, load_fleet
+from groundctl.link.fleetfile import (
+    Endpoint,
+    FleetFile,
+    FleetFileError,
+    load_fleet,
+    load_fleet_file,
+)
 
 
 def test_load(tmp_path: Path) -> None:
@@ -25,6 +31,13 @@ def test_load(tmp_path: Path) -> None:
         ('[[vehicle]]\nsystem_id = 3\naddress = "h:1"\n[[vehicle]]\nsystem_id = 3\n'
          'address = "h:2"\n', "vehicle 2: system_id: 3 appears twice"),
         ("[[vehicle]\n", "not valid TOML"),
+        ('[[vehicle]]\nsystem_id = 3\ntrack = -1\n', "vehicle 1: track: must be a non-negative"),
+        ('[[vehicle]]\nsystem_id = 3\ntrack = 0\n[[vehicle]]\nsystem_id = 4\ntrack = 0\n',
+         "vehicle 2: track: track 0 appears twice"),
+        ('[[vehicle]]\nsystem_id = 3\ntrack = 0\n[[vehicle]]\nsystem_id = 4\n',
+         "vehicle(s) [4] have no track"),
+        ('[[vehicle]]\nsystem_id = 3\nadress = "h:1"\n', "vehicle 1: adress: unknown key"),
+        ('[[vehicles]]\nsystem_id = 3\n', "vehicles: unknown table"),
     ],
 )
 def test_errors(tmp_path: Path, body: str, message: str) -> None:
@@ -39,3 +52,11 @@ def test_errors(tmp_path: Path, body: str, message: str) -> None:
 def test_missing_file(tmp_path: Path) -> None:
     with pytest.raises(FleetFileError, match="cannot read"):
         load_fleet(tmp_path / "nope.toml")
+
+
+def test_tracks_and_addresses_are_both_optional(tmp_path: Path) -> None:
+    p = tmp_path / "fleet.toml"
+    p.write_text('[[vehicle]]\nsystem_id = 3\ntrack = 1\n'
+                 '[[vehicle]]\nsystem_id = 4\naddress = "127.0.0.1:14562"\ntrack = 0\n')
+    assert load_fleet_file(p) == FleetFile((3, 4), (Endpoint(4, "127.0.0.1", 14562),),
+                                           {3: 1, 4: 0})

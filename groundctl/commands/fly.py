@@ -20,6 +20,7 @@ from groundctl.commands.flying import (
     add_runner_options,
     finish,
     load_or_plan,
+    read_operator_commands,
     runner_config,
     say,
 )
@@ -52,8 +53,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p = sub.add_parser(
         "fly", help="fly a show with real vehicles",
         description="Plan (or load) the show, wait for the vehicles on the MAVLink endpoint, "
-                    "run the pre-flight checks and fly the show. Ctrl-C once lands every "
-                    "vehicle; twice abandons the flight to the vehicles' failsafes.")
+                    "run the pre-flight checks and fly the show. Type hold, resume, land, "
+                    "land SYSID, land-here SYSID, kill SYSID confirm on stdin. Ctrl-C once "
+                    "lands every vehicle; twice abandons the flight to the vehicles' "
+                    "failsafes.")
     p.add_argument("show", type=Path, help="show file (TOML) or plan file (.npz)")
     p.add_argument("--connect", type=endpoint, default=("0.0.0.0", 14550), metavar="ENDPOINT",
                    help="UDP address to listen on, udp:HOST:PORT (default udp:0.0.0.0:14550)")
@@ -106,6 +109,7 @@ def run(args: argparse.Namespace) -> int:
         interrupts.install()
         error: GroundctlError | None = None
         status = asyncio.create_task(_status(runner, args.quiet))
+        commands = asyncio.create_task(read_operator_commands(runner, say(False)))
         try:
             await link.start()
             notify(f"listening on {args.connect[0]}:{args.connect[1]} for "
@@ -123,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
         finally:
             interrupts.uninstall()
             status.cancel()
+            commands.cancel()
             await link.close()
             report = flight_report(runner, None if error is None else str(error))
             report["record_dir"] = str(record)

@@ -149,6 +149,51 @@ class Interrupts:
             self._task.cancel()
 
 
+OPERATOR_HELP = ("commands: hold | resume | land (all) | land SYSID (to its landing spot) | "
+                 "land-here SYSID | kill SYSID confirm | status | help")
+
+
+def operator_line(runner: ShowRunner, line: str, notify: Callable[[str], None]) -> None:
+    """Carry out one operator command typed on stdin (until the console exists)."""
+    words = line.split()
+    if not words:
+        return
+    verb, rest = words[0].lower(), words[1:]
+    try:
+        sysid = int(rest[0]) if rest else None
+    except ValueError:
+        notify(f"not a system id: {rest[0]!r}; {OPERATOR_HELP}")
+        return
+    if verb == "hold" and not rest:
+        runner.hold()
+    elif verb == "resume" and not rest:
+        runner.resume()
+    elif verb == "land" and sysid is None:
+        runner.land_all()
+    elif verb == "land" and sysid is not None:
+        runner.land_one(sysid)
+    elif verb == "land-here" and sysid is not None:
+        runner.land_here(sysid)
+    elif verb == "kill" and sysid is not None:
+        runner.kill(sysid, confirm=rest[1:] == ["confirm"])
+    elif verb == "status":
+        notify(runner.status_line())
+    else:
+        notify(OPERATOR_HELP)
+
+
+async def read_operator_commands(runner: ShowRunner, notify: Callable[[str], None]) -> None:
+    """Operator commands from stdin, one per line, until end of input."""
+    loop = asyncio.get_running_loop()
+    reader = asyncio.StreamReader()
+    try:
+        await loop.connect_read_pipe(lambda: asyncio.StreamReaderProtocol(reader), sys.stdin)
+    except (ValueError, OSError):
+        return  # stdin is a regular file or closed: no commands
+    while line := await reader.readline():
+        operator_line(runner, line.decode(errors="replace"), notify)
+
+
 def finish(report: dict[str, Any], args: argparse.Namespace, aborted: bool) -> int:
     """Print the report; the exit code says whether the flight was safe."""
     if args.json:

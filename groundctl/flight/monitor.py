@@ -38,7 +38,7 @@ MAX_SAMPLE_AGE_S = 1.0
 LED_WINDOW_S = 2.0
 #: Plan colours sampled this finely when matching an LED change, s.
 LED_STEP_S = 0.02
-#: Two 0-255 colours closer than this per channel are the same colour.
+#: A shown colour further than this (per 0-255 channel) from every plan colour is unmatched.
 LED_COLOUR_TOL = 3
 
 
@@ -211,9 +211,13 @@ class FlightMonitor:
         keys, cols = self.plan.color_times, self.plan.colors[track]
         plan_rgb = np.rint(np.column_stack(
             [np.interp(times, keys, cols[:, c]) for c in range(3)]) * 255.0)
-        match = np.all(np.abs(plan_rgb - rgb) <= LED_COLOUR_TOL, axis=1)
-        if not match.any():
+        # The closest plan colour (exact, unless the LED quantises differently):
+        # in a fade only a few instants match exactly, and a tolerance band
+        # would date the change early by the band's width.
+        dist = np.abs(plan_rgb - rgb).max(axis=1)
+        if dist.min() > LED_COLOUR_TOL:
             return None
+        match = dist <= dist.min() + 0.5
         # The instant the plan first shows this colour in the window's matching
         # run nearest to when it was shown.
         hits = np.flatnonzero(match)

@@ -1,0 +1,75 @@
+"""The flight monitor: telemetry carried to the tick, separation, tracking, LED timing."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from test_execute_support import ORIGIN, geo_offset, make_plan, make_vehicle
+
+from groundctl.flight.monitor import FlightMonitor, nearest_pair, telemetry_positions
+from groundctl.link.state import VehicleState
+from groundctl.link.timesync import NS, TimesyncSample
+
+
+def _with_sample(v: VehicleState, ned: tuple[float, float, float],
+                 vel: tuple[float, float, float], sample_at: float, offset_s: float) -> None:
+    """``v`` reported ``ned``/``vel`` at our time ``sample_at``; vehicle clock = ours + offset."""
+    v.position_ned, v.velocity_ned = ned, vel
+    v.local_time_boot_ms = round((sample_at + offset_s) * 1000)
+    v.timesync.samples.clear()
+    v.timesync.samples.append(TimesyncSample(int(offset_s * NS), 1_000_000, sample_at))
+    v.timesync._best = v.timesync.samples[0]
+
+
+def test_each_sample_is_carried_to_the_tick_with_its_own_velocity() -> None:
+    a = make_vehicle(1, now=10.0)
+    b = make_vehicle(2, now=10.0, ekf_origin=geo_offset(ORIGIN, 3.0, 0.0))
+    _with_sample(a, (0.0, 0.0, -5.0), (0.0, 4.0, 0.0), sample_at=9.95, offset_s=50.0)
+    _with_sample(b, (0.0, 0.0, -5.0), (0.0, -4.0, 0.0), sample_at=9.90, offset_s=80.0)
+    ids, pos = telemetry_positions(make_plan(), {1: a, 2: b}, now=10.0)
+    assert ids == [1, 2]
+    # a: 0.05 s at 4 m/s east; b: from 3 m east, 0.1 s at 4 m/s west.
+    np.testing.assert_allclose(pos, [[0.2, 0.0, 5.0], [2.6, 0.0, 5.0]], atol=2e-3)
+    sep = nearest_pair(ids, pos)
+    assert sep.pair == (1, 2) and sep.distance_m == pytest.approx(2.4, abs=2e-3)
+
+
+def test_stale_and_lost_vehicles_are_left_out() -> None:
+    a = make_vehicle(1, now=10.0)
+    b = make_vehicle(2, now=10.0)
+    _with_sample(a, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), sample_at=8.5, offset_s=0.0)  # 1.5 s old
+    b.lost = True
+    assert telemetry_positions(make_plan(), {1: a, 2: b}, now=10.0)[0] == []
+    assert nearest_pair([], np.zeros((0, 3))).distance_m == math.inf
+
+
+def test_tracking_error_and_pattern_error_against_the_plan() -> None:
+    plan = make_plan()
+    mon = FlightMonitor(plan, {1: 0, 2: 1})
+    states = {}
+    for sysid, track in ((1, 0), (2, 1)):
+        v = make_vehicle(sysid, now=10.0)
+        want = plan.state_at(2.0).pos[track]
+        off = 0.3 if sysid == 2 else 0.0
+        _with_sample(v, (want[1] + off, want[0], -want[2]), (0.0, 0.0, 0.0), 10.0, 0.0)
+        states[sysid] = v
+    mon.observe(10.0, 2.0, in_show={1, 2}, states=states)
+    assert mon.vehicles[1].max_error_m == pytest.approx(0.0, abs=1e-3)
+    assert mon.vehicles[2].max_error_m == pytest.approx(0.3, abs=1e-3)
+    assert mon.vehicles[2].max_error_at_s == 2.0
+    assert mon.max_tracking_error() == pytest.approx(0.3, abs=1e-3)
+    assert mon.rms_tracking_error() == pytest.approx(math.sqrt(0.09 / 2), abs=1e-3)
+
+
+def test_led_changes_are_timed_against_the_plans_colour_keys() -> None:
+    plan = make_plan()  # black at 0 s fading to orange (255, 128, 0) at 10 s
+    mon = FlightMonitor(plan, {1: 0})
+    # (128, 64, 0) is the plan's colour from t = 5.0 s on: shown at 5.1 s is 0.1 s late.
+    mon.observe_led(1, (128, 64, 0), changed_at=100.0, show_time_of=5.1)
+    assert mon.vehicles[1].led_errors_s == [pytest.approx(0.1, abs=0.03)]
+    mon.observe_led(1, (128, 64, 0), changed_at=100.0, show_time_of=5.1)  # same change again
+    assert len(mon.vehicles[1].led_errors_s) == 1
+    mon.observe_led(1, (0, 255, 0), changed_at=101.0, show_time_of=6.0)  # never in the plan
+    assert mon.vehicles[1].led_unmatched == 1
