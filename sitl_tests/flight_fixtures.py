@@ -1,7 +1,7 @@
 """Shared pieces of the end-to-end flight tests: the quick show's plan and a dry-run call.
 
 No tests here.  Every dry-run goes over real loopback UDP to the built-in
-simulator in its own process, sped up six times.
+simulator in its own process, sped up four times.
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from groundctl.sim import SimConfig
 REPO = Path(__file__).resolve().parents[1]
 QUICK_SHOW = REPO / "shows" / "quick.toml"
 
-#: Six times real time, vehicles ready to arm 2 simulated seconds after boot.
-FAST: dict[str, Any] = {"speed": 6.0, "ekf_origin_delay_s": 1.0, "ready_delay_s": 2.0}
+#: Four times real time, vehicles ready to arm 2 simulated seconds after boot.
+FAST: dict[str, Any] = {"speed": 4.0, "ekf_origin_delay_s": 1.0, "ready_delay_s": 2.0}
 
 
 @cache

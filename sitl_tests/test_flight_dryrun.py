@@ -1,6 +1,6 @@
 """End to end: the real executor flies the quick show against the simulator over UDP.
 
-Each test is one dry-run (about 8-10 s of wall time at six times real time).
+Each test is one dry-run (about 10-15 s of wall time at four times real time).
 Faults are injected into the simulator process while the flight goes on;
 what is checked is the report and the recordings, as an operator would.
 """
@@ -138,7 +138,8 @@ def test_a_vehicle_whose_link_is_cut_is_marked_lost_and_the_others_land(
     assert report["min_separation_m"] >= report["separation_limit_m"]
 
 
-def test_hold_resume_and_land_all() -> None:
+@pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
+def test_hold_resume_and_land_all(flavour: Flavour) -> None:
     frozen: list[float] = []
 
     async def operate(runner: ShowRunner, sim: SimProcess) -> None:
@@ -153,12 +154,13 @@ def test_hold_resume_and_land_all() -> None:
         await until(runner, lambda: show_time(runner) > frozen[-1] + 2.0)
         runner.land_all()
 
-    result = dry_run(during=operate)
+    result = dry_run(flavour=flavour, during=operate)
     assert frozen[0] == frozen[1]  # the show clock stood still while holding
     _assert_flown_safely(result.report)
 
 
-def test_vehicles_with_different_ekf_origins_fly_the_same_show() -> None:
+@pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
+def test_vehicles_with_different_ekf_origins_fly_the_same_show(flavour: Flavour) -> None:
     rng = np.random.default_rng(3)
 
     def scatter_origins(config: SimConfig) -> SimConfig:
@@ -169,7 +171,7 @@ def test_vehicles_with_different_ekf_origins_fly_the_same_show() -> None:
             origins.append((float(lat), float(lon), float(alt)))
         return replace(config, ekf_origins=origins)
 
-    result = dry_run(customise=scatter_origins)
+    result = dry_run(flavour=flavour, customise=scatter_origins)
     _assert_flown_safely(result.report)
     assert result.report["max_tracking_error_m"] < 0.5
 

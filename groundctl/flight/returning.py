@@ -12,8 +12,11 @@ well under a second for a hundred drones; they hover meanwhile.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from groundctl.plan.feasibility import min_transition_time
 from groundctl.plan.plan import Plan
@@ -21,6 +24,10 @@ from groundctl.plan.scp_quad import plan_quad_transition
 from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import PlannerSettings, QuadrotorModel
 
+#: Extra separation the return is planned with, m: it is flown at once, with
+#: whatever tracking error the moment has, and unlike the show it was never
+#: rehearsed (the first land-all test flew a pair 1.497 m apart at a 1.5 m limit).
+TRACKING_MARGIN_M = 0.25
 #: The return takes this many times the slowest drone's straight-line minimum.
 TIME_MARGIN = 1.5
 #: ... and at least this long, s.
@@ -32,9 +39,21 @@ def plan_return(plan: Plan, tracks: list[int], start: NDArray[np.float64]) -> Tr
 
     Raises the planner's InfeasibleTransition / PlanningError if it cannot.
     """
+    start = np.asarray(start, dtype=float)
     goal = plan.landing_hover[tracks]
     bound = min_transition_time(start, goal, plan.limits, QuadrotorModel())
     duration = max(bound.seconds * TIME_MARGIN, MIN_DURATION_S)
-    result = plan_quad_transition(0, "return", np.asarray(start, dtype=float), goal, duration,
-                                  plan.limits, PlannerSettings())
+    # The margin, as far as the two ends allow (the SCP needs them separated).
+    limit = plan.limits.min_separation
+    ends = min(_closest(start), _closest(goal))
+    separation = max(limit, min(limit + TRACKING_MARGIN_M, ends - 0.01))
+    limits = replace(plan.limits, min_separation=separation)
+    result = plan_quad_transition(0, "return", start, goal, duration, limits, PlannerSettings())
     return result.trajectories
+
+
+def _closest(points: NDArray[np.float64]) -> float:
+    if len(points) < 2:
+        return float("inf")
+    dist, _ = cKDTree(points).query(points, k=2)
+    return float(dist[:, 1].min())

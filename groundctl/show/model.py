@@ -93,7 +93,8 @@ class PlannerSettings:
     max_iterations: int = 30
     """SCP iteration cap per transition."""
     tolerance: float = 0.02
-    """Converged when no sample moved more than this (m) and constraints hold."""
+    """Converged when no sample moved more than this (m) and constraints hold (the
+    unicycle planner also stops once a feasible iterate lowers the cost by < 1 %)."""
     pattern_tolerance: float = 0.1
     """The paper's eps: allowed final position error at each formation slot, m."""
     alpha: float = 1.0
