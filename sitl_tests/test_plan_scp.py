@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import numpy as np
+import osqp
 import pytest
 
 from groundctl.errors import InfeasibleTransition
 from groundctl.plan.assign import assign
+from groundctl.plan.conflicts import close_pair_segments
 from groundctl.plan.profile import rest_to_rest
 from groundctl.plan.scp_quad import plan_quad_transition
-from groundctl.plan.scp_unicycle import plan_unicycle_transition, rollout
+from groundctl.plan.scp_unicycle import plan_unicycle_transition, rollout, within
 from groundctl.show.model import Limits, PlannerSettings, UnicycleModel
 
 LIM = Limits(min_separation=1.5, min_alt=0.0, max_alt=100.0)
@@ -92,6 +94,43 @@ def test_unicycle_keeps_constant_speed_and_reaches_the_pattern() -> None:
     theta = np.concatenate([theta, theta[:, -1:]], axis=1)
     assert np.allclose(rollout(start[:, :2], theta, 2.0, 15.0 / 80), tr.pos[:, :, :2], atol=1e-9)
 
+
+
+def test_within_equals_a_spatial_query_at_the_smaller_radius() -> None:
+    # The unicycle SCP queries once per iterate at its largest radius and filters.
+    rng = np.random.default_rng(3)
+    P = rng.uniform(0.0, 6.0, size=(12, 1, 2)) + np.cumsum(
+        rng.normal(scale=0.3, size=(12, 30, 2)), axis=1)
+    near = close_pair_segments(P, 2.0)
+    for radius in (0.5, 1.0, 1.5, 2.0):
+        assert np.array_equal(within(P, near, radius), close_pair_segments(P, radius))
+    assert within(P, near[:0], 1.0).shape == (0, 3)
+
+
+def test_unicycle_factorises_once_per_scp_iteration(monkeypatch: pytest.MonkeyPatch) -> None:
+    # OSQP factorises the KKT matrix in setup() and again in every update(Ax=...):
+    # a (re)built QP is set up with its first linearisation, not updated right after.
+    calls = {"setup": 0, "update": 0}
+    real_setup, real_update = osqp.OSQP.setup, osqp.OSQP.update
+
+    def setup(self: osqp.OSQP, *args: object, **kwargs: object) -> object:
+        calls["setup"] += 1
+        return real_setup(self, *args, **kwargs)
+
+    def update(self: osqp.OSQP, *args: object, **kwargs: object) -> object:
+        calls["update"] += 1
+        return real_update(self, *args, **kwargs)
+
+    monkeypatch.setattr(osqp.OSQP, "setup", setup)
+    monkeypatch.setattr(osqp.OSQP, "update", update)
+    start = np.array([[-15.0, 0.0, 0], [15.0, 0.0, 0], [0.0, -15.0, 0]])
+    goal = np.array([[12.0, 0.5, 0], [-12.0, -0.5, 0], [0.0, 12.0, 0]])
+    res, _ = plan_unicycle_transition(
+        1, "swap", start, goal, np.array([0.0, np.pi, np.pi / 2]), 15.0, 10.0,
+        Limits(min_separation=1.0, min_alt=0.0), UnicycleModel(speed=2.0, r_min=1.5),
+        PlannerSettings(steps=80, pattern_tolerance=0.1))
+    assert calls["setup"] >= 1
+    assert calls["setup"] + calls["update"] == res.iterations
 
 def test_swap_boxed_in_by_neighbours_merges_groups_and_stays_safe() -> None:
     # Two drones swap head-on inside a "tube" of four neighbours flying parallel

@@ -125,13 +125,28 @@ def initial_headings(start: FloatArray, goal: FloatArray, heading0: FloatArray,
     return theta
 
 
-def separation_clearance(P: FloatArray, radius: float) -> float:
+def within(P: FloatArray, segments: NDArray[np.int64], radius: float) -> NDArray[np.int64]:
+    """The rows (i, j, k) of ``segments`` whose drones are within ``radius`` at step k or k+1.
+
+    ``close_pair_segments(P, r)`` equals ``within(P, close_pair_segments(P, R), r)`` for
+    any R >= r (same test, same order), so one spatial query per iterate serves every
+    radius the SCP needs.
+    """
+    i, j, k = segments[:, 0], segments[:, 1], segments[:, 2]
+    d0 = np.sum((P[i, k] - P[j, k]) ** 2, axis=1)
+    d1 = np.sum((P[i, k + 1] - P[j, k + 1]) ** 2, axis=1)
+    return segments[np.minimum(d0, d1) <= radius * radius]
+
+
+def separation_clearance(P: FloatArray, radius: float,
+                         near: NDArray[np.int64] | None = None) -> float:
     """Smallest separation-row value (see :func:`chord_clearance`) over all pair-segments
     of ``P`` (n, N+1, 2) with a sample within ``radius``; inf if there are none.
 
     A row value >= d means the straight segment between the samples keeps >= d.
+    ``near``, if given, is ``close_pair_segments(P, R)`` for some R >= ``radius``.
     """
-    segs = close_pair_segments(P, radius)
+    segs = close_pair_segments(P, radius) if near is None else within(P, near, radius)
     return float(chord_clearance(P, segs).min()) if len(segs) else np.inf
 
 
@@ -247,9 +262,10 @@ class UnicycleQP:
         hi[self.oU: self.oE] = model.turn_rate_limit
         lo[self.oS:] = 0.0
         self._lo, self._hi = lo, hi
-        self.solver = osqp.OSQP()
-        self.solver.setup(P=self.P, q=self.q, A=self.A, l=self.l, u=self.u,
-                          **UNICYCLE_OSQP_SETTINGS)
+        # OSQP is set up by the first linearise(): a setup factorises the KKT matrix,
+        # and one done here, before the dynamics coefficients exist, would be thrown
+        # away by the refactorisation of that first update (~5 ms per build).
+        self._solver: osqp.OSQP | None = None
 
     def linearise(self, P: FloatArray, theta: FloatArray, trust: FloatArray) -> None:
         n, N, dt, V = self.n, self.N, self.dt, self.model.speed
@@ -278,10 +294,19 @@ class UnicycleQP:
         Tl[:, 0] = Th[:, 0] = self.heading0
         self.l[self.box_rows] = lo[self._boxed]
         self.u[self.box_rows] = hi[self._boxed]
-        self.solver.update(Ax=self._pattern.refresh(), l=self.l, u=self.u)
+        if self._solver is None:
+            self._pattern.refresh()
+            self._solver = osqp.OSQP()
+            self._solver.setup(P=self.P, q=self.q, A=self.A, l=self.l, u=self.u,
+                               **UNICYCLE_OSQP_SETTINGS)
+        else:
+            self._solver.update(Ax=self._pattern.refresh(), l=self.l, u=self.u)
 
     def solve(self, transition: int) -> tuple[FloatArray, FloatArray]:
-        x = solve_checked(self.solver, transition, f"unicycle, {self.n} drones, {self.N} steps")
+        """Headings and separation slacks of the QP linearised last; PlanningError unless solved."""
+        if self._solver is None:
+            raise RuntimeError("UnicycleQP.solve() before linearise()")
+        x = solve_checked(self._solver, transition, f"unicycle, {self.n} drones, {self.N} steps")
         theta = x[self.oT: self.oU].reshape(self.n, self.N + 1).copy()
         slack = x[self.oS:]
         return theta, slack
@@ -316,6 +341,9 @@ def plan_unicycle_transition(index: int, name: str, start: FloatArray, goal: Flo
     # d_sep in between: each drone moves dt V per step, so the relative position
     # moves at most 2 dt V and its midpoint is at least sqrt(r^2 - (dt V)^2) > d_sep away.
     check_radius = d_sep + model.speed * dt
+    # One spatial query per iterate, at the largest radius the loop asks about.
+    query_radius = d_sep + max(NEED_MARGIN, BUILD_MARGIN, model.speed * dt)
+    near = close_pair_segments(P, query_radius)
     qp: UnicycleQP | None = None
     have = np.empty(0, dtype=np.int64)
     iterations, err, clearance = 0, np.inf, -np.inf
@@ -323,11 +351,11 @@ def plan_unicycle_transition(index: int, name: str, start: FloatArray, goal: Flo
     errs = np.full(n, np.inf)
     prev_cost, feasible, prev_feasible = np.inf, False, False
     for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 (used after)
-        need = segment_keys(close_pair_segments(P, d_sep + NEED_MARGIN), n, steps)
+        need = segment_keys(within(P, near, d_sep + NEED_MARGIN), n, steps)
         if qp is None or not np.all(np.isin(need, have)):
             # Rows for every pair-segment that is anywhere near: generous, so that the
             # QP (and OSQP's factorisation and warm start) survives many iterations.
-            built = widen(close_pair_segments(P, d_sep + BUILD_MARGIN), steps, BUILD_WIDEN)
+            built = widen(within(P, near, d_sep + BUILD_MARGIN), steps, BUILD_WIDEN)
             have = segment_keys(built, n, steps)
             qp = UnicycleQP(s2, g2, heading0, ref, model, steps, dt, d_sep,
                             settings.pattern_tolerance, built, settings.alpha, settings.beta)
@@ -340,7 +368,8 @@ def plan_unicycle_transition(index: int, name: str, start: FloatArray, goal: Flo
         err = float(errs.max())
         # Feasibility is judged on the rollout the plan will fly, over every pair, not
         # on the QP's linearised positions and separation slacks.
-        clearance = separation_clearance(P, check_radius)
+        near = close_pair_segments(P, query_radius)
+        clearance = separation_clearance(P, check_radius, near)
         feasible = err <= settings.pattern_tolerance and clearance >= d_sep - SLACK_TOL
         cost = rollout_cost(theta, P, ref, dt, settings.alpha, settings.beta)
         # Per-drone trust regions: a drone whose end point got worse overshot (the
