@@ -69,6 +69,8 @@ class PairSegments:
     """(m,) second drone."""
     k: IntArray
     """(m,) segment index: the segment runs from step k to step k+1."""
+    extra: FloatArray | None = None
+    """(m,) separation asked on top of the tightened limit (tracking margin), m."""
 
 
 @dataclass(frozen=True)
@@ -79,10 +81,16 @@ class ObstacleSegments:
     """(m,) the group's drone of each pair-segment (group-local index)."""
     k: IntArray
     """(m,) segment index: the segment runs from step k to step k+1."""
+    extra: FloatArray | None = None
+    """(m,) separation asked on top of the tightened limit (tracking margin), m."""
 
     @staticmethod
     def empty() -> ObstacleSegments:
         return ObstacleSegments(np.empty(0, dtype=np.intp), np.empty(0, dtype=np.intp))
+
+
+def _extra(rows: PairSegments | ObstacleSegments) -> FloatArray:
+    return np.zeros(len(rows.i)) if rows.extra is None else np.asarray(rows.extra, dtype=float)
 
 
 class GroupQP:
@@ -203,7 +211,7 @@ class GroupQP:
         self.u[: 6 * g * N] = 0.0
         self.u[self.tan_v_rows] = lim.max_speed_h
         self.u[self.tan_a_rows] = lim.max_accel
-        self.l[self.sep_rows] = self.d_sep
+        self.l[self.sep_rows] = self.d_sep + np.tile(_extra(self.pairs), 2)
         self.l[self.obs_rows] = self.d_sep  # replaced by every linearise()
         self._static_boxes()
         self.solver = osqp.OSQP()
@@ -287,7 +295,7 @@ class GroupQP:
             n_ob = chord_normals(rel0, rel1)
             self._values[self.obs_coo] = np.tile(n_ob, (2, 1)).T.ravel()
             # n.p_i >= n.o + d' at both ends: the chord of p_i - o stays on the safe side.
-            self.l[self.obs_rows] = self.d_sep + np.concatenate([
+            self.l[self.obs_rows] = self.d_sep + np.tile(_extra(ob), 2) + np.concatenate([
                 np.einsum("md,md->m", n_ob, others[:, 0]),
                 np.einsum("md,md->m", n_ob, others[:, 1])])
         lo = self._box_lo.copy()

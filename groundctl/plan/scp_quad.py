@@ -44,7 +44,8 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -142,10 +143,30 @@ def _limit_violators(V: FloatArray, A: FloatArray, lim: Limits) -> NDArray[np.in
     return np.flatnonzero(bad)
 
 
+def _pair_margin(start: FloatArray, goal: FloatArray, d_row: float, wanted: float
+                 ) -> Callable[[NDArray[np.int64], NDArray[np.int64]], FloatArray]:
+    """Per pair (i, j): the tracking margin their rows ask for on top of ``d_row``.
+
+    ``wanted``, except where the pair's fixed start or goal are closer than
+    that allows (formation slots near the minimum separation): there the
+    margin shrinks, to zero at worst, never below the limit.  It leaves two
+    LINK_MARGINs of room, so a pair flying parallel at its end distance is not
+    "tight" and does not pull its drones into a QP.
+    """
+    def margin(i: NDArray[np.int64], j: NDArray[np.int64]) -> FloatArray:
+        if wanted <= 0:
+            return np.zeros(len(i))
+        ends = np.minimum(np.linalg.norm(start[i] - start[j], axis=1),
+                          np.linalg.norm(goal[i] - goal[j], axis=1))
+        return np.clip(ends - d_row - 2 * LINK_MARGIN, 0.0, wanted)
+    return margin
+
+
 def _build_group(members: NDArray[np.intp], inside: NDArray[np.bool_],
                  near_build: NDArray[np.int64], had_rows: NDArray[np.int64],
                  start: FloatArray, goal: FloatArray, ref: FloatArray, steps: int, dt: float,
-                 limits: Limits, settings: PlannerSettings, trust: float) -> _Group:
+                 limits: Limits, settings: PlannerSettings, trust: float,
+                 margin: Callable[[NDArray[np.int64], NDArray[np.int64]], FloatArray]) -> _Group:
     """A group's QP with rows for every pair-segment of its drones within BUILD_MARGIN.
 
     Pairs inside the group get coupled rows, pairs with a drone outside it obstacle
@@ -162,11 +183,12 @@ def _build_group(members: NDArray[np.intp], inside: NDArray[np.bool_],
     both = inside[glob[:, 0]] & inside[glob[:, 1]]
     internal, external = glob[both], glob[~both]
     pairs = PairSegments(local[internal[:, 0]], local[internal[:, 1]],
-                         internal[:, 2].astype(np.intp))
+                         internal[:, 2].astype(np.intp), margin(internal[:, 0], internal[:, 1]))
     first_in = inside[external[:, 0]]
     mine_drone = np.where(first_in, external[:, 0], external[:, 1])
     other = np.where(first_in, external[:, 1], external[:, 0]).astype(np.intp)
-    obstacles = ObstacleSegments(local[mine_drone], external[:, 2].astype(np.intp))
+    obstacles = ObstacleSegments(local[mine_drone], external[:, 2].astype(np.intp),
+                                 margin(mine_drone, other))
     qp = GroupQP(start[members], goal[members], ref[members], steps, dt, limits, pairs,
                  settings.alpha, settings.beta, OSQP_SETTINGS, obstacles)
     return _Group(qp, segment_keys(glob, n, steps), rows=glob, obs_other=other, trust=trust)
@@ -175,8 +197,23 @@ def _build_group(members: NDArray[np.intp], inside: NDArray[np.bool_],
 def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatArray,
                          duration: float, limits: Limits,
                          settings: PlannerSettings) -> TransitionResult:
-    """Plan one quadrotor transition from ``start`` to ``goal`` (n, 3) in ``duration`` s."""
+    """Plan one quadrotor transition from ``start`` to ``goal`` (n, 3) in ``duration`` s.
+
+    With the tracking margin first; if that cannot be met, without it (the
+    plan then keeps the limit only, and its minimum separation says so).
+    """
     t0 = time.perf_counter()
+    try:
+        return _plan(index, name, start, goal, duration, limits, settings, t0)
+    except PlanningError:
+        if settings.tracking_margin <= 0:
+            raise
+        return _plan(index, name, start, goal, duration, limits,
+                     replace(settings, tracking_margin=0.0), t0)
+
+
+def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
+          limits: Limits, settings: PlannerSettings, t0: float) -> TransitionResult:
     bound = min_transition_time(start, goal, limits, QuadrotorModel())
     if bound.seconds > duration + 1e-9:
         raise InfeasibleTransition(
@@ -194,6 +231,8 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
 
     d_sep = limits.min_separation + limits.max_accel * dt * dt / 4
     d_row = d_sep + SEPARATION_BUFFER  # what the QP's separation rows ask for
+    margin = _pair_margin(start, goal, d_row, settings.tracking_margin)
+    d_far = d_sep + settings.tracking_margin  # pairs beyond this plus a margin are left out
     states: dict[tuple[int, ...], _Group] = {}
     iterations = 0
     qp_drones: set[int] = set()
@@ -203,11 +242,12 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
     if settings.tolerance > MAX_TOLERANCE:
         raise ValueError(f"`tolerance` must be at most {MAX_TOLERANCE} m")
     for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 (used after)
-        need = close_pair_segments(P, d_sep + NEED_MARGIN)
+        need = close_pair_segments(P, d_far + NEED_MARGIN)
         # Only pairs whose row is violated or nearly active join drones into a group;
         # the other close pairs become obstacle rows.  Links accumulate, so a group
         # keeps its members (and its QP) until it converges.
-        tight = need[chord_clearance(P, need) < d_row + LINK_MARGIN]
+        tight = need[chord_clearance(P, need) < d_row + margin(need[:, 0], need[:, 1])
+                     + LINK_MARGIN]
         links = unique_segments(np.concatenate([links, tight]), n, steps)
         violators_all = np.union1d(violators_all, _limit_violators(V, A, limits))
         grouped = groups(n, links[:, :2], violators_all)
@@ -229,10 +269,10 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
             if state is None or not np.all(np.isin(segment_keys(mine_need, n, steps),
                                                    state.keys)):
                 if near_build is None:
-                    near_build = close_pair_segments(P, d_sep + BUILD_MARGIN)
+                    near_build = close_pair_segments(P, d_far + BUILD_MARGIN)
                 state = _build_group(members, inside, near_build, had_rows, start, goal, ref,
                                      steps, dt, limits, settings,
-                                     trust=float(trust_of[members].min()))
+                                     trust=float(trust_of[members].min()), margin=margin)
                 had_rows = unique_segments(np.concatenate([had_rows, state.rows]), n, steps)
             new_states[key] = state
             if state.converged:

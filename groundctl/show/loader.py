@@ -153,7 +153,7 @@ def _read_model(t: Table) -> Model:
 
 def _read_planner(t: Table) -> PlannerSettings:
     t.check_keys(("dt", "steps", "max_iterations", "tolerance", "pattern_tolerance",
-                  "alpha", "beta"))
+                  "alpha", "beta", "tracking_margin"))
     d = PlannerSettings()
     floats = {k: t.number(k, getattr(d, k), positive=True) for k in _PLANNER_FLOATS}
     # Larger tolerances would let the SCP stop while a pair it left out drifts close.
@@ -165,6 +165,8 @@ def _read_planner(t: Table) -> PlannerSettings:
         max_iterations=t.integer("max_iterations", d.max_iterations, minimum=1),
         alpha=t.number("alpha", d.alpha, minimum=0.0),
         beta=t.number("beta", d.beta, minimum=0.0),
+        tracking_margin=t.number("tracking_margin", d.tracking_margin, minimum=0.0,
+                                 maximum=1.0),
     )
 
 
