@@ -29,6 +29,10 @@ SCP when no sample moved more than the tolerance (the paper's test) or when it
 follows a feasible iterate and lowered the cost J by less than COST_TOL: once
 feasible, the trust region shrinks geometrically and the remaining iterations
 only polish J by a few per cent (paper transitions: 9 iterations -> 5-7).
+After a feasible iterate the QP keeps its linearisation and only its trust
+region moves: no KKT refactorisation, and the old separation rows remain a
+valid restriction (the rollout is checked as always).  Paper transitions: 5
+iterations each, 0.09-0.12 s.
 """
 
 from __future__ import annotations
@@ -267,8 +271,27 @@ class UnicycleQP:
         # away by the refactorisation of that first update (~5 ms per build).
         self._solver: osqp.OSQP | None = None
 
-    def linearise(self, P: FloatArray, theta: FloatArray, trust: FloatArray) -> None:
+    def linearise(self, P: FloatArray, theta: FloatArray, trust: FloatArray,
+                  relinearise: bool = True) -> None:
+        """Linearise around (P, theta) and set the trust region.
+
+        ``relinearise=False`` moves only the trust region and keeps the previous
+        dynamics and separation linearisation: no KKT refactorisation.  The old
+        separation rows are still a valid (conservative) restriction, and every
+        iterate is rolled out and checked anyway.
+        """
         n, N, dt, V = self.n, self.N, self.dt, self.model.speed
+        if not relinearise and self._solver is not None:
+            lo, hi = self._lo.copy(), self._hi.copy()
+            Tl = lo[self.oT: self.oU].reshape(n, N + 1)
+            Th = hi[self.oT: self.oU].reshape(n, N + 1)
+            Tl[:] = theta - trust[:, None]
+            Th[:] = theta + trust[:, None]
+            Tl[:, 0] = Th[:, 0] = self.heading0
+            self.l[self.box_rows] = lo[self._boxed]
+            self.u[self.box_rows] = hi[self._boxed]
+            self._solver.update(l=self.l, u=self.u)
+            return
         gi, kk = self._dyn
         th = theta[gi, kk]
         nd = len(gi)
@@ -359,7 +382,7 @@ def plan_unicycle_transition(index: int, name: str, start: FloatArray, goal: Flo
             have = segment_keys(built, n, steps)
             qp = UnicycleQP(s2, g2, heading0, ref, model, steps, dt, d_sep,
                             settings.pattern_tolerance, built, settings.alpha, settings.beta)
-        qp.linearise(P, theta, trust)
+        qp.linearise(P, theta, trust, relinearise=not prev_feasible)
         theta_new, slack = qp.solve(index)
         P_new = rollout(s2, theta_new, model.speed, dt)
         change = float(np.abs(P_new - P).max())
