@@ -365,6 +365,10 @@ class SimFleet:
 
     def _receive(self, now: float) -> None:
         rel = now - self.boot_time
+        # A datagram's latency runs from when it really arrived: when the physics
+        # lags the clock (a loaded machine), stamping it with the physics time
+        # would shorten the latency by the lag.
+        arrived = max(now, self.clock.now())
         for key, _ in self._selector.select(0):
             i: int = key.data
             sock = self._sockets[i]
@@ -381,7 +385,7 @@ class SimFleet:
                         self._deliver(i, data, addr, now)
                     else:
                         self._seq += 1
-                        heapq.heappush(self._inbox, (now + delay, self._seq, i, data, addr))
+                        heapq.heappush(self._inbox, (arrived + delay, self._seq, i, data, addr))
         while self._inbox and self._inbox[0][0] <= now:
             _, _, i, data, addr = heapq.heappop(self._inbox)
             self._deliver(i, data, addr, now)
