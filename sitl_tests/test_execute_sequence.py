@@ -23,6 +23,7 @@ from groundctl.execute.sequence import (
 )
 from groundctl.link.flavours import Flavour
 from groundctl.link.state import VehicleState
+from groundctl.plan.plan import Plan
 from groundctl.plan.trajectory import Trajectories
 
 ARDU, PX4 = Flavour.ARDUPILOT, Flavour.PX4
@@ -31,6 +32,15 @@ ARDU, PX4 = Flavour.ARDUPILOT, Flavour.PX4
 def _fleet(flavour: Flavour = ARDU, n: int = 2) -> dict[int, VehicleState]:
     return {i + 1: make_vehicle(i + 1, flavour=flavour, ned=(0.0, 3.0 * i, 0.0))
             for i in range(n)}
+
+
+def _landing_swapped_plan() -> Plan:
+    """make_plan() with tracks 0 and 1 landing on each other's takeoff spot."""
+    plan = make_plan()
+    swapped = plan.trajectories.pos.copy()
+    swapped[0, -1], swapped[1, -1] = plan.trajectories.pos[1, -1], plan.trajectories.pos[0, -1]
+    return replace(plan, trajectories=Trajectories(plan.trajectories.times, swapped,
+                                                   plan.trajectories.vel))
 
 
 def _airborne_ardupilot(seq: ShowSequence, states: dict[int, VehicleState], now: float) -> float:
@@ -363,11 +373,7 @@ def test_a_failed_return_plan_falls_back_to_straight_lines_with_a_warning() -> N
 def test_an_abort_before_the_show_brings_drones_down_their_own_takeoff_column() -> None:
     # Track 0 is planned to land on track 1's takeoff spot; vehicle 2 (track 1)
     # never arms and stands there, so the show is aborted during takeoff.
-    plan = make_plan()
-    swapped = plan.trajectories.pos.copy()
-    swapped[0, -1], swapped[1, -1] = plan.trajectories.pos[1, -1], plan.trajectories.pos[0, -1]
-    plan = replace(plan, trajectories=Trajectories(plan.trajectories.times, swapped,
-                                                   plan.trajectories.vel))
+    plan = _landing_swapped_plan()
     np.testing.assert_allclose(plan.landing[0], plan.home[1])
     states = _fleet(ARDU, n=2)
     seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU}, SequenceConfig(max_attempts=1))
@@ -406,11 +412,7 @@ def test_a_refused_repeat_of_an_accepted_takeoff_is_not_a_failure() -> None:
 
 def test_a_takeoff_given_up_near_a_landing_spot_aborts_the_show() -> None:
     # Vehicle 2 lands back on its own takeoff spot, where track 0 is planned to land.
-    plan = make_plan()
-    swapped = plan.trajectories.pos.copy()
-    swapped[0, -1], swapped[1, -1] = plan.trajectories.pos[1, -1], plan.trajectories.pos[0, -1]
-    plan = replace(plan, trajectories=Trajectories(plan.trajectories.times, swapped,
-                                                   plan.trajectories.vel))
+    plan = _landing_swapped_plan()
     states = _fleet(ARDU, n=2)
     seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU}, SequenceConfig(max_attempts=1))
     seq.start(0.0)

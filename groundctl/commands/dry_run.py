@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import math
 from pathlib import Path
 
 from groundctl.commands.flying import (
@@ -13,48 +12,12 @@ from groundctl.commands.flying import (
     add_runner_options,
     finish,
     load_or_plan,
-    positive,
     runner_config,
     say,
 )
+from groundctl.commands.options import non_negative, positive, probability, wind
 from groundctl.errors import GroundctlError
 from groundctl.link.flavours import Flavour
-
-
-def wind_spec(text: str) -> tuple[float, float, float]:
-    """``E,N[,U]`` m/s, or ``SPEED@FROM`` (m/s, the compass direction it blows from)."""
-    try:
-        if "@" in text:
-            speed_text, _, from_text = text.partition("@")
-            speed, frm = float(speed_text), math.radians(float(from_text))
-            return (-speed * math.sin(frm), -speed * math.cos(frm), 0.0)
-        parts = [float(x) for x in text.split(",")]
-    except ValueError:
-        parts = []
-    if len(parts) not in (2, 3):
-        raise argparse.ArgumentTypeError(
-            f"--wind must be EAST,NORTH[,UP] in m/s or SPEED@FROM_DEGREES, not {text!r}")
-    return (parts[0], parts[1], parts[2] if len(parts) == 3 else 0.0)
-
-
-def probability(text: str) -> float:
-    try:
-        p = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--loss must be a number, not {text!r}") from None
-    if not 0.0 <= p < 1.0:
-        raise argparse.ArgumentTypeError(f"--loss must be in [0, 1), not {text!r}")
-    return p
-
-
-def non_negative(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, not {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must not be negative, not {text!r}")
-    return value
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -69,7 +32,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    help="autopilot the simulated vehicles imitate (default ardupilot)")
     p.add_argument("--speed", type=positive, default=1.0, metavar="K",
                    help="simulated seconds per real second (default 1)")
-    p.add_argument("--wind", type=wind_spec, default=(0.0, 0.0, 0.0), metavar="SPEC",
+    p.add_argument("--wind", type=wind, default=(0.0, 0.0, 0.0), metavar="SPEC",
                    help="mean wind EAST,NORTH[,UP] m/s or SPEED@FROM_DEGREES")
     p.add_argument("--gust", type=non_negative, default=0.0, metavar="STD",
                    help="random gusts, m/s standard deviation per axis")
@@ -90,10 +53,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 
 def run(args: argparse.Namespace) -> int:
-    from groundctl.flight.dryrun import DryRunOptions, default_record_dir, fly_dry_run
+    from groundctl.flight.dryrun import DryRunOptions, fly_dry_run
+    from groundctl.record.recording import default_directory
 
     plan = load_or_plan(args.show, args.quiet)
-    record = None if args.no_record else (args.record or default_record_dir(plan.show_name))
+    record = None if args.no_record \
+        else (args.record or default_directory(plan.show_name, "dry-run"))
     options = DryRunOptions(
         flavour=Flavour(args.autopilot), speed=args.speed, wind=args.wind, gust_std=args.gust,
         loss=args.loss, latency_ms=args.latency, jitter_ms=args.jitter, seed=args.seed,

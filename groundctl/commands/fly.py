@@ -7,10 +7,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import datetime as dt
-import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -24,13 +23,12 @@ from groundctl.commands.flying import (
     runner_config,
     say,
 )
-from groundctl.errors import FlightError, GroundctlError
+from groundctl.errors import GroundctlError
 from groundctl.flight.report import flight_report
 from groundctl.flight.runner import ShowRunner
 from groundctl.link.fleet import FleetLink
 from groundctl.link.fleetfile import FleetFile, FleetFileError, load_fleet_file, parse_address
-from groundctl.record.events import EventLog
-from groundctl.record.tlog import TlogWriter
+from groundctl.record.recording import Recording, default_directory
 
 
 def endpoint(text: str) -> tuple[str, int]:
@@ -68,13 +66,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.set_defaults(func=run)
 
 
-def _record_dir(args: argparse.Namespace, show: str) -> Path:
-    if args.record is not None:
-        return Path(args.record)
-    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-    return Path("recordings") / f"{show}-fly-{stamp}"
-
-
 def run(args: argparse.Namespace) -> int:
     fleet: FleetFile | None = load_fleet_file(args.fleet) if args.fleet is not None else None
     plan = load_or_plan(args.show, args.quiet)
@@ -83,26 +74,21 @@ def run(args: argparse.Namespace) -> int:
         if bad:
             raise FleetFileError(args.fleet, "track", f"track(s) {bad} do not exist: the plan "
                                                       f"has tracks 0..{plan.drones - 1}")
-    record = _record_dir(args, plan.show_name)
-    try:
-        record.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise FlightError(f"{record}: cannot create the recording directory: "
-                             f"{exc.strerror or exc}") from exc
+    record = args.record or default_directory(plan.show_name, "fly")
     clock = ScaledClock(1.0)
+    recording = Recording(record, clock.now)
     notify = say(args.quiet)
     interrupts = Interrupts(notify)
     config = runner_config(args, fleet.tracks if fleet is not None and fleet.tracks else None)
-    config = type(config)(**{**vars(config), "connect_timeout_s": args.connect_timeout})
+    config = replace(config, connect_timeout_s=args.connect_timeout)
     ids = list(fleet.system_ids) if fleet is not None else None
 
     async def main() -> tuple[dict[str, Any], GroundctlError | None, bool]:
-        tlog = TlogWriter(record / "flight.tlog")
-        events = EventLog(record / "events.jsonl", clock.now)
+        events = recording.events
         link = FleetLink(args.connect, clock=clock,
                          endpoints=fleet.endpoints if fleet is not None else (),
-                         expected_ids=ids, signing_key=args.signing_key, tlog=tlog,
-                         events=events)
+                         expected_ids=ids, signing_key=args.signing_key,
+                         tlog=recording.tlog, events=events)
         runner = ShowRunner(plan, link, clock, config, events=events, notify=notify,
                             expected_ids=ids)
         interrupts.attach(runner)
@@ -114,13 +100,7 @@ def run(args: argparse.Namespace) -> int:
             await link.start()
             notify(f"listening on {args.connect[0]}:{args.connect[1]} for "
                    f"{len(ids) if ids else plan.drones} vehicle(s)")
-            try:
-                await runner.run()
-            except asyncio.CancelledError:
-                task = asyncio.current_task()
-                if task is not None:
-                    task.uncancel()
-                raise FlightError("flight abandoned by the operator") from None
+            await runner.run()
         except GroundctlError as exc:
             error = exc
             events.emit("error", kind=type(exc).__name__, text=str(exc))
@@ -131,10 +111,7 @@ def run(args: argparse.Namespace) -> int:
             await link.close()
             report = flight_report(runner, None if error is None else str(error))
             report["record_dir"] = str(record)
-            (record / "report.json").write_text(json.dumps(report, indent=1) + "\n")
-            events.emit("report", safe=report["safe"])
-            events.close()
-            tlog.close()
+            recording.finish(report)
         return report, error, runner.sequence is not None
 
     report, error, flown = asyncio.run(main())

@@ -12,6 +12,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from groundctl.commands.options import positive, signing_key
 from groundctl.commands.progress import ProgressBar
 from groundctl.errors import EXIT_ABORTED, EXIT_OK, EXIT_UNSAFE, UnsafePlan
 from groundctl.execute.preflight import Thresholds
@@ -21,26 +22,6 @@ from groundctl.plan.plan import Plan
 
 #: The show ``groundctl dry-run`` flies when none is given.
 BUNDLED_DEMO = Path(__file__).resolve().parents[2] / "shows" / "demo.toml"
-
-
-def signing_key(text: str) -> bytes:
-    try:
-        key = bytes.fromhex(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError("--signing-key must be 64 hex digits") from None
-    if len(key) != 32:
-        raise argparse.ArgumentTypeError("--signing-key must be 64 hex digits (32 bytes)")
-    return key
-
-
-def positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, not {text!r}") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, not {text!r}")
-    return value
 
 
 def add_runner_options(p: argparse.ArgumentParser) -> None:

@@ -8,6 +8,7 @@ import time
 from collections import Counter
 
 from groundctl.clock import ScaledClock
+from groundctl.commands.options import signing_key
 from groundctl.errors import EXIT_OK, SimulatorError
 from groundctl.link.flavours import Flavour
 from groundctl.sim import LinkFaults, SimConfig, SimFleet, grid_layout
@@ -54,16 +55,6 @@ def _layout(text: str) -> float:
     return value
 
 
-def _key(text: str) -> bytes:
-    try:
-        key = bytes.fromhex(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError("--signing-key must be 64 hex digits") from None
-    if len(key) != 32:
-        raise argparse.ArgumentTypeError("--signing-key must be 64 hex digits (32 bytes)")
-    return key
-
-
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:  # type: ignore[type-arg]
     """Register ``groundctl sim``."""
     p = subparsers.add_parser(
@@ -98,7 +89,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("--latency", type=float, default=0.0, help="one-way latency, ms")
     p.add_argument("--jitter", type=float, default=0.0, help="latency std-dev, ms")
     p.add_argument("--duplicate", type=float, default=0.0, help="packet duplication probability")
-    p.add_argument("--signing-key", type=_key, default=None,
+    p.add_argument("--signing-key", type=signing_key, default=None,
                    help="MAVLink 2 signing key as 64 hex digits")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="autopilot parameter at boot (repeatable), e.g. FS_GCS_ENABLE=1")

@@ -17,24 +17,21 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import datetime as dt
-import json
 import math
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from groundctl.clock import ScaledClock
-from groundctl.errors import FlightError, GroundctlError, SimulatorError
+from groundctl.errors import GroundctlError, SimulatorError
 from groundctl.execute.frames import enu_to_show, show_to_enu
 from groundctl.flight.report import flight_report
 from groundctl.flight.runner import RunnerConfig, ShowRunner
 from groundctl.link.flavours import Flavour
 from groundctl.link.fleet import FleetLink
 from groundctl.plan.plan import Plan
-from groundctl.record.events import EventLog
-from groundctl.record.tlog import TlogWriter
+from groundctl.record.recording import Recording
 from groundctl.sim import LinkFaults, SimConfig
 from groundctl.sim.process import SimProcess
 
@@ -96,12 +93,6 @@ class DryRunResult:
     """Where the recordings are."""
 
 
-def default_record_dir(show_name: str, root: Path = Path("recordings")) -> Path:
-    """``recordings/<show>-dry-run-<UTC time>``."""
-    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-    return root / f"{show_name}-dry-run-{stamp}"
-
-
 def sim_config(plan: Plan, options: DryRunOptions, gcs: tuple[str, int]) -> SimConfig:
     """A simulated fleet standing on the plan's takeoff slots, talking to ``gcs``."""
     if plan.drones > 254:
@@ -134,15 +125,9 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
     """
     clock = ScaledClock(options.speed)
     record = options.record_dir
-    tlog = events = None
-    if record is not None:
-        try:
-            record.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise GroundctlError(f"{record}: cannot create the recording directory: "
-                                 f"{exc.strerror or exc}") from exc
-        tlog = TlogWriter(record / "flight.tlog")
-        events = EventLog(record / "events.jsonl", clock.now)
+    recording = None if record is None else Recording(record, clock.now)
+    tlog = None if recording is None else recording.tlog
+    events = None if recording is None else recording.events
     link = FleetLink((LOOPBACK, 0), clock=clock, expected_ids=range(1, plan.drones + 1),
                      signing_key=options.signing_key, tlog=tlog, events=events)
     fleet: SimProcess | None = None
@@ -170,14 +155,7 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
                                                      f"{link.local_address[1]}")
         if during is not None:
             helper = asyncio.create_task(during(runner, fleet))
-        try:
-            await runner.run()
-        except asyncio.CancelledError:
-            # The operator abandoned the flight (second Ctrl-C): still report and record.
-            task = asyncio.current_task()
-            if task is not None:
-                task.uncancel()
-            raise FlightError("flight abandoned by the operator") from None
+        await runner.run()
     except GroundctlError as exc:
         error = exc
         if events is not None:
@@ -210,29 +188,20 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
             "min_separation_m": None, "max_tracking_error_m": None,
             "unsafe_reasons": [str(error) if error is not None else "the flight never started"]}
         if runner is not None:
-            report = flight_report(runner, None if error is None else str(error))
             mon = runner.monitor
             true_sep = mon.true_separation.distance_m if mon is not None else math.inf
+            truth_reasons = [f"vehicle(s) {crashed} crashed"] if crashed else []
+            if true_sep < plan.limits.min_separation:
+                truth_reasons.append(
+                    f"true separation {true_sep:.2f} m (limit {plan.limits.min_separation:.2f} m)")
+            report = flight_report(runner, None if error is None else str(error), truth_reasons)
             report["true_min_separation_m"] = (round(true_sep, 3) if math.isfinite(true_sep)
                                                else None)
-            if crashed:
-                report["unsafe_reasons"].append(f"vehicle(s) {crashed} crashed")
-            if true_sep < plan.limits.min_separation:
-                report["unsafe_reasons"].append(
-                    f"true separation {true_sep:.2f} m (limit {plan.limits.min_separation:.2f} m)")
-            report["safe"] = not report["unsafe_reasons"]
         report.update({"autopilot": str(options.flavour), "speed": options.speed,
                        "simulator": truth,
                        "record_dir": None if record is None else str(record)})
-        if record is not None:
-            (record / "report.json").write_text(json.dumps(report, indent=1) + "\n")
-        if events is not None:
-            events.emit("report", safe=report.get("safe"),
-                        min_separation_m=report.get("min_separation_m"),
-                        max_tracking_error_m=report.get("max_tracking_error_m"))
-            events.close()
-        if tlog is not None:
-            tlog.close()
+        if recording is not None:
+            recording.finish(report)
     flown = runner is not None and runner.sequence is not None
     return DryRunResult(report, error, flown, record)
 
@@ -245,15 +214,11 @@ def _truth_probe(runner: ShowRunner, fleet: SimProcess) -> Callable[[float, floa
         mon, seq = runner.monitor, runner.sequence
         if mon is None or seq is None:
             return
-        mon.observe_truth(now, ids, enu_to_show(origin, fleet.call("positions")))
+        positions, leds = fleet.call("truth")  # one round trip per tick
+        mon.observe_truth(now, ids, enu_to_show(origin, positions))
         t0 = seq.started_at
-        for sysid, (led, when) in zip(ids, fleet.call("leds"), strict=True):
+        for sysid, (led, when) in zip(ids, leds, strict=True):
             shown_at = None if t0 is None or when is None or when < t0 else when - t0
             mon.observe_led(sysid, led, when, shown_at)
 
     return probe
-
-
-def with_sim(config: SimConfig, **changes: Any) -> SimConfig:
-    """``config`` with some fields replaced (a helper for ``customise``)."""
-    return replace(config, **changes)

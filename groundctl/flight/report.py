@@ -7,6 +7,7 @@ Keys relied on elsewhere (scripts, CI): ``safe``, ``vehicles``,
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -19,8 +20,13 @@ def _r(x: float | None, nd: int = 3) -> float | None:
     return None if x is None or not math.isfinite(x) else round(float(x), nd)
 
 
-def flight_report(runner: ShowRunner, error: str | None = None) -> dict[str, Any]:
-    """Everything measured about the flight; ``error`` is why it stopped early, if it did."""
+def flight_report(runner: ShowRunner, error: str | None = None,
+                  more_reasons: Sequence[str] = ()) -> dict[str, Any]:
+    """Everything measured about the flight; ``error`` is why it stopped early, if it did.
+
+    ``more_reasons`` are unsafe findings from elsewhere (the dry-run's truth): they
+    count towards ``safe`` like the report's own.
+    """
     plan = runner.plan
     seq, mon = runner.sequence, runner.monitor
     limit = plan.limits.min_separation
@@ -65,6 +71,7 @@ def flight_report(runner: ShowRunner, error: str | None = None) -> dict[str, Any
         pair = mon.separation.pair if mon is not None else None
         reasons.append(f"separation {min_sep:.2f} m between vehicles {pair} "
                        f"(limit {limit:.2f} m)")
+    reasons += more_reasons
     led = mon.led_errors() if mon is not None else []
     unmatched = sum(v.led_unmatched for v in mon.vehicles.values()) if mon is not None else 0
     late = np.array(runner.lateness_s) * 1000.0

@@ -5,18 +5,16 @@ cross each other (a vertical ring flying home to a flat grid, say): the
 first end-to-end hold/land-all test flew two drones 1.37 m apart that way.
 So land-all first freezes the show clock (every drone hovers on its plan
 point, which the plan keeps separated), then plans one more quadrotor
-transition with the same SCP planner and limits as the show itself, from
-those points to the landing points, and the fleet flies it.  Planning takes
+transition with the same SCP planner and limits as the show itself (with a
+tracking margin, whatever the show file says), from those points to the
+landing points, and the fleet flies it.  Planning takes
 well under a second for a hundred drones; they hover meanwhile.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from groundctl.plan.feasibility import min_transition_time
 from groundctl.plan.plan import Plan
@@ -43,17 +41,7 @@ def plan_return(plan: Plan, tracks: list[int], start: NDArray[np.float64]) -> Tr
     goal = plan.landing_hover[tracks]
     bound = min_transition_time(start, goal, plan.limits, QuadrotorModel())
     duration = max(bound.seconds * TIME_MARGIN, MIN_DURATION_S)
-    # The margin, as far as the two ends allow (the SCP needs them separated).
-    limit = plan.limits.min_separation
-    ends = min(_closest(start), _closest(goal))
-    separation = max(limit, min(limit + TRACKING_MARGIN_M, ends - 0.01))
-    limits = replace(plan.limits, min_separation=separation)
-    result = plan_quad_transition(0, "return", start, goal, duration, limits, PlannerSettings())
+    # The planner's own tracking margin: per pair, as far as its two ends allow.
+    result = plan_quad_transition(0, "return", start, goal, duration, plan.limits,
+                                  PlannerSettings(tracking_margin=TRACKING_MARGIN_M))
     return result.trajectories
-
-
-def _closest(points: NDArray[np.float64]) -> float:
-    if len(points) < 2:
-        return float("inf")
-    dist, _ = cKDTree(points).query(points, k=2)
-    return float(dist[:, 1].min())

@@ -30,7 +30,6 @@ from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from groundctl.clock import Clock
@@ -460,11 +459,21 @@ class ShowRunner:
                 await task
 
     async def run(self) -> None:
-        """Connect, pre-flight, fly; commands in flight are cancelled on the way out."""
+        """Connect, pre-flight, fly; commands in flight are cancelled on the way out.
+
+        Cancelling the task that runs this means the operator abandoned the
+        flight (a second Ctrl-C): that becomes a FlightError, so the caller
+        still reports and records instead of unwinding past its ``finally``.
+        """
         try:
             await self.connect()
             await self.preflight()
             await self.fly()
+        except asyncio.CancelledError:
+            task = asyncio.current_task()
+            if task is not None:
+                task.uncancel()
+            raise FlightError("flight abandoned by the operator") from None
         finally:
             await self._drain()
 
@@ -523,7 +532,3 @@ class ShowRunner:
         held = " HOLD" if seq.paused else ""
         return (f"{seq.phase}{held} t={seq.show_time(now):6.1f}/{self.plan.duration:.0f} s "
                 f"[{phases}] min sep {sep:.2f} m, max err {err:.2f} m")
-
-    def lateness_percentile(self, q: float) -> float:
-        """The q-th percentile of tick lateness, s (0 before any tick)."""
-        return float(np.percentile(self.lateness_s, q)) if self.lateness_s else 0.0

@@ -39,6 +39,7 @@ from groundctl.link.codec import (
 from groundctl.link.command import CommandExchange
 from groundctl.link.flavours import Flavour, mode_request
 from groundctl.link.fleetfile import Endpoint
+from groundctl.link.messages import FORCE_MAGIC
 from groundctl.link.signing import SigningConfig
 from groundctl.link.state import VehicleState, apply
 from groundctl.link.timesync import answer as timesync_answer
@@ -59,8 +60,6 @@ DEFAULT_STREAMS: dict[int, float] = {
     mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
 }
 
-#: MAV_CMD_COMPONENT_ARM_DISARM param2 that overrides pre-arm/disarm checks.
-FORCE_MAGIC = 21196
 
 
 @dataclass

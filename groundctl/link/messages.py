@@ -26,6 +26,9 @@ TYPE_MASK_POSITION_VELOCITY = IGNORE_ACCELERATION | IGNORE_YAW | IGNORE_YAW_RATE
 #: Position + velocity + acceleration feed-forward.
 TYPE_MASK_POSITION_VELOCITY_ACCELERATION = IGNORE_YAW | IGNORE_YAW_RATE
 
+#: MAV_CMD_COMPONENT_ARM_DISARM param2 that overrides pre-arm/disarm checks.
+FORCE_MAGIC = 21196
+
 #: LED_CONTROL.custom_bytes is a fixed array of this many bytes.
 LED_CUSTOM_BYTES = 24
 

@@ -280,16 +280,9 @@ class UnicycleQP:
         separation rows are still a valid (conservative) restriction, and every
         iterate is rolled out and checked anyway.
         """
-        n, N, dt, V = self.n, self.N, self.dt, self.model.speed
+        dt, V = self.dt, self.model.speed
         if not relinearise and self._solver is not None:
-            lo, hi = self._lo.copy(), self._hi.copy()
-            Tl = lo[self.oT: self.oU].reshape(n, N + 1)
-            Th = hi[self.oT: self.oU].reshape(n, N + 1)
-            Tl[:] = theta - trust[:, None]
-            Th[:] = theta + trust[:, None]
-            Tl[:, 0] = Th[:, 0] = self.heading0
-            self.l[self.box_rows] = lo[self._boxed]
-            self.u[self.box_rows] = hi[self._boxed]
+            self._trust_box(theta, trust)
             self._solver.update(l=self.l, u=self.u)
             return
         gi, kk = self._dyn
@@ -309,6 +302,18 @@ class UnicycleQP:
             c2 = np.concatenate([nvec, nvec])
             self._values[self.sep_coo] = np.concatenate([c2[:, 0], c2[:, 1], -c2[:, 0],
                                                          -c2[:, 1]])
+        self._trust_box(theta, trust)
+        if self._solver is None:
+            self._pattern.refresh()
+            self._solver = osqp.OSQP()
+            self._solver.setup(P=self.P, q=self.q, A=self.A, l=self.l, u=self.u,
+                               **UNICYCLE_OSQP_SETTINGS)
+        else:
+            self._solver.update(Ax=self._pattern.refresh(), l=self.l, u=self.u)
+
+    def _trust_box(self, theta: FloatArray, trust: FloatArray) -> None:
+        """Headings within ``trust`` of ``theta`` (the first one fixed), inside the static box."""
+        n, N = self.n, self.N
         lo, hi = self._lo.copy(), self._hi.copy()
         Tl = lo[self.oT: self.oU].reshape(n, N + 1)
         Th = hi[self.oT: self.oU].reshape(n, N + 1)
@@ -317,13 +322,6 @@ class UnicycleQP:
         Tl[:, 0] = Th[:, 0] = self.heading0
         self.l[self.box_rows] = lo[self._boxed]
         self.u[self.box_rows] = hi[self._boxed]
-        if self._solver is None:
-            self._pattern.refresh()
-            self._solver = osqp.OSQP()
-            self._solver.setup(P=self.P, q=self.q, A=self.A, l=self.l, u=self.u,
-                               **UNICYCLE_OSQP_SETTINGS)
-        else:
-            self._solver.update(Ax=self._pattern.refresh(), l=self.l, u=self.u)
 
     def solve(self, transition: int) -> tuple[FloatArray, FloatArray]:
         """Headings and separation slacks of the QP linearised last; PlanningError unless solved."""

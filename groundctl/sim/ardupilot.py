@@ -96,9 +96,6 @@ class ArduPilotVehicle(Vehicle):
             if self.armed:
                 return ACCEPTED
             if not forced:
-                if self.arm_refusals:  # an arming-time check failing (a fault)
-                    self.statustext(mavlink.MAV_SEVERITY_CRITICAL, self.arm_refusals.pop(0))
-                    return FAILED
                 if not self.ready_to_arm(now):
                     self.statustext(mavlink.MAV_SEVERITY_CRITICAL, "Arm: Need Position Estimate")
                     return FAILED

@@ -152,15 +152,15 @@ class SimFleet:
                     setpoints_dropped=v.setpoints_dropped))
             return out
 
-    def positions(self) -> np.ndarray:
-        """(count, 3) true show-frame ENU positions now, in vehicle order (a copy)."""
-        with self._lock:
-            return self.physics.pos.copy()
+    def truth(self) -> tuple[np.ndarray, list[tuple[tuple[int, int, int], float | None]]]:
+        """What only the simulator knows, cheaply (no snapshot objects), in vehicle order.
 
-    def leds(self) -> list[tuple[tuple[int, int, int], float | None]]:
-        """Each vehicle's LED colour and the clock time it last changed, in vehicle order."""
+        The (count, 3) true show-frame ENU positions (a copy), and each LED's colour
+        with the clock time it last changed (None: never set).
+        """
         with self._lock:
-            return [(v.led, v.led_changed_at) for v in self.vehicles]
+            return (self.physics.pos.copy(),
+                    [(v.led, v.led_changed_at) for v in self.vehicles])
 
     def state(self, sysid: int) -> VehicleState:
         """Snapshot of the (first) vehicle with system id ``sysid``."""

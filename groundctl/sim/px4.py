@@ -65,6 +65,7 @@ class PX4Vehicle(Vehicle):
     """A simulated PX4 multicopter."""
 
     flavour = Flavour.PX4
+    arm_refused_result = TEMP_REJECTED
     land_mode = "AUTO.LAND"
     rtl_mode = "AUTO.RTL"
     boot_mode = "AUTO.LOITER"
@@ -133,9 +134,6 @@ class PX4Vehicle(Vehicle):
             if self.armed:
                 return ACCEPTED
             if not forced:
-                if self.arm_refusals:  # an arming-time check failing (a fault)
-                    self.statustext(mavlink.MAV_SEVERITY_CRITICAL, self.arm_refusals.pop(0))
-                    return TEMP_REJECTED
                 if not self.ready_to_arm(now):
                     self.statustext(mavlink.MAV_SEVERITY_CRITICAL,
                                     "Arming denied: Resolve system health failures first")

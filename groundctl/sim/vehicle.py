@@ -22,6 +22,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from groundctl.link.flavours import MODE_FLAG_CUSTOM, Flavour, encode_mode, mode_from_set_mode
+from groundctl.link.messages import FORCE_MAGIC
 from groundctl.sim import physics as P
 from groundctl.sim import telemetry as T
 from groundctl.sim.config import SimConfig
@@ -42,8 +43,6 @@ MASK_VEL = 0x038
 MASK_ACC = 0x1C0
 #: Both autopilots send their own TIMESYNC request about every 10 s.
 TIMESYNC_PERIOD = 10.0
-#: COMPONENT_ARM_DISARM param2 magic that forces arming/disarming.
-FORCE_MAGIC = 21196
 
 
 @dataclass
@@ -76,6 +75,8 @@ class Vehicle:
     supports_led: ClassVar[bool] = True
     #: MAV_RESULT for DO_SET_MODE without the custom flag or with an unknown mode.
     unknown_mode_result: ClassVar[int] = UNSUPPORTED
+    arm_refused_result: ClassVar[int] = FAILED
+    """How a failing arming check is coded (ArduPilot FAILED, PX4 TEMPORARILY_REJECTED)."""
     #: Modes MAV_CMD_NAV_LAND and MAV_CMD_NAV_RETURN_TO_LAUNCH switch to.
     land_mode: ClassVar[str]
     rtl_mode: ClassVar[str]
@@ -419,6 +420,10 @@ class Vehicle:
                 return self.unknown_mode_result
             return self.request_mode(p[1], p[2], now)
         if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+            if p[0] == 1 and not self.armed and as_int(p[1]) != FORCE_MAGIC \
+                    and self.arm_refusals:  # an arming-time check failing (a fault)
+                self.statustext(mavlink.MAV_SEVERITY_CRITICAL, self.arm_refusals.pop(0))
+                return self.arm_refused_result
             return self._arm_disarm(p, now)
         if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
             return self._takeoff(p[6], now)
