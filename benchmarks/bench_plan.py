@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_plan.py                 # paper shows + 25, 100, 300
     .venv/bin/python benchmarks/bench_plan.py --sizes 25 100 300 1000
+    .venv/bin/python benchmarks/bench_plan.py --sizes --repeat 20   # paper shows, spread
 
 Prints time and quality per case: SCP iterations, seconds, min separation in
 continuous time, worst violation, pattern error, and mean path length against
@@ -67,14 +68,29 @@ def report(label: str, show: Show) -> None:
           f"safe={ver.safe} {list(ver.violations)[:2]}")
 
 
+def spread(label: str, show: Show, repeat: int) -> None:
+    """Plan ``show`` ``repeat`` more times; per transition: min / median / max seconds."""
+    runs = np.array([[tr.seconds for tr in plan_show(show, workers=1).transitions]
+                     for _ in range(repeat)])
+    names = [f.name for f in show.formations]
+    for name, col in zip(names, runs.T, strict=True):
+        print(f"{label:>18} {name:>8} over {repeat} runs: min {col.min():.3f} s, "
+              f"median {np.median(col):.3f} s, max {col.max():.3f} s")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="*", default=[25, 100, 300])
     ap.add_argument("--skip-paper", action="store_true")
+    ap.add_argument("--repeat", type=int, default=0,
+                    help="plan each paper show this many more times and print the spread")
     args = ap.parse_args()
     if not args.skip_paper:
-        report("paper_star", load_show(SHOWS / "paper_star.toml"))
-        report("paper_transitions", load_show(SHOWS / "paper_transitions.toml"))
+        for name in ("paper_star", "paper_transitions"):
+            show = load_show(SHOWS / f"{name}.toml")
+            report(name, show)
+            if args.repeat:
+                spread(name, show, args.repeat)
     for n in args.sizes:
         report(f"grid->sphere {n}", scaling_show(n))
 

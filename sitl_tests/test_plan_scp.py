@@ -11,7 +11,7 @@ from groundctl.plan.assign import assign
 from groundctl.plan.conflicts import close_pair_segments
 from groundctl.plan.profile import rest_to_rest
 from groundctl.plan.scp_quad import plan_quad_transition
-from groundctl.plan.scp_unicycle import plan_unicycle_transition, rollout, within
+from groundctl.plan.scp_unicycle import UnicycleQP, plan_unicycle_transition, rollout, within
 from groundctl.show.model import Limits, PlannerSettings, UnicycleModel
 
 LIM = Limits(min_separation=1.5, min_alt=0.0, max_alt=100.0)
@@ -163,3 +163,42 @@ def test_only_conflicting_drones_get_a_qp() -> None:
     prof = rest_to_rest(res.steps, 10.0 / res.steps)
     expected = row[:, None] + prof.s[None, :, None] * (goal[:8] - row)[:, None]
     assert np.allclose(res.trajectories.pos[:8], expected)
+
+
+def test_unicycle_polishing_model_passes_through_the_new_rollout() -> None:
+    # After the fleet is feasible the QP keeps its Jacobian (no refactorisation) but
+    # is shifted to the new rollout: evaluated at the new headings, the kept linear
+    # model must predict exactly the positions those headings fly.
+    rng = np.random.default_rng(5)
+    n, steps, dt, speed = 3, 40, 0.25, 2.0
+    model = UnicycleModel(speed=speed, r_min=1.5)
+    start = np.array([[0.0, 0.0], [0.0, 4.0], [0.0, 8.0]])
+    theta0 = np.cumsum(rng.normal(scale=0.05, size=(n, steps + 1)), axis=1)
+    theta0[:, -1] = theta0[:, -2]
+    P0 = rollout(start, theta0, speed, dt)
+    goal = P0[:, -1] + 0.3
+    ref = np.linspace(start, goal, steps + 1, axis=1)
+    qp = UnicycleQP(start, goal, theta0[:, 0], ref, model, steps, dt, 0.85, 0.1,
+                    np.zeros((0, 3), dtype=np.int64), 1.0, 0.01)
+    trust = np.full(n, 0.5)
+    qp.linearise(P0, theta0, trust)
+    theta1 = theta0 + rng.normal(scale=0.1, size=theta0.shape)
+    theta1[:, 0] = theta0[:, 0]
+    P1 = rollout(start, theta1, speed, dt)
+    qp.linearise(P1, theta1, trust, relinearise=False)
+    # The step model at theta1: dp[k] = sum over j < k of dt V perp(theta0[j]) dtheta[j].
+    dth = (theta1 - theta0)[:, :steps]
+    step = dt * speed * np.stack([-np.sin(theta0[:, :steps]) * dth,
+                                  np.cos(theta0[:, :steps]) * dth], axis=2)
+    dp_end = step.sum(axis=1)
+    # The pattern rows read goal - (base end) +- eps/2, base = what the model puts at dp = 0.
+    half = 0.05
+    lo = qp.l[qp.term_rows]
+    base_end = goal - np.column_stack([lo[:n], lo[n:]]) - half
+    assert np.allclose(base_end + dp_end, P1[:, -1], atol=1e-9)
+    # The trust region is centred on theta1 (in steps from theta0).
+    box = qp.l[qp.head_box].reshape(n, steps - 1)[:, 1:]
+    assert np.allclose(box + trust[:, None], (theta1 - theta0)[:, 2:steps], atol=1e-9)
+    # And the QP solves to headings within the trust region of theta1.
+    theta2, _ = qp.solve(1)
+    assert np.all(np.abs(theta2 - theta1)[:, 1:steps] <= trust[:, None] + 1e-2)

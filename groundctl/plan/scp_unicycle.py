@@ -1,15 +1,17 @@
 """SCP for the paper's unicycle model: constant speed V, turn rate |u| <= V / r_min.
 
-Per drone: positions p (N+1, 2), headings theta (N+1), turn rates u (N) and a
-terminal slack e (2).  The dynamics
+Per drone: positions p (N+1, 2), headings theta (N+1), turn rates u (N).  The
+dynamics
 
     p[k+1] = p[k] + dt V [cos theta[k], sin theta[k]],   theta[k+1] = theta[k] + dt u[k]
 
 are linearised around the previous iterate's headings; after every QP the
 headings are rolled out through the *nonlinear* dynamics, so each iterate
-(and the result) flies at exactly V.  The pattern constraint
-|p[N] - target| <= eps is a box of half-width eps/sqrt(2) softened by a
-penalised slack, and separation uses the same segment rows as the quadrotor.
+(and the result) flies at exactly V.  The QP (:class:`UnicycleQP`) is written in
+the step from that rollout, with u and the fixed start eliminated.  The
+pattern constraint |p[N] - target| <= eps is a box of half-width eps/2
+softened by a penalised slack, and separation uses the same segment rows as
+the quadrotor.
 
 Initial guess.  The paper starts from the straight line.  With constant speed
 that is a stationary point whenever the straight distance d is shorter than
@@ -29,10 +31,15 @@ SCP when no sample moved more than the tolerance (the paper's test) or when it
 follows a feasible iterate and lowered the cost J by less than COST_TOL: once
 feasible, the trust region shrinks geometrically and the remaining iterations
 only polish J by a few per cent (paper transitions: 9 iterations -> 5-7).
-After a feasible iterate the QP keeps its linearisation and only its trust
-region moves: no KKT refactorisation, and the old separation rows remain a
-valid restriction (the rollout is checked as always).  Paper transitions: 5
-iterations each, 0.09-0.12 s.
+After a feasible iterate the QP keeps its Jacobian (dynamics coefficients and
+separation normals: no KKT refactorisation) but is shifted to pass through the
+new rollout, a simplified Newton step; the trust region moves with it.
+Relinearising in this polishing phase as well bought nothing but refactorisations
+and longer ADMM restarts; keeping the Jacobian from the first iterate on, on
+the other hand, converged to plans with 45 % more turning effort (a fixed point
+of simplified Newton is feasible but not optimal), so the Jacobian is fresh
+until the fleet is feasible.  Paper star and transitions: 4-7 iterations,
+0.04-0.08 s (`benchmarks/bench_plan.py`).
 """
 
 from __future__ import annotations
@@ -80,18 +87,31 @@ TRUST_DECAY = 0.3
 #: Relative cost decrease below which a feasible iterate that follows a feasible one
 #: ends the SCP (see the module docstring).
 COST_TOL = 1e-2
-#: OSQP settings of the unicycle QP: no solution polishing.  The QP only proposes
-#: headings; positions are rolled out through the nonlinear dynamics and checked
-#: after every solve, so ADMM's 1e-3 accuracy is enough, and polishing (one more
-#: KKT factorisation per solve, ~40 % of the solve time, and it often fails on
-#: these problems anyway) bought nothing.
+#: OSQP settings of the unicycle QP.  The QP only proposes headings: positions are
+#: rolled out through the nonlinear dynamics and checked after every solve, so
+#: ADMM's accuracy only has to be good enough to make progress.  Measured on the
+#: paper's star (20 seeds) and transitions (`benchmarks/bench_plan.py`):
 #:
-#: rho starts at 0.1, where OSQP's own estimate settles on these QPs (0.03-0.2), and
-#: is adapted every 50 ADMM iterations rather than on OSQP's timing heuristic: from
-#: rho 1.0 the first solve after a build needed up to 4 rho updates, each one more
-#: KKT factorisation (~5 ms).
+#: - ``polishing`` off: one more KKT factorisation per solve (~40 % of the solve
+#:   time), and it often failed on these problems anyway.
+#: - ``check_dualgap`` off: OSQP >= 1.0 also waits for the duality gap, which on
+#:   these QPs lags the residuals by hundreds of iterations (400-1500 ADMM
+#:   iterations per solve instead of 25-75).
+#: - ``eps_abs`` 1e-2 (m, rad): the QP is in step form, so its values are small
+#:   and eps_rel no longer makes the tolerance loose by itself; 1 cm on a linear
+#:   model whose end point is re-checked on the rollout (pattern box eps/2).
+#: - ``check_termination`` 10: the trust-region-only solves of the polishing phase
+#:   converge in 10-20 iterations and were held to 25.
+#: - ``scaling`` 1: the step form is already well scaled, one Ruiz pass is enough
+#:   (10 passes cost 4 ms per setup; none at all doubled the ADMM iterations).
+#: - ``rho`` starts at OSQP's default 0.1 and adapts every 50 iterations rather
+#:   than on OSQP's timing heuristic: every rho update is one more KKT
+#:   factorisation.  It is not passed to ``setup()``: osqp-python then calls
+#:   ``update_rho`` after the setup, one more factorisation (~0.6 ms) per build.
 UNICYCLE_OSQP_SETTINGS: dict[str, float | int | bool] = {
-    **OSQP_SETTINGS, "polishing": False, "rho": 0.1, "adaptive_rho_interval": 50}
+    **{k: v for k, v in OSQP_SETTINGS.items() if k != "rho"}, "polishing": False,
+    "adaptive_rho_interval": 50, "check_dualgap": False, "eps_abs": 1e-2,
+    "check_termination": 10, "scaling": 1}
 
 
 def _wrap(a: FloatArray) -> FloatArray:
@@ -162,75 +182,114 @@ def rollout_cost(theta: FloatArray, P: FloatArray, ref: FloatArray, dt: float, a
 
 
 class UnicycleQP:
-    """The linearised unicycle QP for all drones of a transition (2D)."""
+    """The linearised unicycle QP for all drones of a transition (2D), in step form.
+
+    The variables are the *changes* from the linearisation point (Pbar, thbar), a
+    rollout that meets the nonlinear dynamics exactly, so the dynamics rows have a
+    zero right-hand side and the start (p[0], theta[0]) is no variable at all:
+
+        dp[k+1] - dp[k] - dt V perp(thbar[k]) dth[k] = 0            (k = 0..N-1)
+        |thbar[k+1] + dth[k+1] - thbar[k] - dth[k]| <= dt u_max        (turn rate)
+        |dth[k]| <= trust_i                                            (trust region)
+        n.(dp_i - dp_j) + s >= d_sep - n.(Pbar_i - Pbar_j), s >= 0    (separation)
+        Pbar[N] + dp[N] - e in target +- eps/2                         (pattern)
+
+    The last heading theta[N] moves no position; its only cost is the last turn,
+    so it equals theta[N-1] and is no variable either.  The turn rate u is no
+    variable: its bound is a row on the heading difference and its cost
+    alpha/dt |theta[k+1] - theta[k]|^2 a tridiagonal block.  Against the
+    absolute form (positions, N+1 headings, N turn rates, their equality rows)
+    the KKT system is a fifth smaller (paper transitions: 18,500 instead of
+    23,800), and its values are steps, well scaled: one pass of OSQP's
+    equilibration is enough.
+    """
 
     def __init__(self, start: FloatArray, goal: FloatArray, heading0: FloatArray, ref: FloatArray,
                  model: UnicycleModel, steps: int, dt: float, d_sep: float, eps: float,
                  segs: NDArray[np.int64], alpha: float, beta: float) -> None:
         n, N = start.shape[0], steps
+        if N < 3:
+            raise ValueError("the unicycle QP needs at least 3 steps")
         self.n, self.N, self.dt, self.model, self.eps = n, N, dt, model, eps
         self.start, self.goal, self.heading0 = start, goal, heading0
+        self.ref, self.alpha, self.beta, self.d_sep = ref, alpha, beta, d_sep
         self.segs = segs
         m = len(segs)
-        self.nP = n * (N + 1) * 2
+        H = N - 1                      # free headings theta[1..N-1] per drone
+        self.nP = n * N * 2            # dp[1..N]
         self.oT = self.nP
-        self.oU = self.oT + n * (N + 1)
-        self.oE = self.oU + n * N
+        self.oE = self.oT + n * H
         self.oS = self.oE + 2 * n
         self.nx = self.oS + m
 
         Ints = NDArray[np.intp]
 
         def ip(i: Ints, k: Ints, c: int | Ints) -> Ints:
-            return (i * (N + 1) + k) * 2 + c
+            """Column of dp[i, k, c], k = 1..N."""
+            return (i * N + k - 1) * 2 + c
 
-        def it(i: NDArray[np.intp], k: NDArray[np.intp]) -> NDArray[np.intp]:
-            return self.oT + i * (N + 1) + k
+        def it(i: Ints, k: Ints) -> Ints:
+            """Column of dth[i, k], k = 1..N-1."""
+            return self.oT + i * H + k - 1
 
         rows = RowBuilder()
+        # Dynamics, x then y rows, k = 0..N-1; dp[0] and dth[0] are zero (no entry).
         gi, kk = (x.ravel() for x in np.meshgrid(np.arange(n), np.arange(N), indexing="ij"))
         nd = len(gi)
-        self._dyn = (gi, kk)
         r = np.arange(nd)
-        # Position dynamics, x then y rows: p[k+1] - p[k] - dt V perp(thbar) theta[k] = const.
-        self.dyn_rows, self.dyn_coo = rows.block(
-            2 * nd, np.concatenate([r, r, r, r + nd, r + nd, r + nd]),
-            np.concatenate([ip(gi, kk + 1, 0), ip(gi, kk, 0), it(gi, kk),
-                            ip(gi, kk + 1, 1), ip(gi, kk, 1), it(gi, kk)]),
-            np.concatenate([np.ones(nd), -np.ones(nd), np.zeros(nd),
-                            np.ones(nd), -np.ones(nd), np.zeros(nd)]))
-        self.th_rows, _ = rows.block(
-            nd, np.concatenate([r, r, r]),
-            np.concatenate([it(gi, kk + 1), it(gi, kk), self.oU + gi * N + kk]),
-            np.concatenate([np.ones(nd), -np.ones(nd), np.full(nd, -dt)]))
-        # Box rows only where a variable has bounds: interior positions are free, and an
-        # unbounded row still costs a row in OSQP's KKT factorisation.
-        pos_fixed = ip(np.repeat(np.arange(n), 2), np.zeros(2 * n, dtype=np.intp),
-                       np.tile([0, 1], n))
-        self._boxed = np.concatenate([pos_fixed, np.arange(self.oT, self.oE),
-                                      np.arange(self.oS, self.nx)])
-        nb = len(self._boxed)
-        self.box_rows, _ = rows.block(nb, np.arange(nb), self._boxed, np.ones(nb))
-        # Terminal box with slack: p[N] - e in target +- eps / sqrt(2).
+        inner = kk > 0
+        ri, gin, kin = r[inner], gi[inner], kk[inner]
+        self._dyn_head = (gin, kin)
+        nh = len(ri)
+        ones_n, ones_i = np.ones(nd), np.ones(nh)
+        self.dyn_rows, dyn_coo = rows.block(
+            2 * nd, np.concatenate([r, ri, ri, r + nd, ri + nd, ri + nd]),
+            np.concatenate([ip(gi, kk + 1, 0), ip(gin, kin, 0), it(gin, kin),
+                            ip(gi, kk + 1, 1), ip(gin, kin, 1), it(gin, kin)]),
+            np.concatenate([ones_n, -ones_i, np.zeros(nh), ones_n, -ones_i, np.zeros(nh)]))
+        x0 = dyn_coo.start + nd + nh
+        self.dyn_x_coo = slice(x0, x0 + nh)
+        y0 = x0 + nh + nd + nh
+        self.dyn_y_coo = slice(y0, y0 + nh)
+        # Turn rate between free headings: dth[k+1] - dth[k], k = 1..N-2.
+        ti_, tk = (x.ravel() for x in np.meshgrid(np.arange(n), np.arange(1, N - 1),
+                                                  indexing="ij"))
+        nt = len(ti_)
+        self._turn = (ti_, tk)
+        rt = np.arange(nt)
+        self.turn_rows, _ = rows.block(
+            nt, np.concatenate([rt, rt]), np.concatenate([it(ti_, tk + 1), it(ti_, tk)]),
+            np.concatenate([np.ones(nt), -np.ones(nt)]))
+        # Boxes: the heading trust region (and, for theta[1], the first turn) and s >= 0.
+        boxed = np.concatenate([np.arange(self.oT, self.oE), np.arange(self.oS, self.nx)])
+        self.box_rows, _ = rows.block(len(boxed), np.arange(len(boxed)), boxed,
+                                      np.ones(len(boxed)))
+        self.head_box = slice(self.box_rows.start, self.box_rows.start + n * H)
+        # Pattern: dp[N] - e, x rows then y rows.
         ti = np.arange(n)
         tr = np.concatenate([ti, ti, ti + n, ti + n])
         self.term_rows, _ = rows.block(
             2 * n, tr, np.concatenate([ip(ti, np.full(n, N), 0), self.oE + 2 * ti,
                                        ip(ti, np.full(n, N), 1), self.oE + 2 * ti + 1]),
             np.concatenate([np.ones(n), -np.ones(n), np.ones(n), -np.ones(n)]))
+        # Separation, one row per pair-segment end; an end at k = 0 has only its slack.
         if m:
-            end = np.concatenate([segs[:, 2], segs[:, 2] + 1])
+            ends = np.concatenate([segs[:, 2], segs[:, 2] + 1])
             ii = np.concatenate([segs[:, 0], segs[:, 0]])
             jj = np.concatenate([segs[:, 1], segs[:, 1]])
             rr = np.arange(2 * m)
-            slack = self.oS + np.concatenate([np.arange(m), np.arange(m)])
+            mv = ends > 0
+            self._sep_moving = mv
+            rm, em, im, jm = rr[mv], ends[mv], ii[mv], jj[mv]
+            nm = len(rm)
             self.sep_rows, sep_coo = rows.block(
-                2 * m, np.concatenate([np.tile(rr, 4), rr]),
-                np.concatenate([ip(ii, end, 0), ip(ii, end, 1), ip(jj, end, 0), ip(jj, end, 1),
-                                slack]),
-                np.ones(10 * m))
-            self.sep_coo = slice(sep_coo.start, sep_coo.start + 8 * m)
+                2 * m, np.concatenate([np.tile(rm, 4), rr]),
+                np.concatenate([ip(im, em, 0), ip(im, em, 1), ip(jm, em, 0), ip(jm, em, 1),
+                                self.oS + np.concatenate([np.arange(m), np.arange(m)])]),
+                np.ones(4 * nm + 2 * m))
+            self.sep_coo = slice(sep_coo.start, sep_coo.start + 4 * nm)
         else:
+            self._sep_moving = np.zeros(0, dtype=bool)
             self.sep_rows = slice(rows.count, rows.count)
             self.sep_coo = slice(rows.nnz, rows.nnz)
         self.n_rows = rows.count
@@ -238,97 +297,134 @@ class UnicycleQP:
         self._values = self._pattern.values
         self.A = self._pattern.matrix
 
-        cost = np.zeros(self.nx)
-        cost[: self.nP] = 2 * beta * dt
-        cost[self.oU: self.oE] = 2 * alpha * dt
-        cost[self.oE: self.oS] = 2 * TERMINAL_WEIGHT
-        cost[self.oS:] = 1e-3
-        self.P = sp.diags(cost, format="csc")
+        # Cost (OSQP's 1/2 x'Px + q'x): beta dt |p - ref|^2 over k = 1..N (p[0] is
+        # fixed), alpha/dt sum over k = 0..N-2 of (theta[k+1] - theta[k])^2, the
+        # terminal slack, and the separation slacks (linear, plus a small quadratic
+        # term so the problem stays strictly convex).
+        w = 2 * alpha / dt
+        self._w = w
+        head = np.full((n, H), 2 * w)
+        head[:, -1] = w  # theta[N-1] is in one difference only
+        diag = np.concatenate([np.full(self.nP, 2 * beta * dt), head.ravel(),
+                               np.full(2 * n, 2 * TERMINAL_WEIGHT), np.full(m, 1e-3)])
+        hi_, hk = (x.ravel() for x in np.meshgrid(np.arange(n), np.arange(1, N - 1),
+                                                  indexing="ij"))
+        col = it(hi_, hk)
+        self.P = (sp.diags(diag, format="csc")
+                  + sp.csc_matrix((np.full(len(col), -w), (col, col + 1)),
+                                  shape=(self.nx, self.nx))).tocsc()
         self.q = np.zeros(self.nx)
-        self.q[: self.nP] = -2 * beta * dt * ref.ravel()
         self.q[self.oS:] = SLACK_WEIGHT
         self.l = np.full(self.n_rows, -np.inf)
         self.u = np.full(self.n_rows, np.inf)
-        self.l[self.th_rows] = 0.0
-        self.u[self.th_rows] = 0.0
-        # Half-width eps/2 rather than eps/sqrt(2): the rolled-out (nonlinear) end point
-        # differs a little from the QP's linear one and must still land within eps.
-        half = eps / 2
-        self.l[self.term_rows] = np.concatenate([goal[:, 0], goal[:, 1]]) - half
-        self.u[self.term_rows] = np.concatenate([goal[:, 0], goal[:, 1]]) + half
-        self.l[self.sep_rows] = d_sep
-        lo = np.full(self.nx, -np.inf)
-        hi = np.full(self.nx, np.inf)
-        Pl = lo[: self.nP].reshape(n, N + 1, 2)
-        Ph = hi[: self.nP].reshape(n, N + 1, 2)
-        Pl[:, 0], Ph[:, 0] = start, start
-        lo[self.oU: self.oE] = -model.turn_rate_limit
-        hi[self.oU: self.oE] = model.turn_rate_limit
-        lo[self.oS:] = 0.0
-        self._lo, self._hi = lo, hi
-        # OSQP is set up by the first linearise(): a setup factorises the KKT matrix,
-        # and one done here, before the dynamics coefficients exist, would be thrown
-        # away by the refactorisation of that first update (~5 ms per build).
+        self.l[self.dyn_rows] = 0.0
+        self.u[self.dyn_rows] = 0.0
+        self.l[self.box_rows.start + n * H: self.box_rows.stop] = 0.0
         self._solver: osqp.OSQP | None = None
+        self._theta_bar: FloatArray | None = None
 
     def linearise(self, P: FloatArray, theta: FloatArray, trust: FloatArray,
                   relinearise: bool = True) -> None:
-        """Linearise around (P, theta) and set the trust region.
+        """Linearise around the rollout (P, theta) and set the trust region.
 
-        ``relinearise=False`` moves only the trust region and keeps the previous
-        dynamics and separation linearisation: no KKT refactorisation.  The old
-        separation rows are still a valid (conservative) restriction, and every
-        iterate is rolled out and checked anyway.
+        ``relinearise=False`` keeps the Jacobian of the previous linearisation point
+        (no KKT refactorisation) but not its constants: the model is shifted so that
+        it passes through the rollout (P, theta) itself (a simplified Newton step),
+        and the trust region moves to ``theta``.
         """
-        dt, V = self.dt, self.model.speed
-        if not relinearise and self._solver is not None:
-            self._trust_box(theta, trust)
-            self._solver.update(l=self.l, u=self.u)
-            return
-        gi, kk = self._dyn
-        th = theta[gi, kk]
-        nd = len(gi)
-        vals = self._values[self.dyn_coo]
-        vals[2 * nd: 3 * nd] = dt * V * np.sin(th)  # x row: -(-sin) coefficient
-        vals[5 * nd: 6 * nd] = -dt * V * np.cos(th)
-        self._values[self.dyn_coo] = vals
-        cx = dt * V * (np.cos(th) + np.sin(th) * th)
-        cy = dt * V * (np.sin(th) - np.cos(th) * th)
-        self.l[self.dyn_rows] = np.concatenate([cx, cy])
-        self.u[self.dyn_rows] = np.concatenate([cx, cy])
-        segs = self.segs
-        if len(segs):
-            nvec = segment_normals(P, segs[:, 0], segs[:, 1], segs[:, 2])
-            c2 = np.concatenate([nvec, nvec])
-            self._values[self.sep_coo] = np.concatenate([c2[:, 0], c2[:, 1], -c2[:, 0],
-                                                         -c2[:, 1]])
+        n, N, dt, V = self.n, self.N, self.dt, self.model.speed
+        if relinearise or self._solver is None:
+            self._theta_bar = theta.copy()
+            gin, kin = self._dyn_head
+            th = theta[gin, kin]
+            self._values[self.dyn_x_coo] = dt * V * np.sin(th)   # -(d/dth cos) = sin
+            self._values[self.dyn_y_coo] = -dt * V * np.cos(th)
+            segs = self.segs
+            if len(segs):
+                nvec = segment_normals(P, segs[:, 0], segs[:, 1], segs[:, 2])
+                self._normals = np.concatenate([nvec, nvec])
+                cm = self._normals[self._sep_moving]
+                self._values[self.sep_coo] = np.concatenate([cm[:, 0], cm[:, 1], -cm[:, 0],
+                                                             -cm[:, 1]])
+            base = P
+            # Turn-difference cost gradient at the point (theta[N] = theta[N-1]).
+            diff = np.diff(theta[:, :N], axis=1)              # d_k, k = 0..N-2
+            grad = diff.copy()                                 # d_{k-1} = th[k] - th[k-1]
+            grad[:, :-1] -= diff[:, 1:]                        # d_k = th[k+1] - th[k]
+            self.q[self.oT: self.oE] = (self._w * grad).ravel()
+        else:
+            bar = self._theta_bar
+            assert bar is not None
+            # Positions the kept linear model assigns to theta, from the linearisation
+            # point: the model is moved by the defect so it passes through P.
+            dth = theta[:, :N] - bar[:, :N]
+            step = dt * V * np.stack([-np.sin(bar[:, :N]) * dth, np.cos(bar[:, :N]) * dth],
+                                     axis=2)
+            moved = np.concatenate([np.zeros((n, 1, 2)), np.cumsum(step, axis=1)], axis=1)
+            base = P - moved
+        self._set_constants(base)
         self._trust_box(theta, trust)
         if self._solver is None:
             self._pattern.refresh()
             self._solver = osqp.OSQP()
             self._solver.setup(P=self.P, q=self.q, A=self.A, l=self.l, u=self.u,
                                **UNICYCLE_OSQP_SETTINGS)
+        elif relinearise:
+            self._solver.update(Ax=self._pattern.refresh(), q=self.q, l=self.l, u=self.u)
+            # The new point is the rolled-out solution: x = 0 is exactly where ADMM
+            # should start (its own warm start would be the old step); duals stay.
+            self._solver.warm_start(x=np.zeros(self.nx))
         else:
-            self._solver.update(Ax=self._pattern.refresh(), l=self.l, u=self.u)
+            self._solver.update(q=self.q, l=self.l, u=self.u)
+
+    def _set_constants(self, base: FloatArray) -> None:
+        """Right-hand sides and position cost for positions ``base`` + dp."""
+        N = self.N
+        self.q[: self.nP] = (2 * self.beta * self.dt * (base[:, 1:] - self.ref[:, 1:])).ravel()
+        half = self.eps / 2
+        end = base[:, N]
+        self.l[self.term_rows] = np.concatenate([self.goal[:, 0] - end[:, 0],
+                                                 self.goal[:, 1] - end[:, 1]]) - half
+        self.u[self.term_rows] = self.l[self.term_rows] + 2 * half
+        segs = self.segs
+        if len(segs):
+            ends = np.concatenate([segs[:, 2], segs[:, 2] + 1])
+            ii = np.concatenate([segs[:, 0], segs[:, 0]])
+            jj = np.concatenate([segs[:, 1], segs[:, 1]])
+            gap = np.einsum("md,md->m", self._normals, base[ii, ends] - base[jj, ends])
+            self.l[self.sep_rows] = self.d_sep - gap
 
     def _trust_box(self, theta: FloatArray, trust: FloatArray) -> None:
-        """Headings within ``trust`` of ``theta`` (the first one fixed), inside the static box."""
-        n, N = self.n, self.N
-        lo, hi = self._lo.copy(), self._hi.copy()
-        Tl = lo[self.oT: self.oU].reshape(n, N + 1)
-        Th = hi[self.oT: self.oU].reshape(n, N + 1)
-        Tl[:] = theta - trust[:, None]
-        Th[:] = theta + trust[:, None]
-        Tl[:, 0] = Th[:, 0] = self.heading0
-        self.l[self.box_rows] = lo[self._boxed]
-        self.u[self.box_rows] = hi[self._boxed]
+        """Headings within ``trust`` of ``theta``, turns within the rate limit."""
+        if self._theta_bar is None:
+            raise RuntimeError("UnicycleQP trust region before the first linearise()")
+        N, dt = self.N, self.dt
+        turn = dt * self.model.turn_rate_limit
+        bar = self._theta_bar
+        centre = theta[:, 1:N] - bar[:, 1:N]
+        lo = centre - trust[:, None]
+        hi = centre + trust[:, None]
+        # The first turn (theta[0] is fixed) bounds theta[1] alone.
+        lo[:, 0] = np.maximum(lo[:, 0], self.heading0 - turn - bar[:, 1])
+        hi[:, 0] = np.minimum(hi[:, 0], self.heading0 + turn - bar[:, 1])
+        lo[:, 0] = np.minimum(lo[:, 0], hi[:, 0])
+        self.l[self.head_box] = lo.ravel()
+        self.u[self.head_box] = hi.ravel()
+        ti_, tk = self._turn
+        step = bar[ti_, tk + 1] - bar[ti_, tk]
+        self.l[self.turn_rows] = -turn - step
+        self.u[self.turn_rows] = turn - step
 
     def solve(self, transition: int) -> tuple[FloatArray, FloatArray]:
-        """Headings and separation slacks of the QP linearised last; PlanningError unless solved."""
-        if self._solver is None:
+        """Headings (n, N+1) and separation slacks of the QP linearised last."""
+        if self._solver is None or self._theta_bar is None:
             raise RuntimeError("UnicycleQP.solve() before linearise()")
         x = solve_checked(self._solver, transition, f"unicycle, {self.n} drones, {self.N} steps")
-        theta = x[self.oT: self.oU].reshape(self.n, self.N + 1).copy()
+        n, N = self.n, self.N
+        theta = self._theta_bar.copy()
+        theta[:, 1:N] += x[self.oT: self.oE].reshape(n, N - 1)
+        theta[:, 0] = self.heading0
+        theta[:, N] = theta[:, N - 1]
         slack = x[self.oS:]
         return theta, slack
 
