@@ -156,3 +156,43 @@ def test_fly_against_groundctl_sim_and_ctrl_c_lands_everyone(tmp_path: Path) -> 
     operator = [e["command"] for e in events if e["event"] == "operator"]
     assert operator == ["hold", "kill 2", "resume", "land all"]
     assert any("confirm to kill" in e.get("text", "") for e in events)
+
+
+@pytest.mark.parametrize("sig, label", [(signal.SIGTERM, "SIGTERM"),
+                                        (signal.SIGHUP, "SIGHUP (terminal closed)")])
+def test_sigterm_or_sighup_mid_show_lands_everyone_and_flushes(
+        tmp_path: Path, sig: signal.Signals, label: str) -> None:
+    """A service manager's stop or a closed terminal is a stop, not a crash: land first.
+
+    The signal goes to the whole process group, as a terminal or a service manager
+    sends it: the simulator child must outlive it until the fleet is down.
+    """
+    show = tmp_path / "four.toml"
+    show.write_text(FLY_SHOW)
+    run = subprocess.Popen([*GROUNDCTL, "dry-run", str(show), "--speed", "4", "--ready-delay",
+                            "1", "--record", str(tmp_path / "rec"), "--json"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
+                           env={**os.environ, "PYTHONUNBUFFERED": "1"}, start_new_session=True)
+    try:
+        assert run.stderr is not None
+        deadline = time.monotonic() + 90
+        for line in run.stderr:
+            if "show started" in line:
+                break
+            assert time.monotonic() < deadline, "the show never started"
+        time.sleep(1.0)  # show clock x4: mid-transition
+        os.killpg(run.pid, sig)
+        stdout, stderr = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            os.killpg(run.pid, signal.SIGKILL)
+    assert run.returncode == EXIT_ABORTED, stderr
+    assert f"{label}: landing every vehicle" in stderr
+    report = json.loads(stdout)
+    assert [v["phase"] for v in report["vehicles"]] == ["landed"] * 4
+    assert report["min_separation_m"] >= 1.5
+    events = read_events(tmp_path / "rec" / "events.jsonl")
+    signals = [e for e in events if e["event"] == "signal"]
+    assert [(e["signal"], e["count"]) for e in signals] == [(label, 1)]
+    assert [e["command"] for e in events if e["event"] == "operator"] == ["land all"]
+    assert events[-1]["event"] == "report"

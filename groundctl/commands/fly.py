@@ -52,9 +52,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
         "fly", help="fly a show with real vehicles",
         description="Plan (or load) the show, wait for the vehicles on the MAVLink endpoint, "
                     "run the pre-flight checks and fly the show. Type hold, resume, land, "
-                    "land SYSID, land-here SYSID, kill SYSID confirm on stdin. Ctrl-C once "
-                    "lands every vehicle; twice abandons the flight to the vehicles' "
-                    "failsafes.")
+                    "land SYSID, land-here SYSID, kill SYSID confirm on stdin. Ctrl-C (or "
+                    "SIGTERM, SIGHUP) once lands every vehicle; twice abandons the flight "
+                    "to the vehicles' failsafes.")
     p.add_argument("show", type=Path, help="show file (TOML) or plan file (.npz)")
     p.add_argument("--connect", type=endpoint, default=("0.0.0.0", 14550), metavar="ENDPOINT",
                    help="UDP address to listen on, udp:HOST:PORT (default udp:0.0.0.0:14550)")

@@ -88,11 +88,20 @@ def say(quiet: bool) -> Callable[[str], None]:
     return notify
 
 
-class Interrupts:
-    """Ctrl-C during a flight: the first lands every vehicle, the second abandons the flight.
+#: Signals that stop a flight: Ctrl-C, a service manager's stop, a closed terminal.
+STOP_SIGNALS: tuple[tuple[str, str], ...] = (
+    ("SIGINT", "Ctrl-C"), ("SIGTERM", "SIGTERM"), ("SIGHUP", "SIGHUP (terminal closed)"))
 
-    Abandoning only stops the ground station: the vehicles' own failsafes
-    (GCS or offboard loss) take over, which is why it takes a second press.
+
+class Interrupts:
+    """Stop signals during a flight: the first lands every vehicle, the second abandons it.
+
+    Ctrl-C, SIGTERM (``kill``, a service manager stopping groundctl) and SIGHUP
+    (the operator's terminal closed) all mean "stop": killing the ground station
+    outright would leave the fleet airborne with its setpoints frozen, so the
+    first one lands everyone and the command exits once they are down (exit 5).
+    Abandoning only stops the ground station: the vehicles' own failsafes (GCS
+    or offboard loss) take over, which is why it takes a second signal.
     """
 
     def __init__(self, notify: Callable[[str], None]) -> None:
@@ -100,7 +109,9 @@ class Interrupts:
         self.runner: ShowRunner | None = None
         self.presses = 0
         self.aborted = False
+        self.signals: list[str] = []
         self._task: asyncio.Task[Any] | None = None
+        self._installed: list[signal.Signals] = []
 
     def attach(self, runner: ShowRunner) -> None:
         self.runner = runner
@@ -108,26 +119,41 @@ class Interrupts:
     def install(self) -> None:
         self._task = asyncio.current_task()
         loop = asyncio.get_running_loop()
-        # Not the main thread, or a platform without signals: Ctrl-C then simply stops.
-        with contextlib.suppress(NotImplementedError, RuntimeError):
-            loop.add_signal_handler(signal.SIGINT, self._on_sigint)
+        for name, label in STOP_SIGNALS:
+            sig = getattr(signal, name, None)
+            if sig is None:
+                continue  # SIGHUP does not exist on Windows
+            # Not the main thread, or a platform without loop signals: it then simply stops.
+            with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+                loop.add_signal_handler(sig, self._on_signal, label)
+                self._installed.append(sig)
 
     def uninstall(self) -> None:
-        with contextlib.suppress(NotImplementedError, RuntimeError):
-            asyncio.get_running_loop().remove_signal_handler(signal.SIGINT)
+        loop = asyncio.get_running_loop()
+        for sig in self._installed:
+            with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
+                loop.remove_signal_handler(sig)
+        self._installed.clear()
 
-    def _on_sigint(self) -> None:
+    def _on_signal(self, label: str) -> None:
         self.presses += 1
         self.aborted = True
+        self.signals.append(label)
+        if self.runner is not None and self.runner.events is not None:
+            self.runner.events.emit("signal", signal=label, count=self.presses)
         if self.presses == 1 and self.runner is not None and self.runner.sequence is not None:
-            print("\nCtrl-C: landing every vehicle (press again to abandon the flight)",
-                  file=sys.stderr, flush=True)
+            self._say(f"{label}: landing every vehicle (again to abandon the flight)")
             self.runner.land_all()
             return
-        print("\nCtrl-C: abandoning the flight; vehicles' failsafes are in charge",
-              file=sys.stderr, flush=True)
+        self._say(f"{label}: abandoning the flight; vehicles' failsafes are in charge")
         if self._task is not None:
             self._task.cancel()
+
+    @staticmethod
+    def _say(text: str) -> None:
+        # After SIGHUP the terminal may be gone: a failed write must not stop the landing.
+        with contextlib.suppress(OSError, ValueError):
+            print(f"\n{text}", file=sys.stderr, flush=True)
 
 
 OPERATOR_HELP = ("commands: hold | resume | land (all) | land SYSID (to its landing spot) | "

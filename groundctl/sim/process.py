@@ -35,7 +35,12 @@ CALL_TIMEOUT_S = 10.0
 
 
 def _serve(conn: Connection, config: SimConfig, clock: ScaledClock) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # Stop signals reach the whole process group (Ctrl-C, a closed terminal, a service
+    # manager): the parent lands the simulated fleet first and then stops this child
+    # itself; a parent that dies outright closes the pipe, which ends the loop below.
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
     from groundctl.sim.fleet import SimFleet
 
     try:
