@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from test_execute_support import make_plan, make_vehicle, set_altitude
 
+from groundctl.execute.leaving import Leave
 from groundctl.execute.sequence import (
     Arm,
     Disarm,
@@ -23,7 +24,7 @@ from groundctl.execute.sequence import (
 )
 from groundctl.link.flavours import Flavour
 from groundctl.link.state import VehicleState
-from groundctl.plan.plan import Plan
+from groundctl.plan.plan import FormationWindow, Plan
 from groundctl.plan.trajectory import Trajectories
 
 ARDU, PX4 = Flavour.ARDUPILOT, Flavour.PX4
@@ -252,14 +253,115 @@ def test_hold_freezes_the_show_clock_and_resume_continues_from_there() -> None:
     assert seq.resume(t0 + 31.0) == [Notice(None, "not holding: nothing to resume")]
 
 
-def test_land_one_returns_that_vehicle_while_the_others_fly_on() -> None:
-    states = _fleet(ARDU, n=2)
+def test_land_one_outside_the_show_returns_that_vehicle_at_once() -> None:
     seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    seq.start(0.0)
+    # Taking off: not in the show yet, so straight down its own column (no way out needed).
+    assert seq.land_one(2, 0.1)[0] == Notice(2, "landing vehicle 2")
+    assert seq.vehicles[2].phase is VehiclePhase.LANDED and seq.leave_needed == []
+    assert seq.land_one(9, 0.1) == [Notice(None, "no vehicle 9 in this show")]
+
+
+def test_land_one_mid_show_without_a_formation_ahead_flies_on() -> None:
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU, 2: ARDU})  # no formations
     t0 = _airborne_ardupilot(seq, states, 0.0)
-    assert seq.land_one(2, t0 + 1.0) == [Notice(2, "landing vehicle 2")]
+    assert seq.land_one(2, t0 + 1.0) == [Notice(
+        2, "vehicle 2: no formation left to leave the show from; it lands with the others at "
+           "the end (land-here 2 brings it straight down now)")]
     req = seq.stream_request(t0 + 1.0)
-    assert req.moving and req.sysids == frozenset({1, 2}) and req.fixed == {2: (3.0, 0.0, 3.0)}
-    assert seq.land_one(9, t0 + 1.0) == [Notice(None, "no vehicle 9 in this show")]
+    assert seq.vehicles[2].phase is VehiclePhase.SHOW and req.fixed == {} and req.leaves == {}
+
+
+def _formation_plan() -> Plan:
+    """make_plan() with a formation reached at t=5 (every drone at rest there)."""
+    plan = make_plan()
+    up = FormationWindow(1, "up", 0.0, 5.0, 5.0, plan.trajectories.pos[:, 1])
+    down = FormationWindow(2, "landing", 5.0, 10.0, 10.0, plan.trajectories.pos[:, 2])
+    return replace(plan, formations=(up, down))
+
+
+def _way_out(plan: Plan, track: int, at: float, seconds: float = 4.0) -> Leave:
+    start = plan.state_at(at).pos[track]
+    end = plan.landing_hover[track]
+    pos = np.stack([start, end])[None]
+    return Leave(at, Trajectories(np.array([0.0, seconds]), pos, np.zeros_like(pos)))
+
+
+def test_land_one_mid_show_leaves_at_the_next_formation_on_a_planned_way_out() -> None:
+    plan = _formation_plan()
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    t0 = _airborne_ardupilot(seq, states, 0.0)
+    seq.update(t0 + 0.1, states)  # settled on the first plan point: the show clock runs
+    start = t0 + 0.1
+    assert seq.land_one(2, start + 1.0) == [Notice(
+        2, "vehicle 2 leaves the show at show time 5.0 s, on a way out planned around the "
+           "others")]
+    assert seq.land_one(2, start + 1.5) == [Notice(
+        2, "vehicle 2 already leaves the show at show time 5.0 s")]
+    assert seq.leave_needed == [(2, 1, 5.0)]
+    # Until its way out is planned and begins, it flies its plan.
+    assert seq.stream_request(start + 1.0).leaves == {}
+    leave = _way_out(plan, 1, 5.0)
+    assert seq.set_leave(2, leave, start + 2.0) == [Notice(
+        2, "way out for vehicle 2 planned: from show time 5.0 s, 4.0 s to its landing spot")]
+    assert seq.leave_needed == [] and seq.leaves == {1: leave}
+    assert seq.stream_request(start + 2.0).leaves == {2: leave}
+    assert seq.vehicles[2].phase is VehiclePhase.SHOW
+    assert seq.update(start + 5.2, states) == [Notice(2, "vehicle 2 leaves the show")]
+    assert seq.vehicles[2].phase is VehiclePhase.LEAVING
+    assert seq.phase is ShowPhase.SHOW  # the other one is still in the show
+    # Arrived over its landing spot once the way out is flown: land.
+    assert seq.update(start + 8.0, states) == []
+    hover = plan.landing_hover[1]
+    states[2].position_ned = (float(hover[1]), float(hover[0]), float(-hover[2]))
+    assert seq.update(start + 9.2, states) == [Land(2)]
+    assert seq.vehicles[2].phase is VehiclePhase.LANDING
+
+
+def test_a_way_out_ready_too_late_moves_on_and_one_that_fails_flies_on() -> None:
+    plan = _formation_plan()
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    t0 = _airborne_ardupilot(seq, states, 0.0)
+    seq.update(t0 + 0.1, states)
+    start = t0 + 0.1
+    seq.land_one(2, start + 1.0)
+    # Planning outlived its instant (show time 5.0 s): the next one is past the plan's end.
+    assert seq.set_leave(2, _way_out(plan, 1, 5.0), start + 5.5) == [Notice(
+        2, "vehicle 2: its way out was ready too late and no formation is left to leave from; "
+           "it lands with the others at the end")]
+    assert seq.leave_needed == [] and seq.vehicles[2].phase is VehiclePhase.SHOW
+    seq2 = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    t0 = _airborne_ardupilot(seq2, states, 0.0)
+    seq2.update(t0 + 0.1, states)
+    seq2.land_one(2, t0 + 1.0)
+    assert seq2.leave_failed(2, "landing column not clear") == [Notice(
+        2, "no safe way out of the show for vehicle 2 (landing column not clear); it flies on "
+           "and lands with the others (land-here 2 brings it straight down now)")]
+    assert seq2.leave_needed == [] and seq2.vehicles[2].phase is VehiclePhase.SHOW
+
+
+def test_land_all_while_one_is_leaving_returns_it_from_its_way_out() -> None:
+    plan = _formation_plan()
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    t0 = _airborne_ardupilot(seq, states, 0.0)
+    seq.update(t0 + 0.1, states)
+    start = t0 + 0.1
+    seq.land_one(2, start + 1.0)
+    leave = _way_out(plan, 1, 5.0)
+    seq.set_leave(2, leave, start + 2.0)
+    seq.update(start + 6.0, states)
+    assert seq.vehicles[2].phase is VehiclePhase.LEAVING
+    frozen = seq.show_time(start + 6.0)
+    seq.land_all(start + 6.0)
+    assert seq.vehicles[2].phase is VehiclePhase.RETURNING
+    assert sorted(seq.return_needed or []) == [(1, 0), (2, 1)]
+    # While the return is planned it hovers where its way out had brought it.
+    req = seq.stream_request(start + 6.5)
+    assert not req.moving and req.leaves == {2: leave} and req.show_time == frozen
 
 
 def test_kill_needs_confirmation() -> None:

@@ -7,7 +7,9 @@ import pytest
 from test_execute_support import ORIGIN, geo_offset, make_plan
 
 from groundctl.execute.frames import show_to_ned, show_vel_to_ned
+from groundctl.execute.leaving import Leave
 from groundctl.execute.setpoints import LedTracker, SetpointStream, StreamTarget, quantise_rgb
+from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import GeoOrigin
 
 A = geo_offset(ORIGIN, 0.0, 0.0)
@@ -94,3 +96,29 @@ def test_led_sent_on_change_and_refreshed_every_second() -> None:
     assert leds.due([1], [red], now=1.7) == [(1, (255, 0, 0))]
     with pytest.raises(ValueError, match=r"`rgb` must have shape \(1, 3\)"):
         leds.due([1], [red, red], now=2.0)
+
+
+def test_a_vehicle_on_its_way_out_flies_it_from_its_show_time_on() -> None:
+    stream = _stream()
+    plan = stream.plan
+    # Vehicle 11 (track 2) leaves at show time 5.0 s: 4 s from its formation point home.
+    start, end = plan.state_at(5.0).pos[2], plan.landing_hover[2]
+    pos = np.stack([start, end])[None]
+    vel = np.zeros_like(pos)  # rest to rest: a cubic with zero end velocities
+    leave = Leave(5.0, Trajectories(np.array([0.0, 4.0]), pos, vel))
+    before = stream.at(4.0, 0.0, {}, leaves={11: leave})
+    assert np.allclose(before.pos_ned, stream.at(4.0, 0.0, {}).pos_ned)  # its plan until then
+    during = stream.at(6.85, 0.0, {}, leaves={11: leave})  # 2.0 s along it, with the lead
+    p, v, _ = leave.state(7.0)
+    np.testing.assert_allclose(during.pos_ned[0], show_to_ned(ORIGIN, A, p), atol=1e-6)
+    np.testing.assert_allclose(during.vel_ned[0], show_vel_to_ned(ORIGIN, v[None])[0], atol=1e-9)
+    assert np.abs(during.vel_ned[0]).max() > 0.1
+    held = stream.at(6.85, 0.0, {}, moving=False, leaves={11: leave})  # show clock held
+    np.testing.assert_allclose(held.pos_ned[0], show_to_ned(ORIGIN, A, leave.state(6.85)[0]),
+                               atol=1e-6)
+    assert not held.vel_ned[0].any()
+    after = stream.at(9.95, 0.0, {}, leaves={11: leave})  # done: over its landing spot
+    np.testing.assert_allclose(after.pos_ned[0], show_to_ned(ORIGIN, A, end), atol=1e-6)
+    assert not after.vel_ned[0].any()
+    with pytest.raises(ValueError, match="`leaves` names vehicle 5, which is not streamed"):
+        stream.at(1.0, 0.0, {}, leaves={5: leave})

@@ -12,6 +12,7 @@ import json
 import socket
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pymap3d
@@ -21,6 +22,8 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from groundctl.errors import FlightError, LinkError, PreflightFailed
+from groundctl.execute.frames import ned_to_show
+from groundctl.execute.sequence import VehiclePhase
 from groundctl.flight.runner import RunnerConfig, ShowRunner
 from groundctl.link.flavours import Flavour
 from groundctl.record.events import read_events
@@ -246,3 +249,36 @@ def test_an_excluded_vehicle_stays_on_the_ground_and_the_rest_fly() -> None:
     flown = [v for v in report["vehicles"] if v["system_id"] != sysid]
     assert [v["phase"] for v in flown] == ["landed"] * 8
     assert report["safe"] and report["true_min_separation_m"] >= 1.5
+
+
+@pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
+def test_land_one_mid_show_leaves_around_the_others_and_lands_on_its_spot(
+        flavour: Flavour) -> None:
+    """The drone flies on to its next formation, then a planned way out, while the
+    show goes on; a straight line home would cut through the formation."""
+    seen: dict[str, Any] = {}
+
+    async def land_one(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 1.0)
+        seq = runner.sequence
+        assert seq is not None
+        sysid = next(s for s, v in seq.vehicles.items() if v.track == 4)  # the middle one
+        seen["sysid"] = sysid
+        runner.land_one(sysid)
+        await until(runner, lambda: seq.vehicles[sysid].phase is VehiclePhase.LEAVING)
+        seen["left_at"] = show_time(runner)
+        await until(runner, lambda: seq.vehicles[sysid].phase is VehiclePhase.LANDED)
+        seen["landed_at"] = show_time(runner)
+        seen["others"] = sorted({str(v.phase) for s, v in seq.vehicles.items() if s != sysid})
+        state = runner.link.vehicles[sysid]
+        assert state.ekf_origin is not None and state.position_ned is not None
+        seen["down_at"] = ned_to_show(runner.plan.origin, state.ekf_origin, state.position_ned)
+        seen["spot"] = runner.plan.landing[4]
+
+    result = dry_run(flavour=flavour, during=land_one)
+    _assert_flown_safely(result.report)
+    plan = quick_plan()
+    # It left from a formation (at rest there), and was down while the others still flew it.
+    assert any(w.arrive - 1e-6 <= seen["left_at"] <= w.end + 0.5 for w in plan.formations)
+    assert seen["landed_at"] < plan.duration and seen["others"] == ["show"]
+    assert np.linalg.norm(seen["down_at"][:2] - seen["spot"][:2]) < 0.5

@@ -17,9 +17,11 @@ never be missed or applied twice.
 
 Operator commands (:meth:`ShowSequence.hold`, ``resume``, ``land_all`` (every
 vehicle to its landing slot, then down), ``land_one`` (one vehicle to its
-slot, then down), ``land_here`` (one vehicle straight down), ``kill``) return
-actions the same way; bad operator input comes back as a :class:`Notice`,
-never an exception.
+slot, then down; mid-show it flies on to its next formation and leaves from
+there on a way out planned around the others: :attr:`ShowSequence.leave_needed`,
+``set_leave``, ``leave_failed``, phase LEAVING), ``land_here`` (one vehicle
+straight down), ``kill``) return actions the same way; bad operator input
+comes back as a :class:`Notice`, never an exception.
 
 Per vehicle: ARMING (ArduPilot: GUIDED, then arm; PX4: arm) -> TAKEOFF
 (NAV_TAKEOFF, wait until within ``takeoff_tolerance_m`` of the takeoff
@@ -52,6 +54,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from groundctl.execute.frames import ned_to_show
+from groundctl.execute.leaving import Leave, leave_time
 from groundctl.execute.preflight import remaining_plan_conflicts
 from groundctl.link.flavours import Flavour
 from groundctl.link.state import VehicleState
@@ -136,6 +139,7 @@ class VehiclePhase(enum.StrEnum):
     TAKEOFF = "takeoff"
     READY = "ready"
     SHOW = "show"
+    LEAVING = "leaving"
     RETURNING = "returning"
     LANDING = "landing"
     LANDED = "landed"
@@ -159,7 +163,8 @@ class ShowPhase(enum.StrEnum):
 AIRBORNE_M = 0.5
 
 _DONE = {VehiclePhase.LANDED, VehiclePhase.LOST, VehiclePhase.FAILED, VehiclePhase.KILLED}
-_STREAMED = {VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.RETURNING}
+_STREAMED = {VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
+             VehiclePhase.RETURNING}
 _LAND_MODES = {"LAND", "AUTO.LAND"}  # ArduCopter's and PX4's, as decoded by the link
 
 
@@ -215,6 +220,10 @@ class VehicleRun:
     """While LOST: the phase it was lost in (what it is still streamed as)."""
     altitude: float | None = None
     """Last altitude above home seen in telemetry, m."""
+    leave_at: float | None = None
+    """Land-one mid-show: the show time it is to leave at (its way out being planned)."""
+    leave: Leave | None = None
+    """Its planned way out of the show, once there is one."""
 
 
 @dataclass(frozen=True)
@@ -235,6 +244,8 @@ class StreamRequest:
     """The return trajectories (after a land-all), or None."""
     follow_time: float = 0.0
     """Time along them, s."""
+    leaves: dict[int, Leave] = field(default_factory=dict)
+    """Vehicles with a way out of the show: system id -> Leave (flown from its show time)."""
 
 
 class ShowSequence:
@@ -299,7 +310,7 @@ class ShowSequence:
             return ShowPhase.TAKEOFF
         if VehiclePhase.SHOW in phases:
             return ShowPhase.SHOW
-        if phases & {VehiclePhase.RETURNING, VehiclePhase.LANDING}:
+        if phases & {VehiclePhase.LEAVING, VehiclePhase.RETURNING, VehiclePhase.LANDING}:
             return ShowPhase.LANDING
         return ShowPhase.LANDED
 
@@ -337,6 +348,7 @@ class ShowSequence:
                 continue
             actions += self._advance(v, states[v.sysid], now)
         actions += self._maybe_start_show(now, states)
+        actions += self._begin_leaves(now)
         if self._t0 is not None and not self.paused and not self._ended \
                 and now - self._t0 >= self.plan.duration:
             self._ended = True
@@ -384,8 +396,11 @@ class ShowSequence:
         fixed = {s: tuple(map(float, self._landing_point(self.vehicles[s].track)))
                  for s in returning if s not in follow}
         moving = self._t0 is not None and not self.paused and not self._ended
+        leaves = {v.sysid: v.leave for v in self.vehicles.values()
+                  if v.leave is not None and v.sysid in sysids and v.sysid not in follow
+                  and v.sysid not in fixed}
         return StreamRequest(self.show_time(now), moving, sysids, fixed,  # type: ignore[arg-type]
-                             follow, traj if follow else None, t_ret)
+                             follow, traj if follow else None, t_ret, leaves)
 
     # -- land-all return ---------------------------------------------------------------
     @property
@@ -414,6 +429,56 @@ class ShowSequence:
         self._return_wanted = False
         return [Notice(None, f"no collision-free return could be planned ({reason}); flying "
                              "straight to the landing points: watch the fleet")]
+
+    # -- land-one mid-show: a way out -------------------------------------------------------
+    @property
+    def leave_needed(self) -> list[tuple[int, int, float]]:
+        """(system id, track, show time) of each vehicle whose way out awaits planning.
+
+        The driver plans it (around the others as they will fly, and
+        :attr:`leaves`) and hands it over with :meth:`set_leave`, or calls
+        :meth:`leave_failed`.
+        """
+        if self._ended:
+            return []
+        return [(v.sysid, v.track, v.leave_at) for v in self.vehicles.values()
+                if v.leave_at is not None and v.leave is None
+                and self._streamed_as(v) is VehiclePhase.SHOW]
+
+    @property
+    def leaves(self) -> dict[int, Leave]:
+        """Planned ways out by *track* (obstacles for the next one, starts for a return)."""
+        return {v.track: v.leave for v in self.vehicles.values() if v.leave is not None}
+
+    def set_leave(self, sysid: int, leave: Leave, now: float) -> list[Action]:
+        """Fly ``leave`` from its show time on, then land."""
+        v = self.vehicles.get(sysid)
+        if v is None or v.leave_at is None or v.leave is not None or self._ended \
+                or self._streamed_as(v) is not VehiclePhase.SHOW:
+            return []  # overtaken: landed, lost from elsewhere, or the show ended
+        if self.show_time(now) > leave.at:
+            # Planned too late for its instant: the next one.
+            v.leave_at = leave_time(self.plan, v.track, self.show_time(now))
+            if v.leave_at is None:
+                return [Notice(sysid, f"vehicle {sysid}: its way out was ready too late and "
+                                      "no formation is left to leave from; it lands with the "
+                                      "others at the end")]
+            return [Notice(sysid, f"vehicle {sysid}: its way out was ready too late; leaving "
+                                  f"at show time {v.leave_at:.1f} s instead")]
+        v.leave = leave
+        return [Notice(sysid, f"way out for vehicle {sysid} planned: from show time "
+                              f"{leave.at:.1f} s, {leave.trajectory.end:.1f} s to its landing "
+                              "spot")]
+
+    def leave_failed(self, sysid: int, reason: str) -> list[Action]:
+        """No safe way out: it flies on with the show and lands at the end, loudly."""
+        v = self.vehicles.get(sysid)
+        if v is None or v.leave is not None:
+            return []
+        v.leave_at = None
+        return [Notice(sysid, f"no safe way out of the show for vehicle {sysid} ({reason}); it "
+                              f"flies on and lands with the others (land-here {sysid} brings "
+                              "it straight down now)")]
 
     # -- operator --------------------------------------------------------------------
     def hold(self, now: float) -> list[Action]:
@@ -446,10 +511,27 @@ class ShowSequence:
         return actions
 
     def land_one(self, sysid: int, now: float) -> list[Action]:
-        """Vehicle ``sysid`` back to its landing slot and down; the others go on."""
+        """Vehicle ``sysid`` back to its landing slot and down; the others go on.
+
+        Mid-show it first flies on to the next instant it rests on a formation and
+        leaves from there on a way out planned around the others (see
+        :attr:`leave_needed`); a straight line home would cut through the show.
+        """
         v = self.vehicles.get(sysid)
         if v is None:
             return [Notice(None, f"no vehicle {sysid} in this show")]
+        if self._streamed_as(v) is VehiclePhase.SHOW and not self._ended:
+            if v.leave_at is not None:
+                return [Notice(sysid, f"vehicle {sysid} already leaves the show at show time "
+                                      f"{v.leave_at:.1f} s")]
+            at = leave_time(self.plan, v.track, self.show_time(now))
+            if at is None:
+                return [Notice(sysid, f"vehicle {sysid}: no formation left to leave the show "
+                                      "from; it lands with the others at the end (land-here "
+                                      f"{sysid} brings it straight down now)")]
+            v.leave_at = at
+            return [Notice(sysid, f"vehicle {sysid} leaves the show at show time {at:.1f} s, "
+                                  "on a way out planned around the others")]
         return [Notice(sysid, f"landing vehicle {sysid}"), *self._land(v, now)]
 
     def land_here(self, sysid: int, now: float) -> list[Action]:
@@ -500,10 +582,12 @@ class ShowSequence:
         if v.phase in (VehiclePhase.ARMING, VehiclePhase.TAKEOFF):
             v.phase = VehiclePhase.LANDING
             return [self._send(v, Land(v.sysid), now)]
-        if v.phase in (VehiclePhase.READY, VehiclePhase.SHOW):
+        if v.leave is None:
+            v.leave_at = None  # a way out not planned yet: the landing replaces it
+        if v.phase in (VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING):
             v.phase, v.pending = VehiclePhase.RETURNING, None
-        if v.phase is VehiclePhase.LOST and v.lost_from in (VehiclePhase.READY,
-                                                             VehiclePhase.SHOW):
+        if v.phase is VehiclePhase.LOST and v.lost_from in (
+                VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING):
             v.lost_from = VehiclePhase.RETURNING
         return []
 
@@ -602,6 +686,8 @@ class ShowSequence:
                 return []
         elif v.phase is VehiclePhase.RETURNING:
             return self._returning(v, state, now)
+        elif v.phase is VehiclePhase.LEAVING:
+            return self._leaving(v, state, now)
         elif isinstance(cmd, Land) or v.phase is VehiclePhase.LANDING:
             if not state.armed:
                 v.phase, v.pending = VehiclePhase.LANDED, None
@@ -638,6 +724,27 @@ class ShowSequence:
             v.phase = VehiclePhase.LANDING
             return [self._send(v, Land(v.sysid), now)]
         return []
+
+    def _leaving(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
+        assert v.leave is not None
+        if self.show_time(now) < v.leave.until:
+            return []
+        return self._returning(v, state, now)
+
+    def _begin_leaves(self, now: float) -> list[Action]:
+        if self._t0 is None or self._ended:
+            return []
+        t = self.show_time(now)
+        actions: list[Action] = []
+        for v in self.vehicles.values():
+            if v.leave is None or t < v.leave.at:
+                continue
+            if v.phase is VehiclePhase.SHOW:
+                v.phase = VehiclePhase.LEAVING
+                actions.append(Notice(v.sysid, f"vehicle {v.sysid} leaves the show"))
+            elif v.phase is VehiclePhase.LOST and v.lost_from is VehiclePhase.SHOW:
+                v.lost_from = VehiclePhase.LEAVING
+        return actions
 
     def _maybe_start_show(self, now: float, states: Mapping[int, VehicleState]) -> list[Action]:
         if self._t0 is not None or self._ended or not self._started or self.paused:

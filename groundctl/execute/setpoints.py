@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from groundctl.execute.frames import show_to_ned, show_vel_to_ned
+from groundctl.execute.leaving import Leave
 from groundctl.link.state import GeoPoint, Vec3
 from groundctl.plan.plan import Plan
 from groundctl.plan.trajectory import Trajectories
@@ -117,7 +118,7 @@ class SetpointStream:
     def at(self, show_time: float, now: float, clock_offsets: Mapping[int, float | None],
            moving: bool = True, fixed: Mapping[int, ArrayLike] | None = None,
            follow: Mapping[int, int] | None = None, follow_trajectories: Trajectories | None = None,
-           follow_time: float = 0.0) -> Setpoints:
+           follow_time: float = 0.0, leaves: Mapping[int, Leave] | None = None) -> Setpoints:
         """Setpoints for show time ``show_time`` at our time ``now``.
 
         ``moving`` False means the show clock is paused: the plan position at
@@ -127,6 +128,8 @@ class SetpointStream:
         zero feed-forward, e.g. over their landing slots.  ``follow`` has
         vehicles (system id -> row) fly ``follow_trajectories`` at
         ``follow_time`` instead (a land-all's return), with the same lead.
+        ``leaves`` (system id -> Leave) fly their way out of the show instead of
+        the plan from the Leave's show time on (land-one mid-show).
         """
         t = min(show_time + self.lead_s, self.plan.duration) if moving else show_time
         state = self.plan.state_at(t)
@@ -136,6 +139,17 @@ class SetpointStream:
         if moving and show_time + self.lead_s >= self.plan.duration:
             # Past the end the plan holds its final state: no feed-forward.
             vel, acc = np.zeros_like(pos), np.zeros_like(pos)
+        if leaves:
+            pos, vel, acc = pos.copy(), vel.copy(), acc.copy()
+            for sysid, leave in leaves.items():
+                if sysid not in self._index:
+                    raise ValueError(f"`leaves` names vehicle {sysid}, which is not streamed")
+                if t < leave.at:
+                    continue  # still flying its plan
+                i = self._index[sysid]
+                pos[i], vel[i], acc[i] = leave.state(t)
+                if not moving or t >= leave.until:
+                    vel[i], acc[i] = 0.0, 0.0
         if fixed:
             pos, vel, acc = pos.copy(), vel.copy(), acc.copy()
             for sysid, point in fixed.items():

@@ -9,16 +9,24 @@ transition with the same SCP planner and limits as the show itself (with a
 tracking margin, whatever the show file says), from those points to the
 landing points, and the fleet flies it.  Planning takes
 well under a second for a hundred drones; they hover meanwhile.
+
+Land-one in the middle of a show is different: the others fly on, and the
+drone's way out is planned around them (:func:`plan_leave`; when it leaves is
+:mod:`groundctl.execute.leaving`'s business).
 """
 
 from __future__ import annotations
 
+from collections.abc import Collection, Mapping
+
 import numpy as np
 from numpy.typing import NDArray
 
+from groundctl.errors import PlanningError
+from groundctl.execute.leaving import MIN_DURATION_S, TIME_MARGIN, Leave, leave_duration
 from groundctl.plan.feasibility import min_transition_time
 from groundctl.plan.plan import Plan
-from groundctl.plan.scp_quad import plan_quad_transition
+from groundctl.plan.scp_quad import plan_among, plan_quad_transition
 from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import PlannerSettings, QuadrotorModel
 
@@ -26,10 +34,8 @@ from groundctl.show.model import PlannerSettings, QuadrotorModel
 #: whatever tracking error the moment has, and unlike the show it was never
 #: rehearsed (the first land-all test flew a pair 1.497 m apart at a 1.5 m limit).
 TRACKING_MARGIN_M = 0.25
-#: The return takes this many times the slowest drone's straight-line minimum.
-TIME_MARGIN = 1.5
-#: ... and at least this long, s.
-MIN_DURATION_S = 4.0
+# The return takes TIME_MARGIN times the slowest drone's straight-line minimum, and
+# at least MIN_DURATION_S: the same as one drone's way out.
 
 
 def plan_return(plan: Plan, tracks: list[int], start: NDArray[np.float64]) -> Trajectories:
@@ -45,3 +51,75 @@ def plan_return(plan: Plan, tracks: list[int], start: NDArray[np.float64]) -> Tr
     result = plan_quad_transition(0, "return", start, goal, duration, plan.limits,
                                   PlannerSettings(tracking_margin=TRACKING_MARGIN_M))
     return result.trajectories
+
+
+# -- one drone leaving a show in progress ------------------------------------------------
+
+#: Descent speed assumed for the landing column check, m/s (ArduCopter's LAND_SPEED
+#: is 0.5 m/s, PX4's MPC_LAND_SPEED 0.7 m/s), plus a few seconds' margin.
+DESCENT_SPEED_MPS = 0.5
+DESCENT_MARGIN_S = 5.0
+#: Spacing of the points that stand for a vertical column (a drone descending or
+#: landed where it was), m: with obstacle rows of the separation limit (>= 1.5 m
+#: around each point) 1 m leaves no gap along the column.
+COLUMN_STEP_M = 1.0
+
+
+def column(top: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Points (k, 3) from ``top`` straight down to the ground, COLUMN_STEP_M apart."""
+    count = max(2, int(np.ceil(max(float(top[2]), 0.0) / COLUMN_STEP_M)) + 1)
+    points = np.repeat(np.asarray(top, dtype=float)[None, :], count, axis=0)
+    points[:, 2] = np.linspace(max(float(top[2]), 0.0), 0.0, count)
+    return points
+
+
+def plan_leave(plan: Plan, track: int, at: float, leaves: Mapping[int, Leave],
+               absent: Collection[int] = (), static: NDArray[np.float64] | None = None
+               ) -> Leave:
+    """A way for ``track`` from its formation point at show time ``at`` to its landing
+    point, around every other drone as it will fly meanwhile.
+
+    The others are obstacles on their plan, or on their own way out from
+    ``leaves`` (track -> Leave) once it has begun.  ``absent`` tracks fly no
+    plan (excluded, landed, descending, killed); where they really are goes in
+    ``static`` (k, 3), points that do not move (see :func:`column`).  Raises the
+    planner's InfeasibleTransition / PlanningError.
+    """
+    start = plan.state_at(at).pos[track][None, :]
+    goal = plan.landing_hover[track][None, :]
+    duration = leave_duration(plan, track, at)
+    gone = set(absent) | {track}
+    others = np.array([j for j in range(plan.drones) if j not in gone], dtype=np.intp)
+    fixed = np.empty((0, 3)) if static is None else np.asarray(static, dtype=float)
+
+    def others_at(times: NDArray[np.float64]) -> NDArray[np.float64]:
+        show_t = np.clip(at + times, 0.0, plan.duration)
+        pos = plan.trajectories.evaluate(show_t, others)[0].copy()
+        for row, j in enumerate(others):
+            leave = leaves.get(int(j))
+            if leave is not None:
+                left = at + times >= leave.at
+                pos[row, left] = leave.position(at + times[left])
+        still = np.repeat(fixed[:, None, :], len(times), axis=1)
+        return np.concatenate([pos, still])
+
+    result = plan_among(0, f"way out of track {track}", start, goal, duration, plan.limits,
+                        PlannerSettings(tracking_margin=TRACKING_MARGIN_M), others_at)
+    # Then it descends over its landing spot while the show goes on: the column
+    # must stay clear of everyone until it is down.
+    descent = float(goal[0, 2]) / DESCENT_SPEED_MPS + DESCENT_MARGIN_S
+    times = duration + np.arange(0.0, descent + 0.1, 0.1)
+    closest = _distance_to_column(others_at(times), goal[0])
+    if len(closest) and float(closest.min()) < plan.limits.min_separation:
+        raise PlanningError(0, "landing column not clear",
+                            f"another drone passes {float(closest.min()):.2f} m from the "
+                            f"column above track {track}'s landing spot while it would descend")
+    return Leave(at, result.trajectories)
+
+
+def _distance_to_column(points: NDArray[np.float64], top: NDArray[np.float64]
+                        ) -> NDArray[np.float64]:
+    """Distance of ``points`` (..., 3) to the vertical segment from ``top`` to the ground."""
+    z = np.clip(points[..., 2], 0.0, max(float(top[2]), 0.0))
+    nearest = np.stack(np.broadcast_arrays(top[0], top[1], z), axis=-1)
+    return np.linalg.norm(points - nearest, axis=-1).ravel()

@@ -30,6 +30,8 @@ from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from groundctl.clock import Clock
@@ -40,7 +42,7 @@ from groundctl.errors import (
     LinkError,
     PreflightFailed,
 )
-from groundctl.execute.frames import show_positions
+from groundctl.execute.frames import ned_to_show, show_positions
 from groundctl.execute.mapping import Assignment, auto_assign, explicit_assign
 from groundctl.execute.preflight import (
     PreflightReport,
@@ -65,7 +67,7 @@ from groundctl.execute.sequence import (
 )
 from groundctl.execute.setpoints import DEFAULT_LEAD_S, LedTracker, SetpointStream, StreamTarget
 from groundctl.flight.monitor import FlightMonitor
-from groundctl.flight.returning import plan_return
+from groundctl.flight.returning import column, plan_leave, plan_return
 from groundctl.link.flavours import Flavour
 from groundctl.link.fleet import FleetLink
 from groundctl.plan.plan import Plan
@@ -152,6 +154,7 @@ class ShowRunner:
         self._leds = LedTracker(self.config.led_refresh_s)
         self._tasks: set[asyncio.Task[None]] = set()
         self._return_task: asyncio.Task[None] | None = None
+        self._leave_tasks: dict[int, asyncio.Task[None]] = {}
 
     # -- reporting -------------------------------------------------------------------
     def _say(self, text: str, event: str = "notice", **fields: Any) -> None:
@@ -347,6 +350,10 @@ class ShowRunner:
             self._perform(seq.update(now, self.link.vehicles))
             if seq.return_needed is not None and self._return_task is None:
                 self._return_task = asyncio.create_task(self._plan_return(seq))
+            for sysid, track, at in seq.leave_needed:
+                if sysid not in self._leave_tasks:
+                    self._leave_tasks[sysid] = asyncio.create_task(
+                        self._plan_leave(seq, sysid, track, at))
             self._stream_tick(seq, now, scheduled)
             if now >= next_check:
                 next_check = now + 1.0
@@ -367,7 +374,12 @@ class ShowRunner:
         needed = seq.return_needed or []
         sysids = [s for s, _ in needed]
         tracks = [t for _, t in needed]
-        start = self.plan.state_at(seq.show_time(self.clock.now())).pos[tracks]
+        t = seq.show_time(self.clock.now())
+        start = self.plan.state_at(t).pos[tracks]
+        for row, track in enumerate(tracks):
+            leave = seq.leaves.get(track)
+            if leave is not None and t >= leave.at:  # on its way out of the show already
+                start[row] = leave.state(t)[0]
         self._say(f"planning a collision-free return for {len(sysids)} vehicle(s); they "
                   "hover meanwhile", "return_planning")
         try:
@@ -377,6 +389,47 @@ class ShowRunner:
             return
         self._perform(seq.set_return(traj, sysids, self.clock.now()))
 
+    async def _plan_leave(self, seq: ShowSequence, sysid: int, track: int, at: float) -> None:
+        """Plan ``sysid``'s way out of the show (land-one mid-show) around everyone else."""
+        try:
+            absent, static = self._not_on_plan(seq, sysid)
+            self._say(f"planning vehicle {sysid}'s way out of the show (leaving at show time "
+                      f"{at:.1f} s)", "leave_planning", system_id=sysid, at=round(at, 2))
+            try:
+                leave = await asyncio.to_thread(plan_leave, self.plan, track, at, seq.leaves,
+                                                absent, static)
+            except GroundctlError as exc:
+                self._perform(seq.leave_failed(sysid, str(exc)))
+                return
+            self._perform(seq.set_leave(sysid, leave, self.clock.now()))
+        finally:
+            self._leave_tasks.pop(sysid, None)
+
+    def _not_on_plan(self, seq: ShowSequence, leaving: int
+                     ) -> tuple[list[int], NDArray[np.float64]]:
+        """Tracks nobody flies (excluded, down, descending, killed) and the columns where
+        those drones really are, from telemetry (or their slot, for one never airborne)."""
+        absent: list[int] = []
+        columns: list[NDArray[np.float64]] = []
+        for track in self._excluded_tracks():
+            absent.append(track)
+            columns.append(column(self.plan.home[track]))
+        for sysid, v in seq.vehicles.items():
+            if sysid == leaving or v.phase in (VehiclePhase.READY, VehiclePhase.SHOW,
+                                               VehiclePhase.LEAVING, VehiclePhase.RETURNING,
+                                               VehiclePhase.LOST):
+                continue  # on its plan (a lost one is still streamed it), or on its way out
+            absent.append(v.track)
+            state = self.link.vehicles.get(sysid)
+            if state is not None and state.ekf_origin is not None \
+                    and state.position_ned is not None:
+                columns.append(column(ned_to_show(self.plan.origin, state.ekf_origin,
+                                                  state.position_ned)))
+            else:
+                columns.append(column(self.plan.home[v.track]))
+        static = np.concatenate(columns) if columns else np.empty((0, 3))
+        return absent, static
+
     def _stream_tick(self, seq: ShowSequence, now: float, scheduled: float) -> None:
         assert self._stream is not None and self.monitor is not None
         req = seq.stream_request(now)
@@ -385,7 +438,8 @@ class ShowRunner:
         else:
             offsets = {s: self.link.vehicles[s].clock_offset_s for s in req.sysids}
             sp = self._stream.at(req.show_time, now, offsets, req.moving, req.fixed,
-                                 req.follow, req.follow_trajectories, req.follow_time)
+                                 req.follow, req.follow_trajectories, req.follow_time,
+                                 req.leaves)
             send = self.link.send_position_target_local_ned
             rows = [i for i, s in enumerate(sp.sysids) if s in req.sysids]
             for i in rows:

@@ -306,3 +306,80 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
         iterations=iterations, seconds=time.perf_counter() - t0, qp_drones=len(qp_drones),
         groups=len(states), max_slack=max_slack,
         straight_length=float(np.linalg.norm(delta, axis=1).mean()))
+
+
+def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
+               limits: Limits, settings: PlannerSettings,
+               others_at: Callable[[FloatArray], FloatArray]) -> TransitionResult:
+    """Plan ``start`` -> ``goal`` (g, 3) in ``duration`` s among drones that keep flying.
+
+    ``others_at(times)`` gives the other drones' positions (m, len(times), 3) at the
+    transition's knot times (0 = this transition's start).  They are obstacles:
+    their trajectories never change, every close pair-segment with them becomes an
+    obstacle row on the moving drone, and the moving drones form one group.  A
+    drone leaving a show in progress is planned this way (see
+    :mod:`groundctl.flight.returning`).  The rows tighten the limit by the chord
+    bulge of *both* drones, so they hold between the knots as long as the others'
+    trajectories keep the acceleration limit, as planned ones do.
+    """
+    t0 = time.perf_counter()
+    bound = min_transition_time(start, goal, limits, QuadrotorModel())
+    if bound.seconds > duration + 1e-9:
+        raise InfeasibleTransition(
+            index, name, bound.seconds, duration,
+            f"drone {bound.drone + 1} must fly {bound.distance:.1f} m at "
+            f"<= {bound.speed_limit:.1f} m/s")
+    g = start.shape[0]
+    steps, dt = _steps(duration, settings)
+    times = np.linspace(0.0, duration, steps + 1)
+    others = np.asarray(others_at(times), dtype=float).reshape(-1, steps + 1, 3)
+    n = g + len(others)
+    prof = rest_to_rest(steps, dt)
+    delta = goal - start
+    ref = start[:, None, :] + prof.s[None, :, None] * delta[:, None, :]
+    P = ref.copy()
+    V = prof.ds[None, :, None] * delta[:, None, :]
+    A = prof.dds[None, :, None] * delta[:, None, :]
+    d_sep = limits.min_separation + limits.max_accel * dt * dt / 4
+    d_row = d_sep + SEPARATION_BUFFER
+    start_all = np.concatenate([start, others[:, 0]])
+    goal_all = np.concatenate([goal, others[:, -1]])
+    ref_all = np.concatenate([ref, others])
+    margin = _pair_margin(start_all, goal_all, d_row, settings.tracking_margin)
+    d_far = d_sep + settings.tracking_margin
+    members = np.arange(g, dtype=np.intp)
+    inside = np.zeros(n, dtype=bool)
+    inside[:g] = True
+    state: _Group | None = None
+    had_rows = np.empty((0, 3), dtype=np.int64)
+    iterations, slack = 0, np.inf
+    for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 (used after)
+        every = np.concatenate([P, others])
+        need = close_pair_segments(every, d_far + NEED_MARGIN)
+        need = need[inside[need[:, 0]] | inside[need[:, 1]]]
+        if state is None or not np.all(np.isin(segment_keys(need, n, steps), state.keys)):
+            state = _build_group(members, inside, close_pair_segments(every, d_far + BUILD_MARGIN),
+                                 had_rows, start_all, goal_all, ref_all, steps, dt, limits,
+                                 settings, trust=TRUST_RADIUS if state is None else state.trust,
+                                 margin=margin)
+            had_rows = unique_segments(np.concatenate([had_rows, state.rows]), n, steps)
+        fixed = np.stack([every[state.obs_other, state.qp.obstacles.k],
+                          every[state.obs_other, state.qp.obstacles.k + 1]], axis=1)
+        state.qp.linearise(P, V, A, state.trust, fixed)
+        Pg, Vg, Ag, Sg = state.qp.solve(index)
+        change = float(np.abs(Pg - P).max())
+        slack = float(Sg.max(initial=0.0))
+        P, V, A = Pg, Vg, Ag
+        if slack < SLACK_TOL:
+            if change < settings.tolerance:
+                break
+            state.trust = max(state.trust * 0.5, settings.tolerance / 4)
+    if slack >= SLACK_TOL:
+        raise PlanningError(
+            index, "no separation-feasible solution",
+            f"slack {slack:.3f} m after {iterations} SCP iterations among {len(others)} "
+            "drones that keep flying")
+    return TransitionResult(
+        index=index, name=name, trajectories=Trajectories(times, P, V), steps=steps,
+        iterations=iterations, seconds=time.perf_counter() - t0, qp_drones=g, groups=1,
+        max_slack=slack, straight_length=float(np.linalg.norm(delta, axis=1).mean()))

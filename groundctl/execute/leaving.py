@@ -1,0 +1,78 @@
+"""One drone leaving a show in progress: when it can, and the way out it flies.
+
+Land-one in the middle of a show must not cut through the formation, and the
+others fly on.  The drone keeps flying its own plan until it next rests on a
+formation (quadrotor transitions are rest to rest, so from a formation's
+arrival to the end of its hold), then flies a way out planned around every
+other drone (:func:`groundctl.flight.returning.plan_leave`) to the point above
+its landing spot, and lands.  Pure: the sequence decides when, the driver
+plans, the setpoint stream flies it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from groundctl.plan.feasibility import min_transition_time
+from groundctl.plan.plan import Plan
+from groundctl.plan.trajectory import Trajectories
+from groundctl.show.model import QuadrotorModel
+
+#: A drone leaves at the next instant it rests on a formation at least this far
+#: ahead in show time, s: time to plan its way out.
+LEAVE_LEAD_S = 2.0
+#: The way out takes this many times its straight-line minimum ...
+TIME_MARGIN = 1.5
+#: ... and at least this long, s.
+MIN_DURATION_S = 4.0
+
+
+@dataclass(frozen=True)
+class Leave:
+    """A planned way out of the show: ``trajectory`` (one row) flown from show time ``at``."""
+
+    at: float
+    trajectory: Trajectories
+
+    @property
+    def until(self) -> float:
+        """Show time it reaches the point above its landing spot, s."""
+        return self.at + self.trajectory.end
+
+    def state(self, show_time: float) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                                NDArray[np.float64]]:
+        """Position, velocity, acceleration (3,) at ``show_time`` (clamped to the way out)."""
+        tau = min(max(show_time - self.at, 0.0), self.trajectory.end)
+        p, v, a = self.trajectory.evaluate(tau)
+        return p[0], v[0], a[0]
+
+    def position(self, show_times: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(len(show_times), 3) positions along the way out (clamped at both ends)."""
+        tau = np.clip(np.asarray(show_times, dtype=float) - self.at, 0.0, self.trajectory.end)
+        return self.trajectory.evaluate(tau)[0][0]
+
+
+def leave_duration(plan: Plan, track: int, at: float) -> float:
+    """How long ``track``'s way out takes if it leaves at show time ``at``, s."""
+    start = plan.state_at(at).pos[track][None, :]
+    goal = plan.landing_hover[track][None, :]
+    bound = min_transition_time(start, goal, plan.limits, QuadrotorModel())
+    return max(bound.seconds * TIME_MARGIN, MIN_DURATION_S)
+
+
+def leave_time(plan: Plan, track: int, show_time: float) -> float | None:
+    """When ``track`` can leave: the first show time >= ``show_time`` + LEAVE_LEAD_S at
+    which it rests on a formation and from which its way out ends before the plan
+    does.  None if there is none (it lands with the others at the end).
+    """
+    if plan.model != "quadrotor":
+        return None
+    earliest = show_time + LEAVE_LEAD_S
+    for w in plan.formations:
+        at = max(w.arrive, earliest)
+        if at <= w.end + 1e-9 and at + leave_duration(plan, track, at) <= plan.duration:
+            return at
+    return None

@@ -1,0 +1,78 @@
+"""One drone leaving a show in progress: planned around the drones that fly on."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from flight_fixtures import quick_plan
+
+from groundctl.errors import PlanningError
+from groundctl.execute.leaving import LEAVE_LEAD_S, leave_duration, leave_time
+from groundctl.flight.returning import column, plan_leave
+from groundctl.plan.scp_quad import plan_among
+from groundctl.show.model import Limits, PlannerSettings
+
+LIM = Limits(min_separation=1.5, min_alt=0.0, max_alt=100.0)
+
+
+def _line_flying_east(times: np.ndarray) -> np.ndarray:
+    """Five drones along y = 0 at 10 m, 3 m apart, flying east at 1.6 m/s."""
+    x = (np.arange(5) * 3.0 - 12.0)[:, None] + 1.6 * np.asarray(times)[None, :]
+    return np.stack([x, np.zeros_like(x), np.full_like(x, 10.0)], axis=2)
+
+
+def test_a_drone_crosses_a_line_of_moving_drones_without_touching_them() -> None:
+    start, goal = np.array([[0.0, -5.0, 10.0]]), np.array([[0.0, 5.0, 10.0]])
+    res = plan_among(1, "cross", start, goal, 8.0, LIM, PlannerSettings(), _line_flying_east)
+    t = np.linspace(0.0, 8.0, 4001)
+    me = res.trajectories.evaluate(t)[0][0]
+    closest = float(np.linalg.norm(_line_flying_east(t) - me[None], axis=2).min())
+    straight = start + (goal - start) * (t / 8.0)[:, None]
+    assert float(np.linalg.norm(_line_flying_east(t) - straight[None], axis=2).min()) < 0.5
+    assert closest >= 1.5 - 1e-3
+    np.testing.assert_allclose(res.trajectories.pos[0, [0, -1]], [start[0], goal[0]])
+    assert res.max_slack < 5e-3
+
+
+def test_leave_time_is_the_next_rest_on_a_formation_that_leaves_time_to_get_home() -> None:
+    plan = quick_plan()
+    ring, square, _landing = plan.formations
+    # In the ring's hold, with the lead to spare: right away (lead later).
+    assert leave_time(plan, 0, ring.arrive) == pytest.approx(ring.arrive + LEAVE_LEAD_S)
+    # Too late in the ring's hold: the square's arrival.
+    assert leave_time(plan, 0, ring.end - 1.0) == pytest.approx(square.arrive)
+    # Past the last formation before landing: nothing left, it lands with the others.
+    assert leave_time(plan, 0, square.end) is None
+    at = leave_time(plan, 4, 0.0)
+    assert at is not None and at + leave_duration(plan, 4, at) <= plan.duration
+
+
+@pytest.mark.parametrize("track", [0, 4, 8])
+def test_the_way_out_keeps_the_limit_against_the_show_flying_on(track: int) -> None:
+    plan = quick_plan()
+    at = leave_time(plan, track, 1.0)
+    assert at is not None
+    leave = plan_leave(plan, track, at, {})
+    np.testing.assert_allclose(leave.state(at)[0], plan.state_at(at).pos[track], atol=1e-9)
+    np.testing.assert_allclose(leave.state(leave.until)[0], plan.landing_hover[track],
+                               atol=1e-9)
+    t = np.linspace(at, plan.duration, 4000)
+    others = np.array([j for j in range(plan.drones) if j != track])
+    gap = np.linalg.norm(plan.trajectories.evaluate(t, others)[0] - leave.position(t)[None],
+                         axis=2)
+    assert float(gap.min()) >= plan.limits.min_separation - 1e-3
+
+
+def test_a_second_way_out_avoids_the_first_and_a_blocked_column_is_refused() -> None:
+    plan = quick_plan()
+    at = leave_time(plan, 0, 1.0)
+    assert at is not None
+    first = plan_leave(plan, 0, at, {})
+    second = plan_leave(plan, 1, at, {0: first})
+    t = np.linspace(at, max(first.until, second.until), 2000)
+    assert float(np.linalg.norm(first.position(t) - second.position(t), axis=1).min()) \
+        >= plan.limits.min_separation - 1e-3
+    # Somebody standing right under its landing point: no way to land there.
+    blocked = column(plan.landing[2] + np.array([0.3, 0.0, 1.0]))
+    with pytest.raises(PlanningError):
+        plan_leave(plan, 2, at, {}, static=blocked)
