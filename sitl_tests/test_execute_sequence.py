@@ -281,6 +281,16 @@ def _formation_plan() -> Plan:
     return replace(plan, formations=(up, down))
 
 
+def _in_formation_show() -> tuple[Plan, dict[int, VehicleState], ShowSequence, float]:
+    """Two ArduPilot vehicles flying :func:`_formation_plan`; returns the show's start time."""
+    plan = _formation_plan()
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    t0 = _airborne_ardupilot(seq, states, 0.0)
+    seq.update(t0 + 0.1, states)  # settled on the first plan point: the show clock runs
+    return plan, states, seq, t0 + 0.1
+
+
 def _way_out(plan: Plan, track: int, at: float, seconds: float = 4.0) -> Leave:
     start = plan.state_at(at).pos[track]
     end = plan.landing_hover[track]
@@ -289,12 +299,7 @@ def _way_out(plan: Plan, track: int, at: float, seconds: float = 4.0) -> Leave:
 
 
 def test_land_one_mid_show_leaves_at_the_next_formation_on_a_planned_way_out() -> None:
-    plan = _formation_plan()
-    states = _fleet(ARDU, n=2)
-    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
-    t0 = _airborne_ardupilot(seq, states, 0.0)
-    seq.update(t0 + 0.1, states)  # settled on the first plan point: the show clock runs
-    start = t0 + 0.1
+    plan, states, seq, start = _in_formation_show()
     assert seq.land_one(2, start + 1.0) == [Notice(
         2, "vehicle 2 leaves the show at show time 5.0 s, on a way out planned around the "
            "others")]
@@ -321,22 +326,15 @@ def test_land_one_mid_show_leaves_at_the_next_formation_on_a_planned_way_out() -
 
 
 def test_a_way_out_ready_too_late_moves_on_and_one_that_fails_flies_on() -> None:
-    plan = _formation_plan()
-    states = _fleet(ARDU, n=2)
-    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
-    t0 = _airborne_ardupilot(seq, states, 0.0)
-    seq.update(t0 + 0.1, states)
-    start = t0 + 0.1
+    plan, _, seq, start = _in_formation_show()
     seq.land_one(2, start + 1.0)
     # Planning outlived its instant (show time 5.0 s): the next one is past the plan's end.
     assert seq.set_leave(2, _way_out(plan, 1, 5.0), start + 5.5) == [Notice(
         2, "vehicle 2: its way out was ready too late and no formation is left to leave from; "
            "it lands with the others at the end")]
     assert seq.leave_needed == [] and seq.vehicles[2].phase is VehiclePhase.SHOW
-    seq2 = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
-    t0 = _airborne_ardupilot(seq2, states, 0.0)
-    seq2.update(t0 + 0.1, states)
-    seq2.land_one(2, t0 + 1.0)
+    _, _, seq2, start = _in_formation_show()
+    seq2.land_one(2, start + 1.0)
     assert seq2.leave_failed(2, "landing column not clear") == [Notice(
         2, "no safe way out of the show for vehicle 2 (landing column not clear); it flies on "
            "and lands with the others (land-here 2 brings it straight down now)")]
@@ -344,12 +342,7 @@ def test_a_way_out_ready_too_late_moves_on_and_one_that_fails_flies_on() -> None
 
 
 def test_land_all_while_one_is_leaving_returns_it_from_its_way_out() -> None:
-    plan = _formation_plan()
-    states = _fleet(ARDU, n=2)
-    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
-    t0 = _airborne_ardupilot(seq, states, 0.0)
-    seq.update(t0 + 0.1, states)
-    start = t0 + 0.1
+    plan, states, seq, start = _in_formation_show()
     seq.land_one(2, start + 1.0)
     leave = _way_out(plan, 1, 5.0)
     seq.set_leave(2, leave, start + 2.0)

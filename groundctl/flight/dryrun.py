@@ -18,7 +18,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -108,7 +108,7 @@ def sim_config(plan: Plan, options: DryRunOptions, gcs: tuple[str, int]) -> SimC
         link_faults=LinkFaults(options.loss, options.latency_ms, options.jitter_ms, 0.0))
 
 
-During = Callable[[ShowRunner, SimProcess], Awaitable[None]]
+During = Callable[[ShowRunner, SimProcess], Coroutine[Any, Any, None]]
 
 
 async def fly_dry_run(plan: Plan, options: DryRunOptions, *,

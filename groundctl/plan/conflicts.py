@@ -38,12 +38,12 @@ def close_pair_segments(P: NDArray[np.float64], radius: float) -> NDArray[np.int
         q, k = np.nonzero(seg[:, 1:k1])
         return np.column_stack([i[q], j[q], k]).astype(np.int64)
     found: list[NDArray[np.int64]] = []
-    for k in range(k1):
-        pairs = cKDTree(P[:, k]).query_pairs(radius, output_type="ndarray")
+    for sample in range(k1):
+        pairs = cKDTree(P[:, sample]).query_pairs(radius, output_type="ndarray")
         if len(pairs):
             pairs = np.sort(pairs, axis=1)
             # A close sample makes both segments that touch it candidates.
-            for seg_k in (k - 1, k):
+            for seg_k in (sample - 1, sample):
                 if 0 <= seg_k < k1 - 1:
                     found.append(np.column_stack([pairs, np.full(len(pairs), seg_k)]))
     if not found:

@@ -122,13 +122,13 @@ class GroupQP:
         self._build(osqp_settings)
 
     # -- index helpers --------------------------------------------------------------
-    def _ip(self, i: IntArray, k: IntArray, c: IntArray) -> IntArray:
+    def _ip(self, i: IntArray, k: IntArray, c: int | IntArray) -> IntArray:
         return (i * (self.N + 1) + k) * 3 + c
 
-    def _iv(self, i: IntArray, k: IntArray, c: IntArray) -> IntArray:
+    def _iv(self, i: IntArray, k: IntArray, c: int | IntArray) -> IntArray:
         return self.oV + (i * (self.N + 1) + k) * 3 + c
 
-    def _ia(self, i: IntArray, k: IntArray, c: IntArray) -> IntArray:
+    def _ia(self, i: IntArray, k: IntArray, c: int | IntArray) -> IntArray:
         return self.oA + (i * self.N + k) * 3 + c
 
     def _build(self, settings: dict[str, float | int | bool]) -> None:

@@ -212,23 +212,33 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
                      replace(settings, tracking_margin=0.0), t0)
 
 
-def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
-          limits: Limits, settings: PlannerSettings, t0: float) -> TransitionResult:
+def _straight_lines(index: int, name: str, start: FloatArray, goal: FloatArray,
+                    duration: float, limits: Limits, settings: PlannerSettings
+                    ) -> tuple[int, float, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Steps, dt, and the initial guess: reference positions and the (P, V, A) of every
+    drone on its straight line with the rest-to-rest profile.  InfeasibleTransition if
+    ``duration`` is shorter than the limits allow."""
     bound = min_transition_time(start, goal, limits, QuadrotorModel())
     if bound.seconds > duration + 1e-9:
         raise InfeasibleTransition(
             index, name, bound.seconds, duration,
             f"drone {bound.drone + 1} must fly {bound.distance:.1f} m at "
             f"<= {bound.speed_limit:.1f} m/s")
-    n = start.shape[0]
     steps, dt = _steps(duration, settings)
     prof = rest_to_rest(steps, dt)
     delta = goal - start
     ref = start[:, None, :] + prof.s[None, :, None] * delta[:, None, :]
-    P = ref.copy()
     V = prof.ds[None, :, None] * delta[:, None, :]
     A = prof.dds[None, :, None] * delta[:, None, :]
+    return steps, dt, ref, ref.copy(), V, A
 
+
+def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
+          limits: Limits, settings: PlannerSettings, t0: float) -> TransitionResult:
+    n = start.shape[0]
+    steps, dt, ref, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
+                                              settings)
+    delta = goal - start
     d_sep = limits.min_separation + limits.max_accel * dt * dt / 4
     d_row = d_sep + SEPARATION_BUFFER  # what the QP's separation rows ask for
     margin = _pair_margin(start, goal, d_row, settings.tracking_margin)
@@ -323,23 +333,13 @@ def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, durat
     trajectories keep the acceleration limit, as planned ones do.
     """
     t0 = time.perf_counter()
-    bound = min_transition_time(start, goal, limits, QuadrotorModel())
-    if bound.seconds > duration + 1e-9:
-        raise InfeasibleTransition(
-            index, name, bound.seconds, duration,
-            f"drone {bound.drone + 1} must fly {bound.distance:.1f} m at "
-            f"<= {bound.speed_limit:.1f} m/s")
     g = start.shape[0]
-    steps, dt = _steps(duration, settings)
+    steps, dt, ref, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
+                                              settings)
+    delta = goal - start
     times = np.linspace(0.0, duration, steps + 1)
     others = np.asarray(others_at(times), dtype=float).reshape(-1, steps + 1, 3)
     n = g + len(others)
-    prof = rest_to_rest(steps, dt)
-    delta = goal - start
-    ref = start[:, None, :] + prof.s[None, :, None] * delta[:, None, :]
-    P = ref.copy()
-    V = prof.ds[None, :, None] * delta[:, None, :]
-    A = prof.dds[None, :, None] * delta[:, None, :]
     d_sep = limits.min_separation + limits.max_accel * dt * dt / 4
     d_row = d_sep + SEPARATION_BUFFER
     start_all = np.concatenate([start, others[:, 0]])

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeAlias
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -20,7 +20,7 @@ from groundctl.sim.physics import GRAVITY
 if TYPE_CHECKING:
     from groundctl.sim.vehicle import Vehicle
 
-Msg = mavlink.MAVLink_message
+Msg: TypeAlias = mavlink.MAVLink_message
 
 _SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
             | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE

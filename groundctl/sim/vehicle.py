@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, TypeAlias
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -29,7 +29,7 @@ from groundctl.sim.config import SimConfig
 from groundctl.sim.frames import FleetFrames
 from groundctl.sim.params import ParamStore
 
-Msg = mavlink.MAVLink_message
+Msg: TypeAlias = mavlink.MAVLink_message
 
 ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
 DENIED = mavlink.MAV_RESULT_DENIED
