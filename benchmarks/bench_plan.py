@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_plan.py                 # paper shows + 25, 100, 300
     .venv/bin/python benchmarks/bench_plan.py --sizes 25 100 300 1000
     .venv/bin/python benchmarks/bench_plan.py --sizes --repeat 20   # paper shows, spread
+    .venv/bin/python benchmarks/bench_plan.py --skip-paper --sizes --leaves 16  # land-one
 
 Prints time and quality per case: SCP iterations, seconds, min separation in
 continuous time, worst violation, pattern error, and mean path length against
@@ -78,10 +79,45 @@ def spread(label: str, show: Show, repeat: int) -> None:
               f"median {np.median(col):.3f} s, max {col.max():.3f} s")
 
 
+def leaves(count: int, seed: int = 1) -> None:
+    """Land-one mid-show on the demo: ways out for ``count`` random drones, each asked at
+    four show times; planning time and separation against the others' plans."""
+    from groundctl.errors import GroundctlError
+    from groundctl.execute.leaving import leave_time
+    from groundctl.flight.returning import plan_leave
+
+    plan = plan_show(load_show(SHOWS / "demo.toml"), workers=2).plan
+    rng = np.random.default_rng(seed)
+    seconds: list[float] = []
+    worst, failed = math.inf, 0
+    for track in rng.choice(plan.drones, size=min(count, plan.drones), replace=False):
+        for asked in np.linspace(0.05, 0.75, 4) * plan.duration:
+            at = leave_time(plan, int(track), float(asked))
+            if at is None:
+                continue
+            t0 = time.perf_counter()
+            try:
+                leave = plan_leave(plan, int(track), at, {})
+            except GroundctlError:
+                failed += 1
+                continue
+            seconds.append(time.perf_counter() - t0)
+            t = np.linspace(at, plan.duration, 4000)
+            others = np.array([j for j in range(plan.drones) if j != track])
+            gap = np.linalg.norm(plan.trajectories.evaluate(t, others)[0]
+                                 - leave.position(t)[None], axis=2)
+            worst = min(worst, float(gap.min()))
+    print(f"demo land-one: {len(seconds)} ways out planned, {failed} refused; planning "
+          f"median {np.median(seconds):.3f} s, max {max(seconds):.3f} s; closest approach to "
+          f"a drone flying on {worst:.3f} m (limit {plan.limits.min_separation} m)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="*", default=[25, 100, 300])
     ap.add_argument("--skip-paper", action="store_true")
+    ap.add_argument("--leaves", type=int, default=0,
+                    help="land-one ways out for this many random demo drones")
     ap.add_argument("--repeat", type=int, default=0,
                     help="plan each paper show this many more times and print the spread")
     args = ap.parse_args()
@@ -93,6 +129,8 @@ def main() -> None:
                 spread(name, show, args.repeat)
     for n in args.sizes:
         report(f"grid->sphere {n}", scaling_show(n))
+    if args.leaves:
+        leaves(args.leaves)
 
 
 if __name__ == "__main__":
