@@ -522,3 +522,26 @@ def test_a_takeoff_given_up_near_a_landing_spot_aborts_the_show() -> None:
                            Land(2)]
     assert any(isinstance(a, Notice) and "aborting the show" in a.text for a in actions)
     assert Land(1) in actions  # vehicle 1 was still climbing: straight back down
+
+
+@pytest.mark.parametrize("flavour, taken_over", [(ARDU, "RTL"), (PX4, "AUTO.LOITER")])
+def test_a_vehicle_whose_autopilot_leaves_the_flight_mode_is_out_of_the_show(
+        flavour: Flavour, taken_over: str) -> None:
+    """A failsafe (offboard or GCS loss, battery) or a pilot took it: no more setpoints,
+    no fight with its autopilot, and it counts as down once it has disarmed."""
+    _, states, seq, start = _in_formation_show()
+    flight_mode = "GUIDED" if flavour is ARDU else "OFFBOARD"
+    states[2].mode = flight_mode  # vehicle 1 stays an ArduPilot in GUIDED
+    seq.vehicles[2].flavour = flavour
+    seq.land_one(2, start + 1.0)  # a pending way out is dropped with it
+    states[2].mode = taken_over
+    assert seq.update(start + 1.5, states) == [Notice(
+        2, f"vehicle 2 switched to {taken_over} by itself (failsafe or pilot) during show: out "
+           "of the show, its autopilot is in charge until it is down")]
+    assert seq.vehicles[2].phase is VehiclePhase.LANDING and seq.leave_needed == []
+    assert seq.vehicles[2].reason == f"left {flight_mode} for {taken_over} during show"
+    assert seq.stream_request(start + 1.5).sysids == frozenset({1})
+    assert seq.update(start + 4.0, states) == []  # no command, no timeout: its autopilot's
+    states[2].armed = False
+    assert seq.update(start + 4.5, states) == [Notice(2, "vehicle 2 landed")]
+    assert seq.vehicles[1].phase is VehiclePhase.SHOW

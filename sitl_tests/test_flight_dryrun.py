@@ -282,3 +282,25 @@ def test_land_one_mid_show_leaves_around_the_others_and_lands_on_its_spot(
     assert any(w.arrive - 1e-6 <= seen["left_at"] <= w.end + 0.5 for w in plan.formations)
     assert seen["landed_at"] < plan.duration and seen["others"] == ["show"]
     assert np.linalg.norm(seen["down_at"][:2] - seen["spot"][:2]) < 0.5
+
+
+@pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
+def test_a_three_second_link_cut_mid_show(flavour: Flavour) -> None:
+    """ArduPilot holds GUIDED through it (FS_GCS_TIMEOUT 5 s) and flies on; PX4's
+    offboard-loss failsafe takes it (hold, then land where it is): out of the show, not
+    fought over, and the flight still ends once it is down."""
+    async def cut(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 12.0)  # mid-transition
+        sim.call("cut_link", 5, None, float(sim.get("time")) + 3.0)
+
+    result = dry_run(flavour=flavour, during=cut)
+    report = result.report
+    assert result.error is None, result.error
+    assert report["landed"] and [v["phase"] for v in report["vehicles"]] == ["landed"] * 9
+    assert report["simulator"]["crashed"] == []
+    if flavour is Flavour.ARDUPILOT:
+        _assert_flown_safely(report)
+    else:
+        assert vehicle(report, 5)["reason"] == "left OFFBOARD for AUTO.LOITER during show"
+        # It came down through the show where its failsafe put it: the report says so.
+        assert all("did not" not in why for why in report["unsafe_reasons"])

@@ -166,6 +166,11 @@ _DONE = {VehiclePhase.LANDED, VehiclePhase.LOST, VehiclePhase.FAILED, VehiclePha
 _STREAMED = {VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
              VehiclePhase.RETURNING}
 _LAND_MODES = {"LAND", "AUTO.LAND"}  # ArduCopter's and PX4's, as decoded by the link
+#: The mode each autopilot flies our setpoints in.
+_FLIGHT_MODE = {Flavour.ARDUPILOT: "GUIDED", Flavour.PX4: "OFFBOARD"}
+#: Phases in which a vehicle flies our setpoints, so must be in its flight mode.
+_UNDER_CONTROL = {VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
+                  VehiclePhase.RETURNING}
 
 
 @dataclass(frozen=True)
@@ -645,6 +650,18 @@ class ShowSequence:
             return []
         return [Notice(None, f"aborting the show: {conflicts[0]}"), *self.land_all(now)]
 
+    def _taken_over(self, v: VehicleRun, state: VehicleState) -> list[Action]:
+        """The vehicle left its flight mode by itself: a failsafe (offboard or GCS loss,
+        battery, geofence) or a pilot took over.  It is out of the show, and we do not
+        fight its autopilot for it: no more setpoints, and it counts as down once it has
+        disarmed wherever its own mode brings it."""
+        was = v.phase
+        v.phase, v.pending, v.leave_at = VehiclePhase.LANDING, None, None
+        v.reason = f"left {_FLIGHT_MODE[v.flavour]} for {state.mode} during {was}"
+        return [Notice(v.sysid, f"vehicle {v.sysid} switched to {state.mode} by itself "
+                                f"(failsafe or pilot) during {was}: out of the show, its "
+                                "autopilot is in charge until it is down")]
+
     def _altitude(self, state: VehicleState) -> float | None:
         if state.global_position is not None:
             return state.global_position.relative_alt_m
@@ -653,6 +670,9 @@ class ShowSequence:
     def _advance(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
         cfg = self.config
         v.altitude = self._altitude(state)
+        if v.phase in _UNDER_CONTROL and state.mode is not None \
+                and state.mode not in (_FLIGHT_MODE[v.flavour], "UNKNOWN"):
+            return self._taken_over(v, state)
         cmd = v.pending
         if v.retry_at is not None and now >= v.retry_at and cmd is not None:
             return [self._send(v, cmd, now)]
