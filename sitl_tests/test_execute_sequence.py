@@ -221,9 +221,55 @@ def test_a_lost_vehicle_is_still_streamed_its_plan_and_rejoins_when_heard_again(
     assert req.sysids == frozenset({1, 2}) and req.moving and not req.fixed
     assert seq.phase is ShowPhase.SHOW
     states[2].lost = False
+    _at_plan_point(states[2], seq, 1, t0 + 3.0)
     assert seq.update(t0 + 3.0, states) == [
         Notice(2, "vehicle 2 heard again: back in the sequence (show)")]
     assert seq.vehicles[2].phase is VehiclePhase.SHOW
+
+
+def _at_plan_point(state: VehicleState, seq: ShowSequence, track: int, now: float,
+                   off: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> None:
+    """Put ``state`` (EKF origin at the show origin) on ``track``'s plan point, plus ``off``."""
+    p = seq.plan.state_at(seq.show_time(now)).pos[track] + np.asarray(off)
+    state.position_ned = (float(p[1]), float(p[0]), float(-p[2]))
+
+
+def test_a_vehicle_heard_again_off_its_plan_holds_there_and_leaves_from_there() -> None:
+    """Its autopilot held the last setpoint while the others flew on: snapping back
+    would be a dash across the formation."""
+    plan, states, seq, start = _in_formation_show()
+    states[2].lost = True
+    seq.update(start + 1.0, states)
+    states[2].lost = False
+    _at_plan_point(states[2], seq, 1, start + 2.0, off=(2.5, 0.0, 0.0))
+    assert seq.update(start + 2.0, states) == [Notice(
+        2, "vehicle 2 heard again 2.5 m off its plan: holding where it is, then leaving the "
+           "show on a way out planned from there")]
+    v = seq.vehicles[2]
+    assert v.phase is VehiclePhase.LEAVING and v.hold_point is not None
+    [(sysid, track, at, here)] = seq.leave_needed
+    assert (sysid, track, here) == (2, 1, v.hold_point)
+    assert at == pytest.approx(seq.show_time(start + 2.0) + 2.0)
+    req = seq.stream_request(start + 2.0)
+    assert req.fixed == {2: v.hold_point} and 1 in req.sysids  # hovering, the other flies on
+    # Its way out, from where it hovers.
+    leave = Leave(at, Trajectories(np.array([0.0, 3.0]), np.stack(
+        [np.asarray(here), plan.landing_hover[1]])[None], np.zeros((1, 2, 3))))
+    assert seq.set_leave(2, leave, start + 2.5)[0].text.startswith("way out for vehicle 2")
+    assert seq.stream_request(start + 2.5).fixed == {2: v.hold_point}  # not begun yet
+    req = seq.stream_request(start + 4.5)
+    assert req.fixed == {} and req.leaves == {2: leave}
+    # No way out at all: it lands where it holds.
+    _, states, seq, start = _in_formation_show()
+    states[2].lost = True
+    seq.update(start + 1.0, states)
+    states[2].lost = False
+    _at_plan_point(states[2], seq, 1, start + 2.0, off=(-3.0, 0.0, 0.0))
+    seq.update(start + 2.0, states)
+    assert seq.leave_failed(2, "no room", start + 2.1) == [
+        Notice(2, "no safe way out of the show for vehicle 2 (no room); landing it where it "
+                  "holds"), Land(2)]
+    assert seq.vehicles[2].phase is VehiclePhase.LANDING
 
 
 def test_a_vehicle_lost_during_the_show_is_sent_its_landing_point_after_the_end() -> None:
@@ -305,7 +351,7 @@ def test_land_one_mid_show_leaves_at_the_next_formation_on_a_planned_way_out() -
            "others")]
     assert seq.land_one(2, start + 1.5) == [Notice(
         2, "vehicle 2 already leaves the show at show time 5.0 s")]
-    assert seq.leave_needed == [(2, 1, 5.0)]
+    assert seq.leave_needed == [(2, 1, 5.0, None)]
     # Until its way out is planned and begins, it flies its plan.
     assert seq.stream_request(start + 1.0).leaves == {}
     leave = _way_out(plan, 1, 5.0)
@@ -335,7 +381,7 @@ def test_a_way_out_ready_too_late_moves_on_and_one_that_fails_flies_on() -> None
     assert seq.leave_needed == [] and seq.vehicles[2].phase is VehiclePhase.SHOW
     _, _, seq2, start = _in_formation_show()
     seq2.land_one(2, start + 1.0)
-    assert seq2.leave_failed(2, "landing column not clear") == [Notice(
+    assert seq2.leave_failed(2, "landing column not clear", start + 1.5) == [Notice(
         2, "no safe way out of the show for vehicle 2 (landing column not clear); it flies on "
            "and lands with the others (land-here 2 brings it straight down now)")]
     assert seq2.leave_needed == [] and seq2.vehicles[2].phase is VehiclePhase.SHOW
@@ -544,4 +590,23 @@ def test_a_vehicle_whose_autopilot_leaves_the_flight_mode_is_out_of_the_show(
     assert seq.update(start + 4.0, states) == []  # no command, no timeout: its autopilot's
     states[2].armed = False
     assert seq.update(start + 4.5, states) == [Notice(2, "vehicle 2 landed")]
+    assert seq.vehicles[1].phase is VehiclePhase.SHOW
+
+
+def test_a_silence_too_short_to_be_lost_is_still_checked_for_falling_behind() -> None:
+    _, states, seq, start = _in_formation_show()
+    for v in states.values():
+        v.last_heard = start + 1.0
+    seq.update(start + 1.0, states)
+    states[1].last_heard = states[2].last_heard = start + 1.1  # heard as usual: no check
+    _at_plan_point(states[1], seq, 0, start + 1.1)
+    assert seq.update(start + 1.1, states) == []
+    # Vehicle 2 silent for 1.9 s (not lost), then heard 2.5 m beside its plan.
+    states[1].last_heard, states[2].last_heard = start + 3.0, start + 3.0
+    _at_plan_point(states[1], seq, 0, start + 3.0)
+    _at_plan_point(states[2], seq, 1, start + 3.0, off=(2.5, 0.0, 0.0))
+    assert seq.update(start + 3.0, states) == [Notice(
+        2, "vehicle 2 heard again after 1.9 s, 2.5 m off its plan: holding where it is, then "
+           "leaving the show on a way out planned from there")]
+    assert seq.vehicles[2].phase is VehiclePhase.LEAVING
     assert seq.vehicles[1].phase is VehiclePhase.SHOW

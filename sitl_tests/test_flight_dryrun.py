@@ -286,9 +286,10 @@ def test_land_one_mid_show_leaves_around_the_others_and_lands_on_its_spot(
 
 @pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
 def test_a_three_second_link_cut_mid_show(flavour: Flavour) -> None:
-    """ArduPilot holds GUIDED through it (FS_GCS_TIMEOUT 5 s) and flies on; PX4's
-    offboard-loss failsafe takes it (hold, then land where it is): out of the show, not
-    fought over, and the flight still ends once it is down."""
+    """ArduPilot holds GUIDED through it (FS_GCS_TIMEOUT 5 s) at its last setpoint while
+    the show flies on: heard again off its plan, it holds there and leaves on a planned
+    way out instead of dashing back.  PX4's offboard-loss failsafe takes it (hold, then
+    land where it is): out of the show, not fought over, and the flight still ends."""
     async def cut(runner: ShowRunner, sim: SimProcess) -> None:
         await until(runner, lambda: show_time(runner) > 12.0)  # mid-transition
         sim.call("cut_link", 5, None, float(sim.get("time")) + 3.0)
@@ -300,7 +301,10 @@ def test_a_three_second_link_cut_mid_show(flavour: Flavour) -> None:
     assert report["simulator"]["crashed"] == []
     if flavour is Flavour.ARDUPILOT:
         _assert_flown_safely(report)
+        assert "m off its plan" in vehicle(report, 5)["reason"]
     else:
-        assert vehicle(report, 5)["reason"] == "left OFFBOARD for AUTO.LOITER during show"
+        # (Its first packets back may come before the HEARTBEAT with the new mode: it can
+        # be seen off its plan first, then taken over.)
+        assert vehicle(report, 5)["reason"].startswith("left OFFBOARD for AUTO.LOITER during")
         # It came down through the show where its failsafe put it: the report says so.
         assert all("did not" not in why for why in report["unsafe_reasons"])

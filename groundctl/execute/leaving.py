@@ -55,9 +55,13 @@ class Leave:
         return self.trajectory.evaluate(tau)[0][0]
 
 
-def leave_duration(plan: Plan, track: int, at: float) -> float:
-    """How long ``track``'s way out takes if it leaves at show time ``at``, s."""
-    start = plan.state_at(at).pos[track][None, :]
+def leave_duration(plan: Plan, track: int, at: float,
+                   start: NDArray[np.float64] | None = None) -> float:
+    """How long ``track``'s way out takes if it leaves at show time ``at`` (from its plan
+    point then, or from ``start``), s."""
+    if start is None:
+        start = plan.state_at(at).pos[track]
+    start = np.asarray(start, dtype=float)[None, :]
     goal = plan.landing_hover[track][None, :]
     bound = min_transition_time(start, goal, plan.limits, QuadrotorModel())
     return max(bound.seconds * TIME_MARGIN, MIN_DURATION_S)

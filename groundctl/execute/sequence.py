@@ -40,8 +40,14 @@ then its landing point): the plan is collision-free, so if our packets still
 reach it (a link lost one way only, or our own receive path stalling) that is
 the one place guaranteed to be out of everyone's way, whereas a vehicle left
 without setpoints hovers where it is, in the others' paths.  If it is heard
-again it rejoins where the sequence is.  If it hears nothing, its own
-failsafe is in charge.  A vehicle that fails to arm stays on its slot: if that puts
+again it rejoins where the sequence is, unless it is more than
+``rejoin_tolerance_m`` off its plan (its autopilot held the last setpoint while
+the show flew on; the same check follows any silence over SILENCE_GAP_S, lost
+or not): then snapping back would be a dash across the formation, so it holds
+where it is and leaves the show on a way out planned from there.  If it hears
+nothing, its own failsafe is in charge; a vehicle whose autopilot leaves its
+flight mode by itself (failsafe or pilot) is out of the show and never fought
+over.  A vehicle that fails to arm stays on its slot: if that puts
 it in a neighbour's takeoff or landing path the whole show is aborted.
 """
 
@@ -54,7 +60,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from groundctl.execute.frames import ned_to_show
-from groundctl.execute.leaving import Leave, leave_time
+from groundctl.execute.leaving import LEAVE_LEAD_S, Leave, leave_time
 from groundctl.execute.preflight import remaining_plan_conflicts
 from groundctl.link.flavours import Flavour
 from groundctl.link.state import VehicleState
@@ -166,6 +172,12 @@ _DONE = {VehiclePhase.LANDED, VehiclePhase.LOST, VehiclePhase.FAILED, VehiclePha
 _STREAMED = {VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
              VehiclePhase.RETURNING}
 _LAND_MODES = {"LAND", "AUTO.LAND"}  # ArduCopter's and PX4's, as decoded by the link
+#: A vehicle counts as off its plan only if it is farther than the rejoin tolerance
+#: from every point its plan passed in this last stretch of show time, s.
+OFF_PLAN_WINDOW_S = 0.5
+#: Silence longer than this (telemetry streams at 10 Hz), s, even if too short to mark
+#: the vehicle lost, means it may have flown on without us: its position is checked.
+SILENCE_GAP_S = 0.5
 #: The mode each autopilot flies our setpoints in.
 _FLIGHT_MODE = {Flavour.ARDUPILOT: "GUIDED", Flavour.PX4: "OFFBOARD"}
 #: Phases in which a vehicle flies our setpoints, so must be in its flight mode.
@@ -195,6 +207,9 @@ class SequenceConfig:
     """The show clock starts once every ready vehicle is this close to its first plan point."""
     settle_timeout_s: float = 10.0
     """...or once they have been ready this long, whatever their distance, s."""
+    rejoin_tolerance_m: float = 1.0
+    """A vehicle heard again mid-show rejoins its plan if it is this close to it, m;
+    farther, it holds where it is and leaves the show on a planned way out."""
 
 
 @dataclass
@@ -229,6 +244,10 @@ class VehicleRun:
     """Land-one mid-show: the show time it is to leave at (its way out being planned)."""
     leave: Leave | None = None
     """Its planned way out of the show, once there is one."""
+    heard_at: float | None = None
+    """Its telemetry's last_heard at the previous update (to see a silence end)."""
+    hold_point: tuple[float, float, float] | None = None
+    """Heard again off its plan: where it hovers (show frame) until its way out begins."""
 
 
 @dataclass(frozen=True)
@@ -342,7 +361,7 @@ class ShowSequence:
             state = states.get(v.sysid)
             if v.phase is VehiclePhase.LOST and v.lost_from in _STREAMED \
                     and state is not None and not state.lost:
-                actions += self._rejoin(v)
+                actions += self._rejoin(v, state, now)
                 continue
             if v.phase in _DONE or v.phase is VehiclePhase.PREFLIGHT:
                 continue
@@ -358,7 +377,8 @@ class ShowSequence:
                 and now - self._t0 >= self.plan.duration:
             self._ended = True
             for v in self.vehicles.values():
-                if v.phase is VehiclePhase.SHOW:
+                if v.phase is VehiclePhase.SHOW or (v.phase is VehiclePhase.LEAVING
+                                                    and v.leave is None):
                     v.phase = VehiclePhase.RETURNING
                 if v.lost_from is VehiclePhase.SHOW:
                     v.lost_from = VehiclePhase.RETURNING
@@ -400,6 +420,12 @@ class ShowSequence:
             returning = []
         fixed = {s: tuple(map(float, self._landing_point(self.vehicles[s].track)))
                  for s in returning if s not in follow}
+        show_t = self.show_time(now)
+        for v in self.vehicles.values():
+            # Heard again off its plan: it hovers there until its way out begins.
+            if v.hold_point is not None and v.sysid in sysids and v.sysid not in follow \
+                    and v.sysid not in fixed and (v.leave is None or show_t < v.leave.at):
+                fixed[v.sysid] = v.hold_point
         moving = self._t0 is not None and not self.paused and not self._ended
         leaves = {v.sysid: v.leave for v in self.vehicles.values()
                   if v.leave is not None and v.sysid in sysids and v.sysid not in follow
@@ -437,8 +463,10 @@ class ShowSequence:
 
     # -- land-one mid-show: a way out -------------------------------------------------------
     @property
-    def leave_needed(self) -> list[tuple[int, int, float]]:
-        """(system id, track, show time) of each vehicle whose way out awaits planning.
+    def leave_needed(self) -> list[tuple[int, int, float, tuple[float, float, float] | None]]:
+        """(system id, track, show time, start) of each vehicle whose way out awaits
+        planning; start is None for its plan point at that time (land-one), or where it
+        hovers (heard again off its plan).
 
         The driver plans it (around the others as they will fly, and
         :attr:`leaves`) and hands it over with :meth:`set_leave`, or calls
@@ -446,9 +474,13 @@ class ShowSequence:
         """
         if self._ended:
             return []
-        return [(v.sysid, v.track, v.leave_at) for v in self.vehicles.values()
-                if v.leave_at is not None and v.leave is None
-                and self._streamed_as(v) is VehiclePhase.SHOW]
+        return [(v.sysid, v.track, v.leave_at, v.hold_point) for v in self.vehicles.values()
+                if v.leave_at is not None and v.leave is None and self._awaits_leave(v)]
+
+    def _awaits_leave(self, v: VehicleRun) -> bool:
+        phase = self._streamed_as(v)
+        return phase is VehiclePhase.SHOW or (phase is VehiclePhase.LEAVING
+                                              and v.hold_point is not None)
 
     @property
     def leaves(self) -> dict[int, Leave]:
@@ -459,11 +491,12 @@ class ShowSequence:
         """Fly ``leave`` from its show time on, then land."""
         v = self.vehicles.get(sysid)
         if v is None or v.leave_at is None or v.leave is not None or self._ended \
-                or self._streamed_as(v) is not VehiclePhase.SHOW:
+                or not self._awaits_leave(v):
             return []  # overtaken: landed, lost from elsewhere, or the show ended
         if self.show_time(now) > leave.at:
             # Planned too late for its instant: the next one.
-            v.leave_at = leave_time(self.plan, v.track, self.show_time(now))
+            v.leave_at = (self.show_time(now) + LEAVE_LEAD_S if v.hold_point is not None
+                          else leave_time(self.plan, v.track, self.show_time(now)))
             if v.leave_at is None:
                 return [Notice(sysid, f"vehicle {sysid}: its way out was ready too late and "
                                       "no formation is left to leave from; it lands with the "
@@ -475,12 +508,17 @@ class ShowSequence:
                               f"{leave.at:.1f} s, {leave.trajectory.end:.1f} s to its landing "
                               "spot")]
 
-    def leave_failed(self, sysid: int, reason: str) -> list[Action]:
+    def leave_failed(self, sysid: int, reason: str, now: float) -> list[Action]:
         """No safe way out: it flies on with the show and lands at the end, loudly."""
         v = self.vehicles.get(sysid)
         if v is None or v.leave is not None:
             return []
         v.leave_at = None
+        if v.hold_point is not None and v.phase is VehiclePhase.LEAVING:
+            v.phase = VehiclePhase.LANDING
+            return [Notice(sysid, f"no safe way out of the show for vehicle {sysid} ({reason}); "
+                                  "landing it where it holds"),
+                    self._send(v, Land(sysid), now)]
         return [Notice(sysid, f"no safe way out of the show for vehicle {sysid} ({reason}); it "
                               f"flies on and lands with the others (land-here {sysid} brings "
                               "it straight down now)")]
@@ -614,13 +652,46 @@ class ShowSequence:
             actions += self._left_on_slot(v, now)
         return actions
 
-    def _rejoin(self, v: VehicleRun) -> list[Action]:
+    def _rejoin(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
         assert v.lost_from is not None
+        off = self._off_plan(v, state, now)
+        if off is not None and v.lost_from is VehiclePhase.SHOW:
+            v.lost_from = None
+            return self._strand(v, off, now, "heard again")
         v.phase, v.lost_from, v.reason = v.lost_from, None, None
         if v.phase is VehiclePhase.READY and self._t0 is not None:
             v.phase = VehiclePhase.SHOW if not self._ended else VehiclePhase.RETURNING
         return [Notice(v.sysid, f"vehicle {v.sysid} heard again: back in the sequence "
                                 f"({v.phase})")]
+
+    def _off_plan(self, v: VehicleRun, state: VehicleState, now: float
+                  ) -> tuple[float, tuple[float, float, float]] | None:
+        """(distance, position) if a vehicle is mid-show farther than
+        ``rejoin_tolerance_m`` from its plan over the last ``OFF_PLAN_WINDOW_S`` (so a
+        late telemetry sample or a lagging autopilot does not count); None otherwise."""
+        if self._t0 is None or self._ended or state.ekf_origin is None \
+                or state.position_ned is None:
+            return None
+        pos = ned_to_show(self.plan.origin, state.ekf_origin, state.position_ned)
+        t = self.show_time(now)
+        recent = np.linspace(max(t - OFF_PLAN_WINDOW_S, 0.0), t, 6)
+        path = self.plan.trajectories.evaluate(recent, np.array([v.track]))[0][0]
+        distance = float(np.linalg.norm(path - pos, axis=1).min())
+        if distance <= self.config.rejoin_tolerance_m:
+            return None
+        return distance, (float(pos[0]), float(pos[1]), float(pos[2]))
+
+    def _strand(self, v: VehicleRun, off: tuple[float, tuple[float, float, float]],
+                now: float, how: str) -> list[Action]:
+        """Off its plan mid-show (its autopilot held the last setpoint through a link drop,
+        say): snapping back would be a dash across the formation.  Hold where it is,
+        then leave the show on a way out planned from there."""
+        distance, here = off
+        v.phase, v.reason = VehiclePhase.LEAVING, f"{how} {distance:.1f} m off its plan"
+        v.hold_point, v.leave_at, v.leave = here, self.show_time(now) + LEAVE_LEAD_S, None
+        return [Notice(v.sysid, f"vehicle {v.sysid} {how} {distance:.1f} m off its plan: "
+                                "holding where it is, then leaving the show on a way out "
+                                "planned from there")]
 
     def _give_up(self, v: VehicleRun, why: str, now: float) -> list[Action]:
         was, v.reason, v.pending = v.phase, why, None
@@ -673,6 +744,13 @@ class ShowSequence:
         if v.phase in _UNDER_CONTROL and state.mode is not None \
                 and state.mode not in (_FLIGHT_MODE[v.flavour], "UNKNOWN"):
             return self._taken_over(v, state)
+        heard = state.last_heard
+        gap = 0.0 if v.heard_at is None or heard is None else heard - v.heard_at
+        v.heard_at = heard
+        if v.phase is VehiclePhase.SHOW and gap > SILENCE_GAP_S \
+                and (off := self._off_plan(v, state, now)) is not None:
+            # Silent too briefly to be marked lost, long enough to have fallen behind.
+            return self._strand(v, off, now, f"heard again after {gap:.1f} s,")
         cmd = v.pending
         if v.retry_at is not None and now >= v.retry_at and cmd is not None:
             return [self._send(v, cmd, now)]
@@ -746,7 +824,8 @@ class ShowSequence:
         return []
 
     def _leaving(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
-        assert v.leave is not None
+        if v.leave is None:
+            return []  # holding where it was heard again, its way out being planned
         if self.show_time(now) < v.leave.until:
             return []
         return self._returning(v, state, now)

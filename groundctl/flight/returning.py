@@ -74,10 +74,11 @@ def column(top: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def plan_leave(plan: Plan, track: int, at: float, leaves: Mapping[int, Leave],
-               absent: Collection[int] = (), static: NDArray[np.float64] | None = None
-               ) -> Leave:
-    """A way for ``track`` from its formation point at show time ``at`` to its landing
-    point, around every other drone as it will fly meanwhile.
+               absent: Collection[int] = (), static: NDArray[np.float64] | None = None,
+               start: NDArray[np.float64] | None = None) -> Leave:
+    """A way for ``track`` from its formation point at show time ``at`` (or from
+    ``start``, where it hovers) to its landing point, around every other drone as it
+    will fly meanwhile.
 
     The others are obstacles on their plan, or on their own way out from
     ``leaves`` (track -> Leave) once it has begun.  ``absent`` tracks fly no
@@ -85,9 +86,9 @@ def plan_leave(plan: Plan, track: int, at: float, leaves: Mapping[int, Leave],
     ``static`` (k, 3), points that do not move (see :func:`column`).  Raises the
     planner's InfeasibleTransition / PlanningError.
     """
-    start = plan.state_at(at).pos[track][None, :]
+    origin = plan.state_at(at).pos[track] if start is None else np.asarray(start, dtype=float)
     goal = plan.landing_hover[track][None, :]
-    duration = leave_duration(plan, track, at)
+    duration = leave_duration(plan, track, at, origin)
     gone = set(absent) | {track}
     others = np.array([j for j in range(plan.drones) if j not in gone], dtype=np.intp)
     fixed = np.empty((0, 3)) if static is None else np.asarray(static, dtype=float)
@@ -103,7 +104,8 @@ def plan_leave(plan: Plan, track: int, at: float, leaves: Mapping[int, Leave],
         still = np.repeat(fixed[:, None, :], len(times), axis=1)
         return np.concatenate([pos, still])
 
-    result = plan_among(0, f"way out of track {track}", start, goal, duration, plan.limits,
+    result = plan_among(0, f"way out of track {track}", origin[None, :], goal, duration,
+                        plan.limits,
                         PlannerSettings(tracking_margin=TRACKING_MARGIN_M), others_at)
     # Then it descends over its landing spot while the show goes on: the column
     # must stay clear of everyone until it is down.

@@ -350,10 +350,10 @@ class ShowRunner:
             self._perform(seq.update(now, self.link.vehicles))
             if seq.return_needed is not None and self._return_task is None:
                 self._return_task = asyncio.create_task(self._plan_return(seq))
-            for sysid, track, at in seq.leave_needed:
+            for sysid, track, at, start in seq.leave_needed:
                 if sysid not in self._leave_tasks:
                     self._leave_tasks[sysid] = asyncio.create_task(
-                        self._plan_leave(seq, sysid, track, at))
+                        self._plan_leave(seq, sysid, track, at, start))
             self._stream_tick(seq, now, scheduled)
             if now >= next_check:
                 next_check = now + 1.0
@@ -376,10 +376,14 @@ class ShowRunner:
         tracks = [t for _, t in needed]
         t = seq.show_time(self.clock.now())
         start = self.plan.state_at(t).pos[tracks]
+        holds = {v.track: v.hold_point for v in seq.vehicles.values()
+                 if v.hold_point is not None}
         for row, track in enumerate(tracks):
             leave = seq.leaves.get(track)
             if leave is not None and t >= leave.at:  # on its way out of the show already
                 start[row] = leave.state(t)[0]
+            elif track in holds:  # hovering where it was heard again
+                start[row] = holds[track]
         self._say(f"planning a collision-free return for {len(sysids)} vehicle(s); they "
                   "hover meanwhile", "return_planning")
         try:
@@ -389,17 +393,20 @@ class ShowRunner:
             return
         self._perform(seq.set_return(traj, sysids, self.clock.now()))
 
-    async def _plan_leave(self, seq: ShowSequence, sysid: int, track: int, at: float) -> None:
-        """Plan ``sysid``'s way out of the show (land-one mid-show) around everyone else."""
+    async def _plan_leave(self, seq: ShowSequence, sysid: int, track: int, at: float,
+                          start: tuple[float, float, float] | None) -> None:
+        """Plan ``sysid``'s way out of the show (land-one mid-show, or heard again off its
+        plan: from ``start``) around everyone else."""
         try:
             absent, static = self._not_on_plan(seq, sysid)
             self._say(f"planning vehicle {sysid}'s way out of the show (leaving at show time "
                       f"{at:.1f} s)", "leave_planning", system_id=sysid, at=round(at, 2))
             try:
-                leave = await asyncio.to_thread(plan_leave, self.plan, track, at, seq.leaves,
-                                                absent, static)
+                leave = await asyncio.to_thread(
+                    plan_leave, self.plan, track, at, seq.leaves, absent, static,
+                    None if start is None else np.asarray(start, dtype=float))
             except GroundctlError as exc:
-                self._perform(seq.leave_failed(sysid, str(exc)))
+                self._perform(seq.leave_failed(sysid, str(exc), self.clock.now()))
                 return
             self._perform(seq.set_leave(sysid, leave, self.clock.now()))
         finally:
