@@ -76,3 +76,21 @@ def test_a_second_way_out_avoids_the_first_and_a_blocked_column_is_refused() -> 
     blocked = column(plan.landing[2] + np.array([0.3, 0.0, 1.0]))
     with pytest.raises(PlanningError):
         plan_leave(plan, 2, at, {}, static=blocked)
+
+
+def test_a_drone_holding_off_its_plan_is_an_obstacle_where_it_holds() -> None:
+    plan = quick_plan()
+    at = leave_time(plan, 1, 1.0)
+    assert at is not None
+    # Track 0 was heard again right on the way track 1 would take out, and holds there
+    # until long after track 1 has gone by.
+    alone = plan_leave(plan, 1, at, {})
+    hold = alone.state(at + alone.trajectory.end / 2)[0]
+    held = plan_leave(plan, 0, alone.until + 2.0, {}, start=hold)
+    assert held.held and np.allclose(held.state(at)[0], hold)
+    second = plan_leave(plan, 1, at, {0: held})
+    t = np.linspace(at, second.until, 3000)
+    assert float(np.linalg.norm(second.position(t) - hold, axis=1).min()) \
+        >= plan.limits.min_separation - 1e-3
+    # Not so if it were taken to fly its plan until its way out begins.
+    assert float(np.linalg.norm(alone.position(t) - hold, axis=1).min()) < 0.1

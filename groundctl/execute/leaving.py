@@ -36,6 +36,9 @@ class Leave:
 
     at: float
     trajectory: Trajectories
+    held: bool = False
+    """It hovers at the way out's start until ``at`` (heard again off its plan), rather
+    than flying its plan there."""
 
     @property
     def until(self) -> float:

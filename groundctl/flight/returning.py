@@ -99,7 +99,10 @@ def plan_leave(plan: Plan, track: int, at: float, leaves: Mapping[int, Leave],
         for row, j in enumerate(others):
             leave = leaves.get(int(j))
             if leave is not None:
-                left = at + times >= leave.at
+                # On its way out from leave.at; one heard again off its plan hovers at
+                # the start until then (Leave.position clamps there).
+                left = np.ones(len(times), dtype=bool) if leave.held \
+                    else at + times >= leave.at
                 pos[row, left] = leave.position(at + times[left])
         still = np.repeat(fixed[:, None, :], len(times), axis=1)
         return np.concatenate([pos, still])
@@ -116,7 +119,7 @@ def plan_leave(plan: Plan, track: int, at: float, leaves: Mapping[int, Leave],
         raise PlanningError(0, "landing column not clear",
                             f"another drone passes {float(closest.min()):.2f} m from the "
                             f"column above track {track}'s landing spot while it would descend")
-    return Leave(at, result.trajectories)
+    return Leave(at, result.trajectories, held=start is not None)
 
 
 def _distance_to_column(points: NDArray[np.float64], top: NDArray[np.float64]

@@ -422,6 +422,10 @@ class ShowRunner:
             absent.append(track)
             columns.append(column(self.plan.home[track]))
         for sysid, v in seq.vehicles.items():
+            if sysid != leaving and v.hold_point is not None and v.leave is None:
+                absent.append(v.track)  # hovering where it was heard again, not on its plan
+                columns.append(np.array([v.hold_point]))
+                continue
             if sysid == leaving or v.phase in (VehiclePhase.READY, VehiclePhase.SHOW,
                                                VehiclePhase.LEAVING, VehiclePhase.RETURNING,
                                                VehiclePhase.LOST):
