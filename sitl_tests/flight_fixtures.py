@@ -57,7 +57,7 @@ async def until(runner: ShowRunner, condition: Callable[[], bool],
 
 
 def show_time(runner: ShowRunner) -> float:
-    """The show clock (0 until the show starts)."""
+    """The show clock (-1 until the show starts, so that ``> 0.0`` waits for it)."""
     seq = runner.sequence
     if seq is None or seq.started_at is None:
         return -1.0

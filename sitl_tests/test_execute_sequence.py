@@ -44,8 +44,8 @@ def _landing_swapped_plan() -> Plan:
                                                    plan.trajectories.vel))
 
 
-def _airborne_ardupilot(seq: ShowSequence, states: dict[int, VehicleState], now: float) -> float:
-    """Drive an ArduPilot fleet from start to the show clock running; returns the time."""
+def _armed_ardupilot(seq: ShowSequence, states: dict[int, VehicleState], now: float) -> float:
+    """Drive an ArduPilot fleet from start to armed (takeoff sent); returns the time."""
     seq.start(now)
     for v in states.values():
         v.mode = "GUIDED"
@@ -53,6 +53,12 @@ def _airborne_ardupilot(seq: ShowSequence, states: dict[int, VehicleState], now:
     for v in states.values():
         v.armed = True
     seq.update(now + 0.2, states)
+    return now + 0.2
+
+
+def _airborne_ardupilot(seq: ShowSequence, states: dict[int, VehicleState], now: float) -> float:
+    """Drive an ArduPilot fleet from start to the show clock running; returns the time."""
+    _armed_ardupilot(seq, states, now)
     for v in states.values():
         set_altitude(v, 3.0)
     seq.update(now + 0.3, states)
@@ -115,13 +121,7 @@ def test_ardupilot_sequence_guided_before_arming_then_show_then_landing() -> Non
 def test_the_show_clock_starts_without_a_straggler_once_the_settle_time_is_over() -> None:
     states = _fleet(ARDU)
     seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
-    seq.start(0.0)
-    for v in states.values():
-        v.mode = "GUIDED"
-    seq.update(0.1, states)
-    for v in states.values():
-        v.armed = True
-    seq.update(0.2, states)
+    _armed_ardupilot(seq, states, 0.0)
     set_altitude(states[1], 3.0)
     set_altitude(states[2], 2.75)  # takeoff done (within 0.3 m) but not settled (0.15 m)
     assert seq.update(1.0, states) == []
@@ -556,13 +556,7 @@ def test_a_takeoff_given_up_near_a_landing_spot_aborts_the_show() -> None:
     plan = _landing_swapped_plan()
     states = _fleet(ARDU, n=2)
     seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU}, SequenceConfig(max_attempts=1))
-    seq.start(0.0)
-    for v in states.values():
-        v.mode = "GUIDED"
-    seq.update(0.1, states)
-    for v in states.values():
-        v.armed = True
-    seq.update(0.2, states)
+    _armed_ardupilot(seq, states, 0.0)
     actions = seq.command_failed(Takeoff(2, 3.0), "MAV_RESULT_FAILED", 0.3)
     assert actions[:2] == [Notice(2, "vehicle 2: takeoff failed 1 times: MAV_RESULT_FAILED"),
                            Land(2)]
@@ -610,3 +604,22 @@ def test_a_silence_too_short_to_be_lost_is_still_checked_for_falling_behind() ->
            "leaving the show on a way out planned from there")]
     assert seq.vehicles[2].phase is VehiclePhase.LEAVING
     assert seq.vehicles[1].phase is VehiclePhase.SHOW
+
+
+def test_off_its_plan_too_late_for_a_way_out_it_holds_until_the_end_then_returns() -> None:
+    """A way out runs on the show clock, which stops at the plan's end: one that would
+    not finish by then is not started (it would hover half-way for ever)."""
+    plan, states, seq, start = _in_formation_show()
+    states[2].lost = True
+    seq.update(start + 8.0, states)
+    states[2].lost = False
+    _at_plan_point(states[2], seq, 1, start + 8.5, off=(2.5, 0.0, 0.0))
+    assert seq.update(start + 8.5, states) == [Notice(
+        2, "vehicle 2 heard again 2.5 m off its plan: holding where it is until the show "
+           "ends, then to its landing spot")]
+    assert seq.leave_needed == []
+    assert seq.stream_request(start + 9.0).fixed == {2: seq.vehicles[2].hold_point}
+    seq.update(start + 10.5, states)  # the show ends
+    assert seq.vehicles[2].phase is VehiclePhase.RETURNING
+    np.testing.assert_allclose(seq.stream_request(start + 10.6).fixed[2],
+                               plan.landing_hover[1])

@@ -20,7 +20,6 @@ def _with_sample(v: VehicleState, ned: tuple[float, float, float],
     v.local_time_boot_ms = round((sample_at + offset_s) * 1000)
     v.timesync.samples.clear()
     v.timesync.samples.append(TimesyncSample(int(offset_s * NS), 1_000_000, sample_at))
-    v.timesync._best = v.timesync.samples[0]
 
 
 def test_each_sample_is_carried_to_the_tick_with_its_own_velocity() -> None:

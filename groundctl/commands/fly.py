@@ -38,7 +38,7 @@ def endpoint(text: str) -> tuple[str, int]:
             text = text[len(prefix):]
             break
     else:
-        if ":" in text.split(":", 1)[0] or text.startswith(("tcp:", "udpout:", "serial:")):
+        if text.startswith(("tcp:", "udpout:", "serial:")):
             raise argparse.ArgumentTypeError(
                 f"--connect {text!r}: only UDP listening is supported (udp:HOST:PORT)")
     try:

@@ -109,7 +109,6 @@ class Interrupts:
         self.runner: ShowRunner | None = None
         self.presses = 0
         self.aborted = False
-        self.signals: list[str] = []
         self._task: asyncio.Task[Any] | None = None
         self._installed: list[signal.Signals] = []
 
@@ -138,7 +137,6 @@ class Interrupts:
     def _on_signal(self, label: str) -> None:
         self.presses += 1
         self.aborted = True
-        self.signals.append(label)
         if self.runner is not None and self.runner.events is not None:
             self.runner.events.emit("signal", signal=label, count=self.presses)
         if self.presses == 1 and self.runner is not None and self.runner.sequence is not None:

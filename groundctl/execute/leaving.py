@@ -64,8 +64,14 @@ def leave_duration(plan: Plan, track: int, at: float,
     point then, or from ``start``), s."""
     if start is None:
         start = plan.state_at(at).pos[track]
-    start = np.asarray(start, dtype=float)[None, :]
-    goal = plan.landing_hover[track][None, :]
+    return return_duration(plan, np.asarray(start, dtype=float)[None, :],
+                           plan.landing_hover[track][None, :])
+
+
+def return_duration(plan: Plan, start: NDArray[np.float64], goal: NDArray[np.float64]
+                    ) -> float:
+    """How long a planned way home from ``start`` to ``goal`` (n, 3) is given, s: TIME_MARGIN
+    times the slowest drone's straight-line minimum, at least MIN_DURATION_S."""
     bound = min_transition_time(start, goal, plan.limits, QuadrotorModel())
     return max(bound.seconds * TIME_MARGIN, MIN_DURATION_S)
 

@@ -230,7 +230,7 @@ class Conflict:
                 f"(minimum separation {self.min_separation:.2f} m)")
 
 
-def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Distance from points ``p`` (E, 3) to segments a-b (n, 3): (n, E)."""
     ab = b - a
     denom = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
@@ -273,9 +273,9 @@ def remaining_plan_conflicts(plan: Plan, excluded_tracks: Collection[int],
             conflicts.append(Conflict(int(keep[i]), excl[e], phase, t, float(dist[i, e]), sep))
 
     rise = np.array([0.0, 0.0, plan.takeoff_altitude])
-    collect("takeoff", _segment_distance(obstacles, plan.home[keep], plan.home[keep] + rise), 0.0)
+    collect("takeoff", segment_distance(obstacles, plan.home[keep], plan.home[keep] + rise), 0.0)
     down = plan.landing[keep]  # a drone may land on another's takeoff spot
-    collect("landing", _segment_distance(obstacles, down, down + rise), plan.duration)
+    collect("landing", segment_distance(obstacles, down, down + rise), plan.duration)
 
     n_steps = max(int(np.ceil(min(window_s, plan.duration) / step_s)), 1)
     windows: list[tuple[str, np.ndarray]] = [

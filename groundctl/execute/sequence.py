@@ -59,8 +59,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from groundctl.execute.frames import ned_to_show
-from groundctl.execute.leaving import LEAVE_LEAD_S, Leave, leave_time
+from groundctl.execute.frames import show_positions
+from groundctl.execute.leaving import LEAVE_LEAD_S, Leave, leave_duration, leave_time
 from groundctl.execute.preflight import remaining_plan_conflicts
 from groundctl.link.flavours import Flavour
 from groundctl.link.state import VehicleState
@@ -180,9 +180,6 @@ OFF_PLAN_WINDOW_S = 0.5
 SILENCE_GAP_S = 0.5
 #: The mode each autopilot flies our setpoints in.
 _FLIGHT_MODE = {Flavour.ARDUPILOT: "GUIDED", Flavour.PX4: "OFFBOARD"}
-#: Phases in which a vehicle flies our setpoints, so must be in its flight mode.
-_UNDER_CONTROL = {VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
-                  VehiclePhase.RETURNING}
 
 
 @dataclass(frozen=True)
@@ -302,6 +299,8 @@ class ShowSequence:
         self._paused_at: float | None = None  # show time frozen by hold
         self._ended = False
         self._frozen_at: float | None = None  # show time at which land_all stopped the show
+        # This update's show-frame positions (one vectorised conversion per update).
+        self._positions: dict[int, np.ndarray | None] = {}
 
     # -- clock -----------------------------------------------------------------------
     @property
@@ -355,13 +354,14 @@ class ShowSequence:
     def update(self, now: float, states: Mapping[int, VehicleState]) -> list[Action]:
         """Advance every vehicle from its telemetry; returns the actions to perform."""
         actions: list[Action] = []
+        self._positions = show_positions(self.plan.origin, states)
         # Losses first: one may abort the show, and then nobody should be
         # told to arm or take off in the same breath.
         for v in self.vehicles.values():
             state = states.get(v.sysid)
             if v.phase is VehiclePhase.LOST and v.lost_from in _STREAMED \
                     and state is not None and not state.lost:
-                actions += self._rejoin(v, state, now)
+                actions += self._rejoin(v, now)
                 continue
             if v.phase in _DONE or v.phase is VehiclePhase.PREFLIGHT:
                 continue
@@ -380,7 +380,8 @@ class ShowSequence:
                 if v.phase is VehiclePhase.SHOW or (v.phase is VehiclePhase.LEAVING
                                                     and v.leave is None):
                     v.phase = VehiclePhase.RETURNING
-                if v.lost_from is VehiclePhase.SHOW:
+                if v.lost_from is VehiclePhase.SHOW or (v.lost_from is VehiclePhase.LEAVING
+                                                         and v.leave is None):
                     v.lost_from = VehiclePhase.RETURNING
             actions.append(Notice(None, "show finished: returning to the landing slots"))
         return actions
@@ -404,10 +405,10 @@ class ShowSequence:
     def stream_request(self, now: float) -> StreamRequest:
         """Whom to send setpoints to this tick, and for which show time."""
         sysids = frozenset(v.sysid for v in self.vehicles.values()
-                           if self._streamed_as(v) in _STREAMED
+                           if self.streamed_as(v) in _STREAMED
                            or (v.phase is VehiclePhase.TAKEOFF and v.stream_since is not None))
         returning = [v.sysid for v in self.vehicles.values()
-                     if self._streamed_as(v) is VehiclePhase.RETURNING]
+                     if self.streamed_as(v) is VehiclePhase.RETURNING]
         follow: dict[int, int] = {}
         traj, t_ret = None, 0.0
         if self._return is not None:
@@ -446,7 +447,7 @@ class ShowSequence:
         if not self._return_wanted or self._return is not None:
             return None
         return [(v.sysid, v.track) for v in self.vehicles.values()
-                if self._streamed_as(v) is VehiclePhase.RETURNING]
+                if self.streamed_as(v) is VehiclePhase.RETURNING]
 
     def set_return(self, trajectories: Trajectories, sysids: list[int],
                    now: float) -> list[Action]:
@@ -478,7 +479,7 @@ class ShowSequence:
                 if v.leave_at is not None and v.leave is None and self._awaits_leave(v)]
 
     def _awaits_leave(self, v: VehicleRun) -> bool:
-        phase = self._streamed_as(v)
+        phase = self.streamed_as(v)
         return phase is VehiclePhase.SHOW or (phase is VehiclePhase.LEAVING
                                               and v.hold_point is not None)
 
@@ -495,7 +496,7 @@ class ShowSequence:
             return []  # overtaken: landed, lost from elsewhere, or the show ended
         if self.show_time(now) > leave.at:
             # Planned too late for its instant: the next one.
-            v.leave_at = (self.show_time(now) + LEAVE_LEAD_S if v.hold_point is not None
+            v.leave_at = (self._hold_leave_time(v, now) if v.hold_point is not None
                           else leave_time(self.plan, v.track, self.show_time(now)))
             if v.leave_at is None:
                 return [Notice(sysid, f"vehicle {sysid}: its way out was ready too late and "
@@ -563,7 +564,7 @@ class ShowSequence:
         v = self.vehicles.get(sysid)
         if v is None:
             return [Notice(None, f"no vehicle {sysid} in this show")]
-        if self._streamed_as(v) is VehiclePhase.SHOW and not self._ended:
+        if self.streamed_as(v) is VehiclePhase.SHOW and not self._ended:
             if v.leave_at is not None:
                 return [Notice(sysid, f"vehicle {sysid} already leaves the show at show time "
                                       f"{v.leave_at:.1f} s")]
@@ -635,7 +636,8 @@ class ShowSequence:
         return []
 
     @staticmethod
-    def _streamed_as(v: VehicleRun) -> VehiclePhase:
+    def streamed_as(v: VehicleRun) -> VehiclePhase:
+        """Its phase, or for a lost vehicle the phase it was lost in (what it is streamed)."""
         return v.lost_from if v.phase is VehiclePhase.LOST and v.lost_from else v.phase
 
     def _lose(self, v: VehicleRun, now: float, state: VehicleState | None) -> list[Action]:
@@ -652,9 +654,9 @@ class ShowSequence:
             actions += self._left_on_slot(v, now)
         return actions
 
-    def _rejoin(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
+    def _rejoin(self, v: VehicleRun, now: float) -> list[Action]:
         assert v.lost_from is not None
-        off = self._off_plan(v, state, now)
+        off = self._off_plan(v, now)
         if off is not None and v.lost_from is VehiclePhase.SHOW:
             v.lost_from = None
             return self._strand(v, off, now, "heard again")
@@ -664,15 +666,14 @@ class ShowSequence:
         return [Notice(v.sysid, f"vehicle {v.sysid} heard again: back in the sequence "
                                 f"({v.phase})")]
 
-    def _off_plan(self, v: VehicleRun, state: VehicleState, now: float
+    def _off_plan(self, v: VehicleRun, now: float
                   ) -> tuple[float, tuple[float, float, float]] | None:
         """(distance, position) if a vehicle is mid-show farther than
         ``rejoin_tolerance_m`` from its plan over the last ``OFF_PLAN_WINDOW_S`` (so a
         late telemetry sample or a lagging autopilot does not count); None otherwise."""
-        if self._t0 is None or self._ended or state.ekf_origin is None \
-                or state.position_ned is None:
+        pos = self._positions.get(v.sysid)
+        if self._t0 is None or self._ended or pos is None:
             return None
-        pos = ned_to_show(self.plan.origin, state.ekf_origin, state.position_ned)
         t = self.show_time(now)
         recent = np.linspace(max(t - OFF_PLAN_WINDOW_S, 0.0), t, 6)
         path = self.plan.trajectories.evaluate(recent, np.array([v.track]))[0][0]
@@ -688,10 +689,26 @@ class ShowSequence:
         then leave the show on a way out planned from there."""
         distance, here = off
         v.phase, v.reason = VehiclePhase.LEAVING, f"{how} {distance:.1f} m off its plan"
-        v.hold_point, v.leave_at, v.leave = here, self.show_time(now) + LEAVE_LEAD_S, None
+        v.hold_point, v.leave = here, None
+        v.leave_at = self._hold_leave_time(v, now)
+        if v.leave_at is None:
+            return [Notice(v.sysid, f"vehicle {v.sysid} {how} {distance:.1f} m off its plan: "
+                                    "holding where it is until the show ends, then to its "
+                                    "landing spot")]
         return [Notice(v.sysid, f"vehicle {v.sysid} {how} {distance:.1f} m off its plan: "
                                 "holding where it is, then leaving the show on a way out "
                                 "planned from there")]
+
+    def _hold_leave_time(self, v: VehicleRun, now: float) -> float | None:
+        """When a vehicle holding off its plan leaves: LEAVE_LEAD_S from now, if its way out
+        ends before the plan does (a way out runs on the show clock, which stops there).
+        None: it holds until the show ends and then returns with the others."""
+        assert v.hold_point is not None
+        at = self.show_time(now) + LEAVE_LEAD_S
+        if at + leave_duration(self.plan, v.track, at, np.asarray(v.hold_point)) \
+                > self.plan.duration:
+            return None
+        return at
 
     def _give_up(self, v: VehicleRun, why: str, now: float) -> list[Action]:
         was, v.reason, v.pending = v.phase, why, None
@@ -741,14 +758,15 @@ class ShowSequence:
     def _advance(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
         cfg = self.config
         v.altitude = self._altitude(state)
-        if v.phase in _UNDER_CONTROL and state.mode is not None \
+        # Streamed phases fly our setpoints, so must be in the flight mode.
+        if v.phase in _STREAMED and state.mode is not None \
                 and state.mode not in (_FLIGHT_MODE[v.flavour], "UNKNOWN"):
             return self._taken_over(v, state)
         heard = state.last_heard
         gap = 0.0 if v.heard_at is None or heard is None else heard - v.heard_at
         v.heard_at = heard
         if v.phase is VehiclePhase.SHOW and gap > SILENCE_GAP_S \
-                and (off := self._off_plan(v, state, now)) is not None:
+                and (off := self._off_plan(v, now)) is not None:
             # Silent too briefly to be marked lost, long enough to have fallen behind.
             return self._strand(v, off, now, f"heard again after {gap:.1f} s,")
         cmd = v.pending
@@ -762,7 +780,7 @@ class ShowSequence:
                 v.phase = VehiclePhase.TAKEOFF
                 return [self._send(v, Takeoff(v.sysid, self.plan.takeoff_altitude), now)]
         elif isinstance(cmd, Takeoff):
-            alt = self._altitude(state)
+            alt = v.altitude
             if alt is not None and abs(alt - cmd.alt_m) <= cfg.takeoff_tolerance_m:
                 v.stream_since = now
                 v.pending = None
@@ -808,16 +826,16 @@ class ShowSequence:
             return self._home_hover[track]
         return self._slots[track]
 
-    def _settled(self, v: VehicleRun, state: VehicleState | None) -> bool:
-        if state is None or state.ekf_origin is None or state.position_ned is None:
+    def _settled(self, v: VehicleRun) -> bool:
+        pos = self._positions.get(v.sysid)
+        if pos is None:
             return False
-        pos = ned_to_show(self.plan.origin, state.ekf_origin, state.position_ned)
         return bool(np.linalg.norm(pos - self._first[v.track]) <= self.config.start_tolerance_m)
 
     def _returning(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
-        if state.ekf_origin is None or state.position_ned is None:
+        pos = self._positions.get(v.sysid)
+        if pos is None:
             return []
-        pos = ned_to_show(self.plan.origin, state.ekf_origin, state.position_ned)
         if np.linalg.norm(pos - self._landing_point(v.track)) <= self.config.arrive_tolerance_m:
             v.phase = VehiclePhase.LANDING
             return [self._send(v, Land(v.sysid), now)]
@@ -860,7 +878,7 @@ class ShowSequence:
         if self._ready_since is None:
             self._ready_since = now
         if now - self._ready_since < self.config.settle_timeout_s \
-                and not all(self._settled(v, states.get(v.sysid)) for v in ready):
+                and not all(self._settled(v) for v in ready):
             return []
         self._t0 = now
         for v in ready:

@@ -89,8 +89,6 @@ class DryRunResult:
     """Why the run stopped before every vehicle was down, or None."""
     flown: bool
     """True once the sequence started (arming was commanded)."""
-    record_dir: Path | None
-    """Where the recordings are."""
 
 
 def sim_config(plan: Plan, options: DryRunOptions, gcs: tuple[str, int]) -> SimConfig:
@@ -203,7 +201,7 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
         if recording is not None:
             recording.finish(report)
     flown = runner is not None and runner.sequence is not None
-    return DryRunResult(report, error, flown, record)
+    return DryRunResult(report, error, flown)
 
 
 def _truth_probe(runner: ShowRunner, fleet: SimProcess) -> Callable[[float, float], None]:

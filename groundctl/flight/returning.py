@@ -23,19 +23,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from groundctl.errors import PlanningError
-from groundctl.execute.leaving import MIN_DURATION_S, TIME_MARGIN, Leave, leave_duration
-from groundctl.plan.feasibility import min_transition_time
+from groundctl.execute.leaving import Leave, leave_duration, return_duration
+from groundctl.execute.preflight import segment_distance
 from groundctl.plan.plan import Plan
 from groundctl.plan.scp_quad import plan_among, plan_quad_transition
 from groundctl.plan.trajectory import Trajectories
-from groundctl.show.model import PlannerSettings, QuadrotorModel
+from groundctl.show.model import PlannerSettings
 
 #: Extra separation the return is planned with, m: it is flown at once, with
 #: whatever tracking error the moment has, and unlike the show it was never
 #: rehearsed (the first land-all test flew a pair 1.497 m apart at a 1.5 m limit).
 TRACKING_MARGIN_M = 0.25
-# The return takes TIME_MARGIN times the slowest drone's straight-line minimum, and
-# at least MIN_DURATION_S: the same as one drone's way out.
 
 
 def plan_return(plan: Plan, tracks: list[int], start: NDArray[np.float64]) -> Trajectories:
@@ -45,8 +43,7 @@ def plan_return(plan: Plan, tracks: list[int], start: NDArray[np.float64]) -> Tr
     """
     start = np.asarray(start, dtype=float)
     goal = plan.landing_hover[tracks]
-    bound = min_transition_time(start, goal, plan.limits, QuadrotorModel())
-    duration = max(bound.seconds * TIME_MARGIN, MIN_DURATION_S)
+    duration = return_duration(plan, start, goal)
     # The planner's own tracking margin: per pair, as far as its two ends allow.
     result = plan_quad_transition(0, "return", start, goal, duration, plan.limits,
                                   PlannerSettings(tracking_margin=TRACKING_MARGIN_M))
@@ -114,17 +111,11 @@ def plan_leave(plan: Plan, track: int, at: float, leaves: Mapping[int, Leave],
     # must stay clear of everyone until it is down.
     descent = float(goal[0, 2]) / DESCENT_SPEED_MPS + DESCENT_MARGIN_S
     times = duration + np.arange(0.0, descent + 0.1, 0.1)
-    closest = _distance_to_column(others_at(times), goal[0])
+    ground = goal[0] * np.array([1.0, 1.0, 0.0])
+    closest = segment_distance(others_at(times).reshape(-1, 3), goal, ground[None, :])
     if len(closest) and float(closest.min()) < plan.limits.min_separation:
         raise PlanningError(0, "landing column not clear",
                             f"another drone passes {float(closest.min()):.2f} m from the "
                             f"column above track {track}'s landing spot while it would descend")
     return Leave(at, result.trajectories, held=start is not None)
 
-
-def _distance_to_column(points: NDArray[np.float64], top: NDArray[np.float64]
-                        ) -> NDArray[np.float64]:
-    """Distance of ``points`` (..., 3) to the vertical segment from ``top`` to the ground."""
-    z = np.clip(points[..., 2], 0.0, max(float(top[2]), 0.0))
-    nearest = np.stack(np.broadcast_arrays(top[0], top[1], z), axis=-1)
-    return np.linalg.norm(points - nearest, axis=-1).ravel()

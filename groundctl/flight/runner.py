@@ -42,7 +42,7 @@ from groundctl.errors import (
     LinkError,
     PreflightFailed,
 )
-from groundctl.execute.frames import ned_to_show, show_positions
+from groundctl.execute.frames import show_positions
 from groundctl.execute.mapping import Assignment, auto_assign, explicit_assign
 from groundctl.execute.preflight import (
     PreflightReport,
@@ -421,23 +421,19 @@ class ShowRunner:
         for track in self._excluded_tracks():
             absent.append(track)
             columns.append(column(self.plan.home[track]))
+        positions = show_positions(self.plan.origin, self.link.vehicles)
         for sysid, v in seq.vehicles.items():
-            if sysid != leaving and v.hold_point is not None and v.leave is None:
+            phase = seq.streamed_as(v)  # a lost one is still streamed what it was
+            if sysid == leaving:
+                continue
+            if phase is VehiclePhase.LEAVING and v.hold_point is not None and v.leave is None:
                 absent.append(v.track)  # hovering where it was heard again, not on its plan
                 columns.append(np.array([v.hold_point]))
-                continue
-            if sysid == leaving or v.phase in (VehiclePhase.READY, VehiclePhase.SHOW,
-                                               VehiclePhase.LEAVING, VehiclePhase.RETURNING,
-                                               VehiclePhase.LOST):
-                continue  # on its plan (a lost one is still streamed it), or on its way out
-            absent.append(v.track)
-            state = self.link.vehicles.get(sysid)
-            if state is not None and state.ekf_origin is not None \
-                    and state.position_ned is not None:
-                columns.append(column(ned_to_show(self.plan.origin, state.ekf_origin,
-                                                  state.position_ned)))
-            else:
-                columns.append(column(self.plan.home[v.track]))
+            elif phase not in (VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
+                               VehiclePhase.RETURNING):
+                absent.append(v.track)  # down, descending, killed, or never airborne
+                pos = positions.get(sysid)
+                columns.append(column(self.plan.home[v.track] if pos is None else pos))
         static = np.concatenate(columns) if columns else np.empty((0, 3))
         return absent, static
 

@@ -74,11 +74,6 @@ class FleetFile:
     """System id -> plan track (empty when the file maps none)."""
 
 
-def parse_fleet(data: dict[str, object], path: str | Path = "<fleet>") -> list[Endpoint]:
-    """Endpoints from an already-parsed fleet TOML document."""
-    return list(parse_fleet_file(data, path).endpoints)
-
-
 def parse_fleet_file(data: dict[str, object], path: str | Path = "<fleet>") -> FleetFile:
     """The whole fleet file from an already-parsed TOML document."""
     unknown = sorted(set(data) - {"vehicle"})

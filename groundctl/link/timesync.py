@@ -43,7 +43,6 @@ class TimesyncEstimator:
         self._pending: OrderedDict[int, float] = OrderedDict()
         self._max_pending = max_pending
         self._last_ts1 = 0
-        self._best: TimesyncSample | None = None
 
     def request(self, now: float) -> int:
         """The ``ts1`` (ns) to put in a request sent at ``now``; remembered as pending."""
@@ -66,13 +65,12 @@ class TimesyncEstimator:
             return None
         sample = TimesyncSample(offset_ns=tc1 - (ts1 + now_ns) // 2, rtt_ns=rtt, at=now)
         self.samples.append(sample)
-        self._best = min(self.samples, key=lambda s: s.rtt_ns)
         return sample
 
     @property
     def best(self) -> TimesyncSample | None:
-        """The lowest-RTT sample in the window (kept, not searched: it is read every tick)."""
-        return self._best
+        """The lowest-RTT sample in the window."""
+        return min(self.samples, key=lambda s: s.rtt_ns, default=None)
 
     @property
     def offset_s(self) -> float | None:

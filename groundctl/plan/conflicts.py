@@ -51,6 +51,33 @@ def close_pair_segments(P: NDArray[np.float64], radius: float) -> NDArray[np.int
     return unique_segments(np.concatenate(found).astype(np.int64), n, k1 - 1)
 
 
+def within(P: NDArray[np.float64], segments: NDArray[np.int64], radius: float) -> NDArray[np.int64]:
+    """The rows (i, j, k) of ``segments`` whose drones are within ``radius`` at step k or k+1.
+
+    ``close_pair_segments(P, r)`` equals ``within(P, close_pair_segments(P, R), r)`` for
+    any R >= r (same test, same order), so one spatial query per iterate serves every
+    radius the SCP needs.
+    """
+    i, j, k = segments[:, 0], segments[:, 1], segments[:, 2]
+    d0 = np.sum((P[i, k] - P[j, k]) ** 2, axis=1)
+    d1 = np.sum((P[i, k + 1] - P[j, k + 1]) ** 2, axis=1)
+    return segments[np.minimum(d0, d1) <= radius * radius]
+
+
+def segments_with(P: NDArray[np.float64], g: int, radius: float) -> NDArray[np.int64]:
+    """:func:`close_pair_segments` restricted to pairs with one of the first ``g`` drones.
+
+    For a few drones moving among many whose trajectories are fixed: their
+    distances to everyone, (g, n, N+1) at once, instead of every pair of the fleet.
+    """
+    n = P.shape[0]
+    d2 = np.sum((P[:g, None] - P[None, :]) ** 2, axis=3)
+    close = d2 <= radius * radius
+    close[np.tril_indices(g, 0, n)] = False  # each moving pair once, never a drone itself
+    i, j, k = np.nonzero(close[:, :, :-1] | close[:, :, 1:])
+    return np.column_stack([i, j, k]).astype(np.int64)
+
+
 def widen(segments: NDArray[np.int64], steps: int, by: int) -> NDArray[np.int64]:
     """Extend every pair's segments by ``by`` steps on both sides (clipped to the horizon)."""
     if not len(segments) or by <= 0:

@@ -73,6 +73,12 @@ class PairSegments:
     """(m,) separation asked on top of the tightened limit (tracking margin), m."""
 
 
+def chord_separation(limits: Limits, dt: float) -> float:
+    """The limit a pair's samples must keep so that the trajectories keep it in between:
+    each drone may bulge up to a dt^2 / 8 from the chord between two samples."""
+    return limits.min_separation + 2 * limits.max_accel * dt * dt / 8
+
+
 @dataclass(frozen=True)
 class ObstacleSegments:
     """Separation rows against drones outside the group, whose trajectory is held fixed."""
@@ -117,7 +123,7 @@ class GroupQP:
         self.oS = self.oA + self.nA
         self.nx = self.oS + self.nS
         # Bulge of a double integrator's relative path from its chord over one step.
-        self.d_sep = limits.min_separation + 2 * limits.max_accel * dt * dt / 8 + SEPARATION_BUFFER
+        self.d_sep = chord_separation(limits, dt) + SEPARATION_BUFFER
 
         self._build(osqp_settings)
 

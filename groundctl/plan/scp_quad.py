@@ -55,8 +55,10 @@ from groundctl.plan.conflicts import (
     close_pair_segments,
     groups,
     segment_keys,
+    segments_with,
     unique_segments,
     widen,
+    within,
 )
 from groundctl.plan.feasibility import min_transition_time
 from groundctl.plan.profile import rest_to_rest
@@ -69,7 +71,13 @@ from groundctl.plan.qp_build import (
     SLACK_TOL,
     chord_clearance,
 )
-from groundctl.plan.quad_qp import SEPARATION_BUFFER, GroupQP, ObstacleSegments, PairSegments
+from groundctl.plan.quad_qp import (
+    SEPARATION_BUFFER,
+    GroupQP,
+    ObstacleSegments,
+    PairSegments,
+    chord_separation,
+)
 from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import Limits, PlannerSettings, QuadrotorModel
 
@@ -239,7 +247,7 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
     steps, dt, ref, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
                                               settings)
     delta = goal - start
-    d_sep = limits.min_separation + limits.max_accel * dt * dt / 4
+    d_sep = chord_separation(limits, dt)
     d_row = d_sep + SEPARATION_BUFFER  # what the QP's separation rows ask for
     margin = _pair_margin(start, goal, d_row, settings.tracking_margin)
     d_far = d_sep + settings.tracking_margin  # pairs beyond this plus a margin are left out
@@ -252,7 +260,9 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
     if settings.tolerance > MAX_TOLERANCE:
         raise ValueError(f"`tolerance` must be at most {MAX_TOLERANCE} m")
     for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 (used after)
-        need = close_pair_segments(P, d_far + NEED_MARGIN)
+        # One spatial query per iterate, at the largest radius; the others filter it.
+        near_build = close_pair_segments(P, d_far + BUILD_MARGIN)
+        need = within(P, near_build, d_far + NEED_MARGIN)
         # Only pairs whose row is violated or nearly active join drones into a group;
         # the other close pairs become obstacle rows.  Links accumulate, so a group
         # keeps its members (and its QP) until it converges.
@@ -267,7 +277,6 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
         trust_of = np.full(n, TRUST_RADIUS)
         for key, st in states.items():
             trust_of[list(key)] = st.trust
-        near_build: NDArray[np.int64] | None = None
         new_states: dict[tuple[int, ...], _Group] = {}
         for members in grouped:
             key = tuple(int(x) for x in members)
@@ -278,8 +287,6 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
             state = states.get(key)
             if state is None or not np.all(np.isin(segment_keys(mine_need, n, steps),
                                                    state.keys)):
-                if near_build is None:
-                    near_build = close_pair_segments(P, d_far + BUILD_MARGIN)
                 state = _build_group(members, inside, near_build, had_rows, start, goal, ref,
                                      steps, dt, limits, settings,
                                      trust=float(trust_of[members].min()), margin=margin)
@@ -340,7 +347,7 @@ def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, durat
     times = np.linspace(0.0, duration, steps + 1)
     others = np.asarray(others_at(times), dtype=float).reshape(-1, steps + 1, 3)
     n = g + len(others)
-    d_sep = limits.min_separation + limits.max_accel * dt * dt / 4
+    d_sep = chord_separation(limits, dt)
     d_row = d_sep + SEPARATION_BUFFER
     start_all = np.concatenate([start, others[:, 0]])
     goal_all = np.concatenate([goal, others[:, -1]])
@@ -351,20 +358,24 @@ def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, durat
     inside = np.zeros(n, dtype=bool)
     inside[:g] = True
     state: _Group | None = None
-    had_rows = np.empty((0, 3), dtype=np.int64)
+    fixed = np.empty((0, 2, 3))
     iterations, slack = 0, np.inf
     for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 (used after)
+        # Only pairs with a moving drone, from one query at the largest radius.
         every = np.concatenate([P, others])
-        need = close_pair_segments(every, d_far + NEED_MARGIN)
-        need = need[inside[need[:, 0]] | inside[need[:, 1]]]
+        near_build = segments_with(every, g, d_far + BUILD_MARGIN)
+        need = within(every, near_build, d_far + NEED_MARGIN)
         if state is None or not np.all(np.isin(segment_keys(need, n, steps), state.keys)):
-            state = _build_group(members, inside, close_pair_segments(every, d_far + BUILD_MARGIN),
-                                 had_rows, start_all, goal_all, ref_all, steps, dt, limits,
-                                 settings, trust=TRUST_RADIUS if state is None else state.trust,
+            # A rebuilt group keeps every row it had (_build_group carries state.rows).
+            state = _build_group(members, inside, near_build,
+                                 np.empty((0, 3), dtype=np.int64) if state is None
+                                 else state.rows, start_all, goal_all, ref_all, steps, dt,
+                                 limits, settings,
+                                 trust=TRUST_RADIUS if state is None else state.trust,
                                  margin=margin)
-            had_rows = unique_segments(np.concatenate([had_rows, state.rows]), n, steps)
-        fixed = np.stack([every[state.obs_other, state.qp.obstacles.k],
-                          every[state.obs_other, state.qp.obstacles.k + 1]], axis=1)
+            # The obstacles never move: their rows' positions are set once per build.
+            fixed = np.stack([every[state.obs_other, state.qp.obstacles.k],
+                              every[state.obs_other, state.qp.obstacles.k + 1]], axis=1)
         state.qp.linearise(P, V, A, state.trust, fixed)
         Pg, Vg, Ag, Sg = state.qp.solve(index)
         change = float(np.abs(Pg - P).max())

@@ -54,7 +54,7 @@ from scipy.optimize import brentq
 from scipy.special import j0
 
 from groundctl.errors import InfeasibleTransition, PlanningError
-from groundctl.plan.conflicts import close_pair_segments, segment_keys, widen
+from groundctl.plan.conflicts import close_pair_segments, segment_keys, widen, within
 from groundctl.plan.qp_build import (
     BUILD_MARGIN,
     BUILD_WIDEN,
@@ -148,28 +148,14 @@ def initial_headings(start: FloatArray, goal: FloatArray, heading0: FloatArray,
     return theta
 
 
-def within(P: FloatArray, segments: NDArray[np.int64], radius: float) -> NDArray[np.int64]:
-    """The rows (i, j, k) of ``segments`` whose drones are within ``radius`` at step k or k+1.
-
-    ``close_pair_segments(P, r)`` equals ``within(P, close_pair_segments(P, R), r)`` for
-    any R >= r (same test, same order), so one spatial query per iterate serves every
-    radius the SCP needs.
-    """
-    i, j, k = segments[:, 0], segments[:, 1], segments[:, 2]
-    d0 = np.sum((P[i, k] - P[j, k]) ** 2, axis=1)
-    d1 = np.sum((P[i, k + 1] - P[j, k + 1]) ** 2, axis=1)
-    return segments[np.minimum(d0, d1) <= radius * radius]
-
-
-def separation_clearance(P: FloatArray, radius: float,
-                         near: NDArray[np.int64] | None = None) -> float:
+def separation_clearance(P: FloatArray, radius: float, near: NDArray[np.int64]) -> float:
     """Smallest separation-row value (see :func:`chord_clearance`) over all pair-segments
     of ``P`` (n, N+1, 2) with a sample within ``radius``; inf if there are none.
 
     A row value >= d means the straight segment between the samples keeps >= d.
-    ``near``, if given, is ``close_pair_segments(P, R)`` for some R >= ``radius``.
+    ``near`` is ``close_pair_segments(P, R)`` for some R >= ``radius``.
     """
-    segs = close_pair_segments(P, radius) if near is None else within(P, near, radius)
+    segs = within(P, near, radius)
     return float(chord_clearance(P, segs).min()) if len(segs) else np.inf
 
 
@@ -210,8 +196,8 @@ class UnicycleQP:
         if N < 3:
             raise ValueError("the unicycle QP needs at least 3 steps")
         self.n, self.N, self.dt, self.model, self.eps = n, N, dt, model, eps
-        self.start, self.goal, self.heading0 = start, goal, heading0
-        self.ref, self.alpha, self.beta, self.d_sep = ref, alpha, beta, d_sep
+        self.goal, self.heading0 = goal, heading0
+        self.ref, self.beta, self.d_sep = ref, beta, d_sep
         self.segs = segs
         m = len(segs)
         H = N - 1                      # free headings theta[1..N-1] per drone
@@ -273,9 +259,11 @@ class UnicycleQP:
             np.concatenate([np.ones(n), -np.ones(n), np.ones(n), -np.ones(n)]))
         # Separation, one row per pair-segment end; an end at k = 0 has only its slack.
         if m:
+            # Row r < m is segment r's start, row m + r its end.
             ends = np.concatenate([segs[:, 2], segs[:, 2] + 1])
             ii = np.concatenate([segs[:, 0], segs[:, 0]])
             jj = np.concatenate([segs[:, 1], segs[:, 1]])
+            self._sep_ends = (ii, jj, ends)
             rr = np.arange(2 * m)
             mv = ends > 0
             self._sep_moving = mv
@@ -306,9 +294,7 @@ class UnicycleQP:
         head[:, -1] = w  # theta[N-1] is in one difference only
         diag = np.concatenate([np.full(self.nP, 2 * beta * dt), head.ravel(),
                                np.full(2 * n, 2 * TERMINAL_WEIGHT), np.full(m, 1e-3)])
-        hi_, hk = (x.ravel() for x in np.meshgrid(np.arange(n), np.arange(1, N - 1),
-                                                  indexing="ij"))
-        col = it(hi_, hk)
+        col = it(*self._turn)  # theta[k] and theta[k+1], k = 1..N-2, couple at -w
         self.P = (sp.diags(diag, format="csc")
                   + sp.csc_matrix((np.full(len(col), -w), (col, col + 1)),
                                   shape=(self.nx, self.nx))).tocsc()
@@ -387,19 +373,16 @@ class UnicycleQP:
         self.u[self.term_rows] = self.l[self.term_rows] + 2 * half
         segs = self.segs
         if len(segs):
-            ends = np.concatenate([segs[:, 2], segs[:, 2] + 1])
-            ii = np.concatenate([segs[:, 0], segs[:, 0]])
-            jj = np.concatenate([segs[:, 1], segs[:, 1]])
+            ii, jj, ends = self._sep_ends
             gap = np.einsum("md,md->m", self._normals, base[ii, ends] - base[jj, ends])
             self.l[self.sep_rows] = self.d_sep - gap
 
     def _trust_box(self, theta: FloatArray, trust: FloatArray) -> None:
         """Headings within ``trust`` of ``theta``, turns within the rate limit."""
-        if self._theta_bar is None:
-            raise RuntimeError("UnicycleQP trust region before the first linearise()")
         N, dt = self.N, self.dt
         turn = dt * self.model.turn_rate_limit
         bar = self._theta_bar
+        assert bar is not None  # set by the first linearise(), which calls this
         centre = theta[:, 1:N] - bar[:, 1:N]
         lo = centre - trust[:, None]
         hi = centre + trust[:, None]

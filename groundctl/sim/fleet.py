@@ -144,7 +144,7 @@ class SimFleet:
                     position=_t3(ph.pos[i]), velocity=_t3(ph.vel[i]),
                     estimated_position=_t3(ph.est_pos[i]), armed=v.armed, mode=v.mode,
                     landed=bool(ph.on_ground[i]), crashed=bool(ph.crashed[i]), led=v.led,
-                    led_blink_hz=v.led_blink_hz, led_changed_at=v.led_changed_at,
+                    led_blink_hz=v.led_blink_hz,
                     battery=float(ph.battery[i]),
                     gcs_address=self._gcs[i], packets_in=c.packets_in,
                     packets_out=c.packets_out, bad_packets=c.bad_packets,

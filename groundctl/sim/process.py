@@ -82,8 +82,6 @@ class SimProcess:
         if not isinstance(clock, ScaledClock):
             raise SimulatorError("a simulator process needs a ScaledClock (shared by both "
                                  "processes)")
-        self.config = config
-        self.clock = clock
         ctx = mp.get_context("spawn")
         self._conn, child = ctx.Pipe()
         self._proc = ctx.Process(target=_serve, args=(child, config, clock),

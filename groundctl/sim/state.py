@@ -33,8 +33,6 @@ class VehicleState:
     """Last LED colour set by LED_CONTROL (R, G, B)."""
     led_blink_hz: float
     """Blink rate from a 4-byte LED_CONTROL (0: steady)."""
-    led_changed_at: float | None
-    """Clock time the LED last changed colour (None: never set)."""
     battery: float
     """Remaining battery fraction."""
     gcs_address: tuple[str, int]
