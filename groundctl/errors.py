@@ -14,17 +14,23 @@ The tree::
     │   └── VehicleLost                 a vehicle stopped talking
     ├── PreflightFailed                 pre-flight checks did not pass (failures)
     ├── FlightError                     the flight could not go on (reason)
+    │   └── PlanningTimeout             a plan not ready by its deadline (what, deadline_s)
     └── SimulatorError                  the built-in simulator was misused
 
 Third-party errors (OSError from sockets, ValueError from TOML, OSQP statuses)
 are translated at the boundary with ``raise Ours(...) from exc``.  The CLI
 turns any :class:`GroundctlError` into one line on stderr and ``exit_code``.
+
+Every one of them pickles with its message and its data (they cross from the
+planning worker process to the flight executor), although their ``__init__``
+takes other arguments than the message: see :meth:`GroundctlError.__reduce__`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 #: Exit codes the CLI uses.  Stable: scripts rely on them.
 EXIT_OK = 0
@@ -39,6 +45,18 @@ class GroundctlError(Exception):
     """Root of every error groundctl raises on purpose."""
 
     exit_code: int = EXIT_UNSAFE
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # Exception's own pickling calls ``type(self)(*self.args)``, but ``args`` holds
+        # the message while ``__init__`` takes the data (InfeasibleTransition(index,
+        # name, ...)): unpickling would fail, or build a wrong message.  Rebuild without
+        # ``__init__`` instead: the message from ``args``, the data from ``__dict__``.
+        return _rebuild, (type(self), self.args), self.__dict__
+
+
+def _rebuild(cls: type[GroundctlError], args: tuple[Any, ...]) -> GroundctlError:
+    """An instance of ``cls`` with ``args`` but without running its ``__init__``."""
+    return cls.__new__(cls, *args)  # BaseException.__new__ sets ``args``
 
 
 class ShowFileError(GroundctlError):
@@ -171,6 +189,16 @@ class FlightError(GroundctlError):
     def __init__(self, reason: str) -> None:
         self.reason = reason
         super().__init__(reason)
+
+
+class PlanningTimeout(FlightError):
+    """A plan (a land-all return, a vehicle's way out) was not ready by its deadline."""
+
+    def __init__(self, what: str, deadline_s: float) -> None:
+        self.what = what
+        self.deadline_s = deadline_s
+        shown = f"{deadline_s:.1f}" if deadline_s >= 0.1 else f"{deadline_s:.1g}"
+        super().__init__(f"{what} took longer than its {shown} s deadline")
 
 
 class SimulatorError(GroundctlError):

@@ -289,13 +289,21 @@ def test_hold_freezes_the_show_clock_and_resume_continues_from_there() -> None:
     states = _fleet(ARDU, n=2)
     seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
     t0 = _airborne_ardupilot(seq, states, 0.0)
-    assert seq.hold(t0 + 2.0) == [Notice(None, "holding at show time 2.0 s")]
+    ramp = seq.clock.default_ramp_s
+    # Braking along the plan: the clock's rate falls from 1 to 0 over the ramp, so the
+    # show stops half a ramp further on (no overshoot past a frozen point).
+    stop = 2.0 + ramp / 2
+    assert seq.hold(t0 + 2.0) == [Notice(
+        None, f"holding: braking along the plan, stopped at show time {stop:.1f} s")]
     assert seq.hold(t0 + 2.5) == [Notice(None, "already holding")]
+    assert seq.stream_request(t0 + 2.0 + ramp / 2).moving  # still braking
     req = seq.stream_request(t0 + 30.0)
-    assert req.show_time == pytest.approx(2.0) and not req.moving
+    assert req.show_time == pytest.approx(stop) and not req.moving
     assert seq.update(t0 + 30.0, states) == []  # the show does not end while held
-    assert seq.resume(t0 + 30.0) == [Notice(None, "resuming at show time 2.0 s")]
-    assert seq.stream_request(t0 + 31.0).show_time == pytest.approx(3.0)
+    assert seq.resume(t0 + 30.0) == [Notice(None, f"resuming at show time {stop:.1f} s")]
+    # Ramping up again: after the ramp, full rate (half a ramp behind a clock that jumped).
+    after = seq.stream_request(t0 + 30.0 + ramp + 1.0).show_time
+    assert after == pytest.approx(stop + ramp / 2 + 1.0)
     assert seq.resume(t0 + 31.0) == [Notice(None, "not holding: nothing to resume")]
 
 
@@ -394,13 +402,15 @@ def test_land_all_while_one_is_leaving_returns_it_from_its_way_out() -> None:
     seq.set_leave(2, leave, start + 2.0)
     seq.update(start + 6.0, states)
     assert seq.vehicles[2].phase is VehiclePhase.LEAVING
-    frozen = seq.show_time(start + 6.0)
     seq.land_all(start + 6.0)
+    stop = seq.clock.stop_time(start + 6.0)  # the show brakes to a stop
     assert seq.vehicles[2].phase is VehiclePhase.RETURNING
     assert sorted(seq.return_needed or []) == [(1, 0), (2, 1)]
     # While the return is planned it hovers where its way out had brought it.
-    req = seq.stream_request(start + 6.5)
-    assert not req.moving and req.leaves == {2: leave} and req.show_time == frozen
+    req = seq.stream_request(seq.clock.rest_at() + 0.1)
+    assert not req.moving and req.leaves == {2: leave}
+    assert req.show_time == pytest.approx(stop)
+    np.testing.assert_allclose(seq.return_start(2, start + 9.0), leave.state(stop)[0])
 
 
 def test_kill_needs_confirmation() -> None:
@@ -483,20 +493,24 @@ def test_land_all_mid_show_hovers_until_a_return_plan_is_given_then_follows_it()
     t0 = _airborne_ardupilot(seq, states, 0.0)
     seq.land_all(t0 + 2.0)
     assert seq.return_needed == [(1, 0), (2, 1)]
-    req = seq.stream_request(t0 + 2.5)  # hover on the frozen plan point meanwhile
+    rest = seq.clock.rest_at()  # braking along the plan meanwhile, then hovering
+    stop = 2.0 + seq.clock.default_ramp_s / 2
+    req = seq.stream_request(rest + 0.5)
     assert req.sysids == frozenset({1, 2}) and not req.moving and not req.fixed
-    assert req.show_time == pytest.approx(2.0) and not req.follow
-    start = plan.state_at(2.0).pos[:2]
+    assert req.show_time == pytest.approx(stop) and not req.follow
+    start = plan.state_at(stop).pos[:2]
+    np.testing.assert_allclose(seq.return_start(1, t0 + 3.0), start[0])
     goal = plan.landing_hover[:2]
     back = Trajectories(np.array([0.0, 4.0]), np.stack([start, goal], axis=1),
                         np.zeros((2, 2, 3)))
     assert seq.set_return(back, [2, 1], t0 + 3.0) == [
         Notice(None, "flying the 4.0 s return to the landing points")]
     assert seq.return_needed is None
-    req = seq.stream_request(t0 + 4.0)
+    begin = max(t0 + 3.0, rest)  # the return starts once planned and the fleet has stopped
+    req = seq.stream_request(begin + 1.0)
     assert req.follow == {1: 1, 2: 0} and req.follow_trajectories is back
     assert req.follow_time == pytest.approx(1.0)
-    req = seq.stream_request(t0 + 7.5)  # the return is over: hold over the landing points
+    req = seq.stream_request(begin + 4.5)  # the return is over: hold over the landing points
     assert not req.follow and set(req.fixed) == {1, 2}
 
 
@@ -595,8 +609,10 @@ def test_a_silence_too_short_to_be_lost_is_still_checked_for_falling_behind() ->
     states[1].last_heard = states[2].last_heard = start + 1.1  # heard as usual: no check
     _at_plan_point(states[1], seq, 0, start + 1.1)
     assert seq.update(start + 1.1, states) == []
-    # Vehicle 2 silent for 1.9 s (not lost), then heard 2.5 m beside its plan.
+    # Vehicle 2 silent for 1.9 s (not lost: a gap in its own stream, on its own clock),
+    # then heard 2.5 m beside its plan.
     states[1].last_heard, states[2].last_heard = start + 3.0, start + 3.0
+    states[2].stream_gaps, states[2].last_stream_gap_s = 1, 1.9
     _at_plan_point(states[1], seq, 0, start + 3.0)
     _at_plan_point(states[2], seq, 1, start + 3.0, off=(2.5, 0.0, 0.0))
     assert seq.update(start + 3.0, states) == [Notice(

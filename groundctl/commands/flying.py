@@ -10,11 +10,11 @@ import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from groundctl.commands.options import positive, signing_key
 from groundctl.commands.progress import ProgressBar
-from groundctl.errors import EXIT_ABORTED, EXIT_OK, EXIT_UNSAFE, UnsafePlan
+from groundctl.errors import EXIT_ABORTED, EXIT_OK, EXIT_UNSAFE, GroundctlError, UnsafePlan
 from groundctl.execute.preflight import Thresholds
 from groundctl.flight.report import render_report
 from groundctl.flight.runner import RunnerConfig, ShowRunner
@@ -158,33 +158,100 @@ OPERATOR_HELP = ("commands: hold | resume | land (all) | land SYSID (to its land
                  "land-here SYSID | kill SYSID confirm | status | help")
 
 
-def operator_line(runner: ShowRunner, line: str, notify: Callable[[str], None]) -> None:
-    """Carry out one operator command typed on stdin (until the console exists)."""
+class OperatorTarget(Protocol):
+    """What operator commands act on: a :class:`ShowRunner`."""
+
+    def hold(self) -> None: ...
+    def resume(self) -> None: ...
+    def land_all(self) -> None: ...
+    def land_one(self, sysid: int) -> None: ...
+    def land_here(self, sysid: int) -> None: ...
+    def kill(self, sysid: int, confirm: bool = False) -> None: ...
+    def status_line(self) -> str: ...
+
+
+#: Each verb's usage, for the message when its arguments are wrong.
+_USAGE = {
+    "hold": "hold", "resume": "resume", "land": "land | land SYSID",
+    "land-here": "land-here SYSID", "kill": "kill SYSID confirm", "status": "status",
+    "help": "help",
+}
+
+
+class _BadArguments(Exception):
+    """An operator command's arguments are wrong (said to the operator, never raised out)."""
+
+
+def _sysid(verb: str, word: str) -> int:
+    try:
+        sysid = int(word)
+    except ValueError:
+        sysid = -1
+    if not 1 <= sysid <= 255:
+        raise _BadArguments(f"{verb}: {word!r} is not a system id (1-255): {_USAGE[verb]}")
+    return sysid
+
+
+def _at_most(verb: str, rest: list[str], n: int) -> None:
+    if len(rest) > n:
+        extra = " ".join(rest[n:])
+        what = "no arguments" if n == 0 else f"at most {n} argument{'s' if n > 1 else ''}"
+        raise _BadArguments(f"{verb} takes {what}, got {extra!r}: {_USAGE[verb]}")
+
+
+def _needs_sysid(verb: str, rest: list[str]) -> int:
+    if not rest:
+        raise _BadArguments(f"{verb} needs a system id: {_USAGE[verb]}")
+    return _sysid(verb, rest[0])
+
+
+def operator_line(runner: OperatorTarget, line: str, notify: Callable[[str], None]) -> None:
+    """Carry out one operator command typed on stdin (until the console exists).
+
+    Bad input is said through ``notify`` (an unknown verb with the list of
+    commands, wrong arguments with the verb's usage); nothing is raised.
+    """
     words = line.split()
     if not words:
         return
     verb, rest = words[0].lower(), words[1:]
-    try:
-        sysid = int(rest[0]) if rest else None
-    except ValueError:
-        notify(f"not a system id: {rest[0]!r}; {OPERATOR_HELP}")
+    if verb not in _USAGE:
+        notify(f"unknown command {words[0]!r}; {OPERATOR_HELP}")
         return
-    if verb == "hold" and not rest:
-        runner.hold()
-    elif verb == "resume" and not rest:
-        runner.resume()
-    elif verb == "land" and sysid is None:
-        runner.land_all()
-    elif verb == "land" and sysid is not None:
-        runner.land_one(sysid)
-    elif verb == "land-here" and sysid is not None:
-        runner.land_here(sysid)
-    elif verb == "kill" and sysid is not None:
-        runner.kill(sysid, confirm=rest[1:] == ["confirm"])
-    elif verb == "status":
-        notify(runner.status_line())
-    else:
-        notify(OPERATOR_HELP)
+    try:
+        if verb == "hold":
+            _at_most(verb, rest, 0)
+            runner.hold()
+        elif verb == "resume":
+            _at_most(verb, rest, 0)
+            runner.resume()
+        elif verb == "land":
+            _at_most(verb, rest, 1)
+            if rest:
+                runner.land_one(_sysid(verb, rest[0]))
+            else:
+                runner.land_all()
+        elif verb == "land-here":
+            sysid = _needs_sysid(verb, rest)
+            _at_most(verb, rest, 1)
+            runner.land_here(sysid)
+        elif verb == "kill":
+            sysid = _needs_sysid(verb, rest)
+            _at_most(verb, rest, 2)
+            if rest[1:] not in ([], ["confirm"]):
+                raise _BadArguments(f"kill: expected the word 'confirm' after the system id, "
+                                    f"got {rest[1]!r}: {_USAGE[verb]}")
+            # Without "confirm" the runner says why nothing was sent.
+            runner.kill(sysid, confirm=rest[1:] == ["confirm"])
+        elif verb == "status":
+            _at_most(verb, rest, 0)
+            notify(runner.status_line())
+        else:
+            notify(OPERATOR_HELP)
+    except _BadArguments as exc:
+        notify(str(exc))
+    except GroundctlError as exc:  # the runner refused: say so, keep reading commands
+        notify(f"{verb}: {exc}")
 
 
 async def read_operator_commands(runner: ShowRunner, notify: Callable[[str], None]) -> None:

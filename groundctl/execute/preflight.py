@@ -193,6 +193,27 @@ class PreflightReport:
     def render(self, excluded: Collection[int] = ()) -> str:
         return "\n".join(self.lines(excluded))
 
+    def summary(self, excluded: Collection[int] = ()) -> str:
+        """One fleet-wide line: ``61/64 ready, waiting for 3: gps (12, 40), battery (7)``."""
+        flying = [s for s in sorted(self.results) if s not in excluded]
+        waiting: dict[str, list[int]] = {}
+        for sysid in flying:
+            for r in self.results[sysid]:
+                if not r.ok:
+                    waiting.setdefault(r.name, []).append(sysid)
+        not_ready = {s for ids in waiting.values() for s in ids}
+        line = f"{len(flying) - len(not_ready)}/{len(flying)} ready"
+        if excluded:
+            line += f" ({len(set(excluded) & set(self.results))} excluded)"
+        if not_ready:
+            line += f", waiting for {len(not_ready)}: " + ", ".join(
+                f"{name} ({', '.join(map(str, ids))})" for name, ids in waiting.items())
+        return line
+
+    def failing_lines(self, excluded: Collection[int] = ()) -> list[str]:
+        """The lines of the vehicles that fail a check (the others are ready)."""
+        return [line for line in self.lines(excluded) if "NOT READY" in line]
+
     def require_all(self, excluded: Collection[int] = ()) -> None:
         """Raise PreflightFailed unless every vehicle not ``excluded`` passed every check."""
         failures = self.failures(excluded)

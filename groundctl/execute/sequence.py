@@ -54,6 +54,7 @@ it in a neighbour's takeoff or landing path the whole show is aborted.
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 
@@ -62,6 +63,7 @@ import numpy as np
 from groundctl.execute.frames import show_positions
 from groundctl.execute.leaving import LEAVE_LEAD_S, Leave, leave_duration, leave_time
 from groundctl.execute.preflight import remaining_plan_conflicts
+from groundctl.execute.showclock import ShowClock, brake_ramp
 from groundctl.link.flavours import Flavour
 from groundctl.link.state import VehicleState
 from groundctl.plan.plan import Plan
@@ -131,6 +133,11 @@ class Notice:
     """The vehicle concerned, or None for the whole show."""
     text: str
     """The message, naming the vehicle, what happened and why."""
+    kind: str = field(default="", compare=False)
+    """What happened, the same for every vehicle it happens to (``lost``, ``landed``...):
+    the driver folds many notices of one kind in one update into one line."""
+    summary: str = field(default="", compare=False)
+    """The text for a folded line, after the list of vehicles (``landed``)."""
 
 
 Action = SetMode | Arm | Takeoff | Land | Disarm | Kill | Notice
@@ -168,7 +175,11 @@ class ShowPhase(enum.StrEnum):
 #: Above this height above home a vehicle is taking off (or flying), m.
 AIRBORNE_M = 0.5
 
-_DONE = {VehiclePhase.LANDED, VehiclePhase.LOST, VehiclePhase.FAILED, VehiclePhase.KILLED}
+#: Phases a vehicle never leaves: it is down (seen disarmed) or given up.  LOST is not
+#: one of them: a silent vehicle may still be airborne.
+_DONE = {VehiclePhase.LANDED, VehiclePhase.FAILED, VehiclePhase.KILLED}
+#: Phases the per-vehicle update does not advance (LOST waits to be heard again).
+_IDLE = _DONE | {VehiclePhase.LOST, VehiclePhase.PREFLIGHT}
 _STREAMED = {VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
              VehiclePhase.RETURNING}
 _LAND_MODES = {"LAND", "AUTO.LAND"}  # ArduCopter's and PX4's, as decoded by the link
@@ -178,6 +189,11 @@ OFF_PLAN_WINDOW_S = 0.5
 #: Silence longer than this (telemetry streams at 10 Hz), s, even if too short to mark
 #: the vehicle lost, means it may have flown on without us: its position is checked.
 SILENCE_GAP_S = 0.5
+#: Holds of the whole fleet for what the vehicles did not do (our stall or overload, a
+#: fleet-wide silence): while one is in force, a vehicle's own gap is not its fault.
+FLEET_HOLDS = frozenset({"stall", "overload", "silence"})
+#: A way out planned too late this many times is given up (no retry storm).
+MAX_LATE_LEAVES = 3
 #: The mode each autopilot flies our setpoints in.
 _FLIGHT_MODE = {Flavour.ARDUPILOT: "GUIDED", Flavour.PX4: "OFFBOARD"}
 
@@ -207,6 +223,19 @@ class SequenceConfig:
     rejoin_tolerance_m: float = 1.0
     """A vehicle heard again mid-show rejoins its plan if it is this close to it, m;
     farther, it holds where it is and leaves the show on a planned way out."""
+    exclude_tolerance_m: float = 1.0
+    """After ``settle_timeout_s`` a ready vehicle still farther than this from its first
+    plan point is landed on its own slot rather than started (the exclusion check
+    applies: an unsafe exclusion aborts the show)."""
+    brake_accel: float | None = None
+    """Deceleration used to brake the fleet along its paths on hold, m/s^2 (None: half
+    the plan's acceleration limit)."""
+    land_battery_pct: float | None = None
+    """A vehicle in the show below this battery leaves it on a way out and lands; below
+    half of it, it lands where it is (None: the plan's ``limits.land_battery_pct``)."""
+    return_timeout_s: float = 30.0
+    """A returning vehicle not over its landing point this long after its return should
+    have ended lands where it is, s."""
 
 
 @dataclass
@@ -241,10 +270,18 @@ class VehicleRun:
     """Land-one mid-show: the show time it is to leave at (its way out being planned)."""
     leave: Leave | None = None
     """Its planned way out of the show, once there is one."""
-    heard_at: float | None = None
-    """Its telemetry's last_heard at the previous update (to see a silence end)."""
     hold_point: tuple[float, float, float] | None = None
     """Heard again off its plan: where it hovers (show frame) until its way out begins."""
+    gap_seen: int = 0
+    """Its telemetry's own silences (gaps on the vehicle's clock) already looked at."""
+    returning_since: float | None = None
+    """Our time it started returning to its landing point."""
+    landing_point: tuple[float, float, float] | None = None
+    """Where it descends from when not the plan's landing spot (a return re-assigned it)."""
+    battery_low: bool = False
+    """Its battery fell below the show's threshold (it has been told to land)."""
+    leave_late: int = 0
+    """Ways out that were planned too late for their instant."""
 
 
 @dataclass(frozen=True)
@@ -252,11 +289,15 @@ class StreamRequest:
     """What the driver streams this tick."""
 
     show_time: float
-    """Plan time to evaluate, s."""
+    """Plan time now (for the monitor), s."""
     moving: bool
-    """False while the show clock is not running: hover, no feed-forward, no lead."""
+    """False while the show clock is stopped or not started."""
     sysids: frozenset[int]
     """Vehicles to send setpoints to."""
+    clock: ShowClock | None = None
+    """The show clock: the stream samples it ``lead`` ahead (braking included)."""
+    ended: bool = False
+    """The show is over: the plan is sampled at ``show_time`` without feed-forward."""
     fixed: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     """Vehicles held at a show-frame point (landing slots) instead of the plan."""
     follow: dict[int, int] = field(default_factory=dict)
@@ -264,7 +305,9 @@ class StreamRequest:
     follow_trajectories: Trajectories | None = None
     """The return trajectories (after a land-all), or None."""
     follow_time: float = 0.0
-    """Time along them, s."""
+    """Time along them now, s."""
+    follow_clock: ShowClock | None = None
+    """The return's own clock (held with the show's)."""
     leaves: dict[int, Leave] = field(default_factory=dict)
     """Vehicles with a way out of the show: system id -> Leave (flown from its show time)."""
 
@@ -292,39 +335,107 @@ class ShowSequence:
         self._home_hover = plan.home + np.array([0.0, 0.0, plan.takeoff_altitude])
         self._first = plan.trajectories.evaluate(0.0)[0]  # where each track's show starts
         self._ready_since: float | None = None
-        self._return_wanted = False  # land-all mid-show: a return plan is needed
-        self._return: tuple[Trajectories, dict[int, int], float] | None = None
+        self._return_wanted = False  # a return plan is needed (land-all, blocked spots)
+        self._return: tuple[Trajectories, dict[int, int]] | None = None
+        self._return_clock: ShowClock | None = None
         self._started = False
-        self._t0: float | None = None  # our time of show time 0 while the clock runs
-        self._paused_at: float | None = None  # show time frozen by hold
         self._ended = False
-        self._frozen_at: float | None = None  # show time at which land_all stopped the show
+        self._stopped_at: float | None = None  # show time at which land_all stopped the show
+        brake = self.config.brake_accel or 0.5 * plan.limits.max_accel
+        speeds = np.linalg.norm(plan.trajectories.vel, axis=-1)
+        self.clock = ShowClock(brake_ramp(float(speeds.max(initial=0.0)), brake))
+        """The show clock (braking holds; see :mod:`groundctl.execute.showclock`)."""
+        self._pre_start_hold = False  # the operator held before the show clock started
+        self._battery = (self.config.land_battery_pct if self.config.land_battery_pct
+                         is not None else plan.limits.land_battery_pct)
         # This update's show-frame positions (one vectorised conversion per update).
         self._positions: dict[int, np.ndarray | None] = {}
 
     # -- clock -----------------------------------------------------------------------
     @property
     def started_at(self) -> float | None:
-        """Our time of show time 0 (moves on resume), None before the show clock started."""
-        return self._t0
+        """Our time of show time 0, None before the show clock started."""
+        return self.clock.started_at
+
+    @property
+    def _t0(self) -> float | None:
+        return self.clock.started_at
 
     @property
     def paused(self) -> bool:
-        return self._paused_at is not None
+        """The show is held (braking or stopped) for any reason."""
+        return self.clock.held or self._pre_start_hold
+
+    @property
+    def holds(self) -> set[str]:
+        """Why the show is held (``operator``, ``overload``, ``stall``, ``silence``...)."""
+        return set(self.clock.holds) | ({"operator"} if self._pre_start_hold else set())
 
     def show_time(self, now: float) -> float:
-        """The show clock: 0 before the start, frozen while held, capped at the duration."""
-        if self._frozen_at is not None:
-            return self._frozen_at
-        if self._paused_at is not None:
-            return self._paused_at
-        if self._t0 is None:
-            return 0.0
-        return min(max(now - self._t0, 0.0), self.plan.duration)
+        """The show clock: 0 before the start, braking to a stop while held, capped at the
+        duration (and at where land-all stopped it)."""
+        t = min(max(self.clock.show_time(now), 0.0), self.plan.duration)
+        return t if self._stopped_at is None else min(t, self._stopped_at)
+
+    def show_time_of(self, when: float) -> float | None:
+        """The show time at our (past) time ``when``; None before the show clock started."""
+        t0 = self.clock.started_at
+        if t0 is None or when < t0:
+            return None
+        return self.clock.show_time(when)
+
+    def _clocks(self) -> list[ShowClock]:
+        return [self.clock] + ([self._return_clock] if self._return_clock is not None else [])
+
+    def hold_for(self, reason: str, now: float) -> bool:
+        """Brake every clock (show and return) to a stop for ``reason``; True if newly held.
+
+        Used by the driver for what the sequence cannot see itself: its own overload, a
+        fleet-wide silence, a safety response.
+        """
+        fresh = False
+        for clock in self._clocks():
+            fresh |= clock.hold(now, reason)
+        return fresh
+
+    def stop_for(self, reason: str, now: float, show_time: float) -> None:
+        """Stop the show clock at once at ``show_time`` (the driver stalled: its drones stand
+        near the last setpoints they were sent, taken at that show time)."""
+        if self._ended or self._t0 is None:
+            self.hold_for(reason, now)
+            return
+        self.clock.stop_at(now, min(max(show_time, 0.0), self.plan.duration), reason)
+        if self._return_clock is not None:
+            self._return_clock.hold(now, reason)
+
+    def release(self, reason: str, now: float) -> bool:
+        """Drop the hold ``reason``; the clocks ramp back up once no hold is left."""
+        resumed = False
+        for clock in self._clocks():
+            resumed |= clock.release(now, reason)
+        return resumed
+
+    def commanded(self, sysid: int, now: float) -> np.ndarray | None:
+        """Where vehicle ``sysid`` is being told to be now (show frame), if it is streamed
+        the show plan, a way out or a hold point; None otherwise."""
+        v = self.vehicles.get(sysid)
+        if v is None or self.streamed_as(v) not in _STREAMED:
+            return None
+        t = self.show_time(now)
+        if v.hold_point is not None and (v.leave is None or t < v.leave.at):
+            return np.asarray(v.hold_point)
+        if v.leave is not None and t >= v.leave.at:
+            return v.leave.state(t)[0]
+        if self.streamed_as(v) is VehiclePhase.RETURNING:
+            return None
+        return self.plan.state_at(t).pos[v.track]
 
     @property
     def phase(self) -> ShowPhase:
+        """LANDED only once every vehicle is down or given up; a lost vehicle may still be
+        airborne, so the show is not over while one is lost."""
         phases = {v.phase for v in self.vehicles.values()}
+        lost = bool(self.lost)
         if not self._started:
             return ShowPhase.PREFLIGHT
         if VehiclePhase.ARMING in phases:
@@ -333,9 +444,23 @@ class ShowSequence:
             return ShowPhase.TAKEOFF
         if VehiclePhase.SHOW in phases:
             return ShowPhase.SHOW
-        if phases & {VehiclePhase.LEAVING, VehiclePhase.RETURNING, VehiclePhase.LANDING}:
+        if lost or phases & {VehiclePhase.LEAVING, VehiclePhase.RETURNING,
+                             VehiclePhase.LANDING}:
             return ShowPhase.LANDING
         return ShowPhase.LANDED
+
+    @property
+    def lost(self) -> list[int]:
+        """System ids of the vehicles lost now that may be airborne (silent after their
+        takeoff was sent; one lost while arming never left its slot)."""
+        return [s for s, v in self.vehicles.items() if v.phase is VehiclePhase.LOST
+                and v.lost_from not in (VehiclePhase.PREFLIGHT, VehiclePhase.ARMING)]
+
+    @property
+    def settled(self) -> bool:
+        """Every vehicle not lost is down or given up: only lost ones keep the flight open."""
+        return all(v.phase in _DONE or v.phase is VehiclePhase.LOST
+                   for v in self.vehicles.values())
 
     # -- driver interface ------------------------------------------------------------
     def start(self, now: float) -> list[Action]:
@@ -359,32 +484,54 @@ class ShowSequence:
         # told to arm or take off in the same breath.
         for v in self.vehicles.values():
             state = states.get(v.sysid)
-            if v.phase is VehiclePhase.LOST and v.lost_from in _STREAMED \
-                    and state is not None and not state.lost:
-                actions += self._rejoin(v, now)
+            if v.phase is VehiclePhase.LOST and state is not None and not state.lost:
+                actions += self._rejoin(v, now, state)
                 continue
-            if v.phase in _DONE or v.phase is VehiclePhase.PREFLIGHT:
+            if v.phase in _IDLE:
                 continue
             if state is None or state.lost:
                 actions += self._lose(v, now, state)
         for v in self.vehicles.values():
-            if v.phase in _DONE or v.phase is VehiclePhase.PREFLIGHT:
+            if v.phase in _IDLE:
                 continue
             actions += self._advance(v, states[v.sysid], now)
         actions += self._maybe_start_show(now, states)
         actions += self._begin_leaves(now)
-        if self._t0 is not None and not self.paused and not self._ended \
-                and now - self._t0 >= self.plan.duration:
+        if self._t0 is not None and not self._ended \
+                and self.clock.show_time(now) >= self.plan.duration:
             self._ended = True
             for v in self.vehicles.values():
                 if v.phase is VehiclePhase.SHOW or (v.phase is VehiclePhase.LEAVING
                                                     and v.leave is None):
-                    v.phase = VehiclePhase.RETURNING
+                    v.phase, v.returning_since = VehiclePhase.RETURNING, now
                 if v.lost_from is VehiclePhase.SHOW or (v.lost_from is VehiclePhase.LEAVING
                                                          and v.leave is None):
                     v.lost_from = VehiclePhase.RETURNING
             actions.append(Notice(None, "show finished: returning to the landing slots"))
         return actions
+
+    # -- landing spots ---------------------------------------------------------------------
+    def down_positions(self) -> list[np.ndarray]:
+        """Show-frame positions of the drones that are down, descending or given up (from
+        this update's telemetry, else their slot): obstacles for every landing."""
+        # Excluded drones, and drones that never took off, stand on their slots.
+        out: list[np.ndarray] = [self.plan.home[t] for t in sorted(self.grounded_tracks)]
+        for v in self.vehicles.values():
+            if v.phase in (VehiclePhase.LANDING, VehiclePhase.LANDED, VehiclePhase.FAILED,
+                           VehiclePhase.KILLED) or (v.phase is VehiclePhase.LOST
+                                                    and v.lost_from is VehiclePhase.LANDING):
+                pos = self._positions.get(v.sysid)
+                if pos is not None:
+                    out.append(np.asarray(pos, dtype=float))
+        return out
+
+    def spot_blocked(self, v: VehicleRun) -> bool:
+        """Whether the column under ``v``'s landing point comes within the separation
+        limit of a drone that is down or descending."""
+        point = np.asarray(self._landing_point(v), dtype=float)
+        limit = self.plan.limits.min_separation
+        return any(float(np.hypot(*(p[:2] - point[:2]))) < limit
+                   for p in self.down_positions())
 
     def command_failed(self, command: Command, reason: str, now: float) -> list[Action]:
         """A command was refused or timed out; retry it later or give the vehicle up."""
@@ -411,15 +558,16 @@ class ShowSequence:
                      if self.streamed_as(v) is VehiclePhase.RETURNING]
         follow: dict[int, int] = {}
         traj, t_ret = None, 0.0
-        if self._return is not None:
-            traj, rows, t0 = self._return
-            t_ret = now - t0
+        if self._return is not None and self._return_clock is not None:
+            traj, rows = self._return
+            t_ret = self._return_clock.show_time(now)
             if t_ret < traj.end:
                 follow = {s: rows[s] for s in returning if s in rows}
         elif self._return_wanted:
-            # Waiting for the return plan: hover on the frozen plan point (not fixed).
-            returning = []
-        fixed = {s: tuple(map(float, self._landing_point(self.vehicles[s].track)))
+            # Waiting for the return plan: braking along (then hovering on) the plan.
+            returning = [s for s in returning
+                         if self.vehicles[s].landing_point is not None]
+        fixed = {s: tuple(map(float, self._landing_point(self.vehicles[s])))
                  for s in returning if s not in follow}
         show_t = self.show_time(now)
         for v in self.vehicles.values():
@@ -427,12 +575,15 @@ class ShowSequence:
             if v.hold_point is not None and v.sysid in sysids and v.sysid not in follow \
                     and v.sysid not in fixed and (v.leave is None or show_t < v.leave.at):
                 fixed[v.sysid] = v.hold_point
-        moving = self._t0 is not None and not self.paused and not self._ended
+        moving = self._t0 is not None and not self._ended and self.clock.at(now).moving
         leaves = {v.sysid: v.leave for v in self.vehicles.values()
                   if v.leave is not None and v.sysid in sysids and v.sysid not in follow
                   and v.sysid not in fixed}
-        return StreamRequest(self.show_time(now), moving, sysids, fixed,  # type: ignore[arg-type]
-                             follow, traj if follow else None, t_ret, leaves)
+        return StreamRequest(show_t, moving, sysids,
+                             self.clock if self._t0 is not None else None,
+                             self._ended or self._t0 is None,
+                             fixed, follow, traj if follow else None,  # type: ignore[arg-type]
+                             t_ret, self._return_clock if follow else None, leaves)
 
     # -- land-all return ---------------------------------------------------------------
     @property
@@ -449,10 +600,41 @@ class ShowSequence:
         return [(v.sysid, v.track) for v in self.vehicles.values()
                 if self.streamed_as(v) is VehiclePhase.RETURNING]
 
-    def set_return(self, trajectories: Trajectories, sysids: list[int],
-                   now: float) -> list[Action]:
-        """Fly ``trajectories`` (row i for ``sysids[i]``) from ``now``, then land."""
-        self._return = (trajectories, {s: i for i, s in enumerate(sysids)}, now)
+    def return_start(self, sysid: int, now: float) -> np.ndarray:
+        """Where vehicle ``sysid`` starts its return from (show frame): where the braking
+        show clock stops it on its plan, its way out, or the point it holds."""
+        v = self.vehicles[sysid]
+        t = min(self.clock.stop_time(now) if self._t0 is not None else 0.0,
+                self.plan.duration)
+        if self._stopped_at is not None:
+            t = min(t, self._stopped_at)
+        if v.leave is not None and t >= v.leave.at:
+            return v.leave.state(t)[0]
+        if v.hold_point is not None:
+            return np.asarray(v.hold_point, dtype=float)
+        return self.plan.state_at(t).pos[v.track]
+
+    def set_return(self, trajectories: Trajectories, sysids: list[int], now: float,
+                   goals: np.ndarray | None = None) -> list[Action]:
+        """Fly ``trajectories`` (row i for ``sysids[i]``) once the fleet has braked to a
+        stop, then land; ``goals`` (n, 3) are the landing points it ends over when a
+        return re-assigned them (blocked spots)."""
+        if self._return is not None:
+            return []
+        self._return = (trajectories, {s: i for i, s in enumerate(sysids)})
+        clock = ShowClock(self.clock.default_ramp_s)
+        clock.start(max(now, self.clock.rest_at()) if self._t0 is not None else now)
+        for reason in self.clock.holds - {"land-all"}:
+            clock.hold(now, reason)
+        self._return_clock = clock
+        if goals is not None:
+            for row, sysid in enumerate(sysids):
+                v = self.vehicles[sysid]
+                point = tuple(float(x) for x in goals[row])
+                if not np.allclose(point, self._slots[v.track]):
+                    v.landing_point = point  # type: ignore[assignment]
+        for sysid in sysids:
+            self.vehicles[sysid].returning_since = now
         return [Notice(None, f"flying the {trajectories.end:.1f} s return to the landing "
                              "points")]
 
@@ -495,7 +677,10 @@ class ShowSequence:
                 or not self._awaits_leave(v):
             return []  # overtaken: landed, lost from elsewhere, or the show ended
         if self.show_time(now) > leave.at:
-            # Planned too late for its instant: the next one.
+            # Planned too late for its instant: the next one, a bounded number of times.
+            v.leave_late += 1
+            if v.leave_late >= MAX_LATE_LEAVES:
+                return self.leave_failed(sysid, f"planned too late {v.leave_late} times", now)
             v.leave_at = (self._hold_leave_time(v, now) if v.hold_point is not None
                           else leave_time(self.plan, v.track, self.show_time(now)))
             if v.leave_at is None:
@@ -508,6 +693,28 @@ class ShowSequence:
         return [Notice(sysid, f"way out for vehicle {sysid} planned: from show time "
                               f"{leave.at:.1f} s, {leave.trajectory.end:.1f} s to its landing "
                               "spot")]
+
+    @property
+    def ended(self) -> bool:
+        """The show is over (its end reached, or land-all)."""
+        return self._ended
+
+    def leave_late(self, sysid: int, reason: str, now: float) -> list[Action]:
+        """Its way out could not be planned before its instant: the next instant, a bounded
+        number of times, then as :meth:`leave_failed`."""
+        v = self.vehicles.get(sysid)
+        if v is None or v.leave is not None or v.leave_at is None:
+            return []
+        v.leave_late += 1
+        if v.leave_late >= MAX_LATE_LEAVES:
+            return self.leave_failed(sysid, f"{reason}; {v.leave_late} times", now)
+        v.leave_at = (self._hold_leave_time(v, now) if v.hold_point is not None
+                      else leave_time(self.plan, v.track, self.show_time(now)))
+        if v.leave_at is None:
+            return self.leave_failed(sysid, f"{reason}; no formation left to leave from", now)
+        return [Notice(sysid, f"vehicle {sysid}: {reason}; leaving at show time "
+                              f"{v.leave_at:.1f} s instead", "leave_late",
+                       "way out not planned in time: leaving later")]
 
     def leave_failed(self, sysid: int, reason: str, now: float) -> list[Action]:
         """No safe way out: it flies on with the show and lands at the end, loudly."""
@@ -526,28 +733,41 @@ class ShowSequence:
 
     # -- operator --------------------------------------------------------------------
     def hold(self, now: float) -> list[Action]:
-        """Pause the show clock: every drone hovers at its current plan point."""
-        if self.paused:
+        """Brake the show to a stop: every drone decelerates along its own trajectory and
+        hovers on it (the plan keeps them apart at every instant)."""
+        if "operator" in self.holds:
             return [Notice(None, "already holding")]
-        self._paused_at = self.show_time(now)
-        return [Notice(None, f"holding at show time {self._paused_at:.1f} s")]
+        if self._t0 is None:
+            self._pre_start_hold = True
+            return [Notice(None, "holding: the show clock will not start until resume")]
+        self.hold_for("operator", now)
+        return [Notice(None, f"holding: braking along the plan, stopped at show time "
+                             f"{min(self.clock.stop_time(now), self.plan.duration):.1f} s")]
 
     def resume(self, now: float) -> list[Action]:
-        """Restart the show clock from where it was held."""
-        if self._paused_at is None:
+        """Run the show clock again (ramping up) from where it was held."""
+        if self._pre_start_hold:
+            self._pre_start_hold = False
+            return [Notice(None, "resumed: the show starts once the fleet is ready")]
+        if "operator" not in self.holds:
             return [Notice(None, "not holding: nothing to resume")]
-        if self._t0 is not None:
-            self._t0 = now - self._paused_at
-        resumed, self._paused_at = self._paused_at, None
-        return [Notice(None, f"resuming at show time {resumed:.1f} s")]
+        self.release("operator", now)
+        others = sorted(self.holds)
+        if others:
+            return [Notice(None, f"operator hold released; still holding for {', '.join(others)}")]
+        return [Notice(None, f"resuming at show time {self.show_time(now):.1f} s")]
 
     def land_all(self, now: float) -> list[Action]:
         """Every vehicle back to its landing slot and down; the show is over."""
-        if self._frozen_at is None:
-            self._frozen_at = self.show_time(now)
+        if self._stopped_at is None:
+            interrupted = self._t0 is not None and not self._ended \
+                and self.clock.show_time(now) < self.plan.duration
+            self._pre_start_hold = False
+            self.release("operator", now)
+            self.hold_for("land-all", now)
+            self._stopped_at = min(self.clock.stop_time(now), self.plan.duration)
             # Interrupted mid-show: the way home needs planning (see return_needed).
-            self._return_wanted = (self._t0 is not None and not self._ended
-                                   and self._frozen_at < self.plan.duration)
+            self._return_wanted = self._return_wanted or interrupted
         self._ended = True
         actions: list[Action] = [Notice(None, "landing all vehicles")]
         for v in self.vehicles.values():
@@ -649,13 +869,21 @@ class ShowSequence:
                  "charge" if was in _STREAMED else "its failsafe is in charge")
         actions: list[Action] = [
             Notice(v.sysid, f"vehicle {v.sysid} lost during {was} ({silent}); {still}; "
-                            "the show goes on")]
+                            "the show goes on", "lost", f"lost during {was}; {still}")]
         if was is VehiclePhase.ARMING:
             actions += self._left_on_slot(v, now)
         return actions
 
-    def _rejoin(self, v: VehicleRun, now: float) -> list[Action]:
+    def _rejoin(self, v: VehicleRun, now: float, state: VehicleState) -> list[Action]:
         assert v.lost_from is not None
+        v.gap_seen = state.stream_gaps  # this silence is handled here
+        if v.lost_from in (VehiclePhase.ARMING, VehiclePhase.TAKEOFF):
+            # Lost before the show and counted as standing on its slot meanwhile: it
+            # does not join a show planned without it; it stands down.
+            v.phase, v.lost_from = v.lost_from, None
+            return [Notice(v.sysid, f"vehicle {v.sysid} heard again before the show: "
+                                    "standing it down", "heard_again", "heard again: "
+                                    "standing down"), *self._land(v, now)]
         off = self._off_plan(v, now)
         if off is not None and v.lost_from is VehiclePhase.SHOW:
             v.lost_from = None
@@ -664,7 +892,7 @@ class ShowSequence:
         if v.phase is VehiclePhase.READY and self._t0 is not None:
             v.phase = VehiclePhase.SHOW if not self._ended else VehiclePhase.RETURNING
         return [Notice(v.sysid, f"vehicle {v.sysid} heard again: back in the sequence "
-                                f"({v.phase})")]
+                                f"({v.phase})", "heard_again", f"heard again ({v.phase})")]
 
     def _off_plan(self, v: VehicleRun, now: float
                   ) -> tuple[float, tuple[float, float, float]] | None:
@@ -694,10 +922,24 @@ class ShowSequence:
         if v.leave_at is None:
             return [Notice(v.sysid, f"vehicle {v.sysid} {how} {distance:.1f} m off its plan: "
                                     "holding where it is until the show ends, then to its "
-                                    "landing spot")]
+                                    "landing spot", "stranded", "off its plan: holding "
+                                    "where it is until the show ends")]
         return [Notice(v.sysid, f"vehicle {v.sysid} {how} {distance:.1f} m off its plan: "
                                 "holding where it is, then leaving the show on a way out "
-                                "planned from there")]
+                                "planned from there", "stranded", "off its plan: holding, "
+                                "then leaving on a way out")]
+
+    def take_out(self, sysid: int, now: float, distance: float,
+                 why: str = "taken out of the show") -> list[Action]:
+        """Take a vehicle off its path out of the show from where it is (the guard's
+        response): it holds there and leaves on a way out planned from there, or lands
+        there if there is none."""
+        v = self.vehicles.get(sysid)
+        pos = self._positions.get(sysid)
+        if v is None or v.phase is not VehiclePhase.SHOW or pos is None or self._ended:
+            return []
+        here = (float(pos[0]), float(pos[1]), float(pos[2]))
+        return self._strand(v, (distance, here), now, why)
 
     def _hold_leave_time(self, v: VehicleRun, now: float) -> float | None:
         """When a vehicle holding off its plan leaves: LEAVE_LEAD_S from now, if its way out
@@ -762,13 +1004,31 @@ class ShowSequence:
         if v.phase in _STREAMED and state.mode is not None \
                 and state.mode not in (_FLIGHT_MODE[v.flavour], "UNKNOWN"):
             return self._taken_over(v, state)
-        heard = state.last_heard
-        gap = 0.0 if v.heard_at is None or heard is None else heard - v.heard_at
-        v.heard_at = heard
-        if v.phase is VehiclePhase.SHOW and gap > SILENCE_GAP_S \
-                and (off := self._off_plan(v, now)) is not None:
-            # Silent too briefly to be marked lost, long enough to have fallen behind.
-            return self._strand(v, off, now, f"heard again after {gap:.1f} s,")
+        if v.phase in _STREAMED and not state.armed and state.last_heartbeat is not None:
+            # Disarmed while flying our setpoints: a crash, a motor failure, a pilot's
+            # kill switch.  It is down where it fell: out of the show at once, and an
+            # obstacle for every landing from now on (down_positions).
+            was = v.phase
+            v.phase, v.pending, v.leave_at = VehiclePhase.FAILED, None, None
+            v.reason = f"disarmed during {was} (crash or motor failure)"
+            text = state.last_statustext.text if state.last_statustext is not None else ""
+            return [Notice(v.sysid, f"vehicle {v.sysid} disarmed in the air during {was}"
+                                    + (f" ('{text}')" if text else "")
+                                    + ": out of the show; where it fell is kept clear",
+                           "crashed", "disarmed in the air: out of the show")]
+        if state.stream_gaps > v.gap_seen:
+            # Its own telemetry (on its own clock) stopped for a while: it may have flown
+            # on without us.  Our own stalls never show here (the packets were queued,
+            # not missing), and a fleet-wide silence holds the whole show instead.
+            v.gap_seen = state.stream_gaps
+            gap = state.last_stream_gap_s
+            if v.phase is VehiclePhase.SHOW and not self.holds & FLEET_HOLDS \
+                    and (off := self._off_plan(v, now)) is not None:
+                return self._strand(v, off, now, f"heard again after {gap:.1f} s,")
+        if v.phase is VehiclePhase.SHOW and not v.battery_low and self._battery is not None \
+                and state.battery_remaining_pct is not None \
+                and state.battery_remaining_pct < self._battery:
+            return self._battery_landing(v, state, now)
         cmd = v.pending
         if v.retry_at is not None and now >= v.retry_at and cmd is not None:
             return [self._send(v, cmd, now)]
@@ -807,39 +1067,65 @@ class ShowSequence:
         elif isinstance(cmd, Land) or v.phase is VehiclePhase.LANDING:
             if not state.armed:
                 v.phase, v.pending = VehiclePhase.LANDED, None
-                return [Notice(v.sysid, f"vehicle {v.sysid} landed")]
+                return [Notice(v.sysid, f"vehicle {v.sysid} landed", "landed", "landed")]
             if state.mode in _LAND_MODES:
                 return []  # descending: that takes as long as it takes
         if cmd is not None and now - v.sent_at >= cfg.step_timeout_s and v.retry_at is None:
             return self.command_failed(cmd, f"no effect after {cfg.step_timeout_s:.0f} s", now)
         return []
 
-    def _landing_point(self, track: int) -> np.ndarray:
-        """Where ``track`` descends from.
+    def _landing_point(self, v: VehicleRun) -> np.ndarray:
+        """Where ``v`` descends from.
 
-        Once the show has started, above the plan's landing spot.  Before
-        (an abort during takeoff), straight back down its own takeoff column:
-        the plan's landing spot may be another drone's takeoff spot, and that
-        drone may still be standing on it (the very reason for the abort).
+        Once the show has started, above the plan's landing spot (or the spot a
+        return re-assigned it, when that one was blocked).  Before (an abort
+        during takeoff), straight back down its own takeoff column: the plan's
+        landing spot may be another drone's takeoff spot, and that drone may
+        still be standing on it (the very reason for the abort).
         """
+        if v.landing_point is not None:
+            return np.asarray(v.landing_point, dtype=float)
         if self._t0 is None:
-            return self._home_hover[track]
-        return self._slots[track]
+            return self._home_hover[v.track]
+        return self._slots[v.track]
 
     def _settled(self, v: VehicleRun) -> bool:
-        pos = self._positions.get(v.sysid)
-        if pos is None:
-            return False
-        return bool(np.linalg.norm(pos - self._first[v.track]) <= self.config.start_tolerance_m)
+        return self._start_distance(v) <= self.config.start_tolerance_m
 
     def _returning(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
         pos = self._positions.get(v.sysid)
         if pos is None:
             return []
-        if np.linalg.norm(pos - self._landing_point(v.track)) <= self.config.arrive_tolerance_m:
+        if v.returning_since is None:
+            v.returning_since = now
+        if np.linalg.norm(pos - self._landing_point(v)) <= self.config.arrive_tolerance_m:
+            if self._return_wanted and self._return is None:
+                return []  # a return is being planned: wait for it
+            if self.spot_blocked(v):
+                # Another drone came down under it (land-here, a failsafe, a crash):
+                # descending now would land on it.  A return re-assigns the spot.
+                if not self._return_wanted:
+                    self._return_wanted, self._return = True, None
+                    self._return_clock = None
+                    return [Notice(v.sysid, f"vehicle {v.sysid}: its landing spot is taken "
+                                            "by a drone that is down; planning a new spot")]
+                return []
             v.phase = VehiclePhase.LANDING
             return [self._send(v, Land(v.sysid), now)]
+        overdue = now - v.returning_since - self._return_span()
+        if overdue > self.config.return_timeout_s:
+            v.phase, v.reason = VehiclePhase.LANDING, (
+                f"did not reach its landing point within {self.config.return_timeout_s:.0f} s "
+                f"({float(np.linalg.norm(pos - self._landing_point(v))):.1f} m away)")
+            return [Notice(v.sysid, f"vehicle {v.sysid} {v.reason}: landing where it is",
+                           "land_here_timeout", "did not reach its landing point: landing "
+                                                "where it is"),
+                    self._send(v, Land(v.sysid), now)]
         return []
+
+    def _return_span(self) -> float:
+        """How long the current return (if any) takes, s."""
+        return 0.0 if self._return is None else float(self._return[0].end)
 
     def _leaving(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
         if v.leave is None:
@@ -863,6 +1149,24 @@ class ShowSequence:
                 v.lost_from = VehiclePhase.LEAVING
         return actions
 
+    def _battery_landing(self, v: VehicleRun, state: VehicleState,
+                         now: float) -> list[Action]:
+        assert self._battery is not None and state.battery_remaining_pct is not None
+        v.battery_low = True
+        pct = state.battery_remaining_pct
+        if pct < self._battery / 2:
+            v.phase, v.reason = VehiclePhase.LANDING, f"battery {pct:.0f} % (critical)"
+            return [Notice(v.sysid, f"vehicle {v.sysid}: battery {pct:.0f} % is below half "
+                                    f"the show's {self._battery:.0f} %: landing where it is",
+                           "battery_critical", "battery critical: landing where it is"),
+                    self._send(v, Land(v.sysid), now)]
+        v.reason = f"battery {pct:.0f} % (minimum {self._battery:.0f} %)"
+        actions: list[Action] = [Notice(
+            v.sysid, f"vehicle {v.sysid}: battery {pct:.0f} % is below the show's "
+                     f"{self._battery:.0f} %: it leaves the show", "battery_low",
+            "battery low: leaving the show")]
+        return actions + self.land_one(v.sysid, now)
+
     def _maybe_start_show(self, now: float, states: Mapping[int, VehicleState]) -> list[Action]:
         if self._t0 is not None or self._ended or not self._started or self.paused:
             return []
@@ -880,10 +1184,34 @@ class ShowSequence:
         if now - self._ready_since < self.config.settle_timeout_s \
                 and not all(self._settled(v) for v in ready):
             return []
-        self._t0 = now
+        # A vehicle that could not get to its first point in that time does not start
+        # the show off its plan: it goes back down its own column (an exclusion, with
+        # the exclusion's safety check: if the others need its slot clear, no show).
+        actions: list[Action] = []
+        far = [v for v in ready if self._start_distance(v) > self.config.exclude_tolerance_m]
+        for v in far:
+            d = self._start_distance(v)
+            v.phase, v.reason = VehiclePhase.LANDING, (
+                f"{d:.1f} m from its first plan point after "
+                f"{self.config.settle_timeout_s:.0f} s (tolerance "
+                f"{self.config.exclude_tolerance_m:.1f} m)")
+            actions += [Notice(v.sysid, f"vehicle {v.sysid} is {v.reason}: landing it on its "
+                                        "slot instead of starting it", "start_excluded",
+                               "could not reach its first plan point: landed on its slot"),
+                        self._send(v, Land(v.sysid), now), *self._left_on_slot(v, now)]
+        if self._ended:
+            return actions  # the exclusion left the show unsafe: aborted
+        ready = [v for v in ready if v not in far]
+        if not ready:
+            return actions
+        self.clock.start(now)
         for v in ready:
             v.phase = VehiclePhase.SHOW
-        return [Notice(None, f"show started with {len(ready)} vehicle(s)")]
+        return [*actions, Notice(None, f"show started with {len(ready)} vehicle(s)")]
+
+    def _start_distance(self, v: VehicleRun) -> float:
+        pos = self._positions.get(v.sysid)
+        return math.inf if pos is None else float(np.linalg.norm(pos - self._first[v.track]))
 
 
 def _describe(command: Command) -> str:

@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from groundctl.execute.frames import show_to_ned, show_vel_to_ned
 from groundctl.execute.leaving import Leave
+from groundctl.execute.showclock import ShowClock
 from groundctl.link.state import GeoPoint, Vec3
 from groundctl.plan.plan import Plan
 from groundctl.plan.trajectory import Trajectories
@@ -115,75 +116,86 @@ class SetpointStream:
         """(n, 3) show-frame points the targets descend from: above their landing spots."""
         return self.plan.landing_hover[self._tracks]
 
-    def at(self, show_time: float, now: float, clock_offsets: Mapping[int, float | None],
-           moving: bool = True, fixed: Mapping[int, ArrayLike] | None = None,
-           follow: Mapping[int, int] | None = None, follow_trajectories: Trajectories | None = None,
-           follow_time: float = 0.0, leaves: Mapping[int, Leave] | None = None) -> Setpoints:
-        """Setpoints for show time ``show_time`` at our time ``now``.
+    def at(self, now: float, clock_offsets: Mapping[int, float | None], *,
+           clock: ShowClock | None = None, show_time: float = 0.0, ended: bool = False,
+           fixed: Mapping[int, ArrayLike] | None = None,
+           follow: Mapping[int, int] | None = None,
+           follow_trajectories: Trajectories | None = None,
+           follow_clock: ShowClock | None = None,
+           leaves: Mapping[int, Leave] | None = None) -> Setpoints:
+        """Setpoints at our time ``now``, for the instant ``lead_s`` later.
 
-        ``moving`` False means the show clock is paused: the plan position at
-        ``show_time`` itself, with zero velocity and acceleration, so the
-        fleet hovers in a planned (separated) configuration.  ``fixed`` holds
-        vehicles (system id -> show-frame point) at a point instead, with
-        zero feed-forward, e.g. over their landing slots.  ``follow`` has
-        vehicles (system id -> row) fly ``follow_trajectories`` at
-        ``follow_time`` instead (a land-all's return), with the same lead.
-        ``leaves`` (system id -> Leave) fly their way out of the show instead of
-        the plan from the Leave's show time on (land-one mid-show).
+        With a running ``clock`` the plan is sampled where that clock will be then,
+        velocity and acceleration scaled by its rate (``rate * p'``, ``rate**2 * p'' +
+        rate' * p'``), so a braking clock brakes every drone along its own path.
+        Without one (before the start, after the end) the plan at ``show_time`` is
+        held with no feed-forward.  ``fixed`` holds vehicles (system id -> show-frame
+        point) at a point instead, with zero feed-forward, e.g. over their landing
+        slots.  ``follow`` has vehicles (system id -> row) fly
+        ``follow_trajectories`` on ``follow_clock`` instead (a return).  ``leaves``
+        (system id -> Leave) fly their way out of the show instead of the plan from the
+        Leave's show time on.
         """
-        t = min(show_time + self.lead_s, self.plan.duration) if moving else show_time
+        duration = self.plan.duration
+        if clock is not None and not ended:
+            c = clock.at(now + self.lead_s)
+            t, rate, drate = min(max(c.show_time, 0.0), duration), c.rate, c.rate_change
+        else:
+            t, rate, drate = min(max(show_time, 0.0), duration), 0.0, 0.0
+        if t >= duration:
+            rate = drate = 0.0  # past the end the plan holds its final state
         state = self.plan.state_at(t)
-        pos = state.pos[self._tracks]
-        vel = state.vel[self._tracks] if moving else np.zeros_like(pos)
-        acc = state.acc[self._tracks] if moving else np.zeros_like(pos)
-        if moving and show_time + self.lead_s >= self.plan.duration:
-            # Past the end the plan holds its final state: no feed-forward.
-            vel, acc = np.zeros_like(pos), np.zeros_like(pos)
+        pos = state.pos[self._tracks].copy()
+        vel = rate * state.vel[self._tracks]
+        acc = rate * rate * state.acc[self._tracks] + drate * state.vel[self._tracks]
         if leaves:
-            pos, vel, acc = pos.copy(), vel.copy(), acc.copy()
             for sysid, leave in leaves.items():
                 if sysid not in self._index:
                     raise ValueError(f"`leaves` names vehicle {sysid}, which is not streamed")
                 if t < leave.at:
                     continue  # still flying its plan
                 i = self._index[sysid]
-                pos[i], vel[i], acc[i] = leave.state(t)
-                if not moving or t >= leave.until:
-                    vel[i], acc[i] = 0.0, 0.0
+                p, v, a = leave.state(t)
+                if t >= leave.until:
+                    pos[i], vel[i], acc[i] = p, 0.0, 0.0
+                else:
+                    pos[i], vel[i], acc[i] = p, rate * v, rate * rate * a + drate * v
         if fixed:
-            pos, vel, acc = pos.copy(), vel.copy(), acc.copy()
             for sysid, point in fixed.items():
                 if sysid not in self._index:
                     raise ValueError(f"`fixed` names vehicle {sysid}, which is not streamed")
                 i = self._index[sysid]
                 pos[i], vel[i], acc[i] = np.asarray(point, dtype=float), 0.0, 0.0
         if follow:
-            if follow_trajectories is None:
-                raise ValueError("`follow` needs `follow_trajectories`")
-            pos, vel, acc = pos.copy(), vel.copy(), acc.copy()
-            tf = follow_time + self.lead_s
+            if follow_trajectories is None or follow_clock is None:
+                raise ValueError("`follow` needs `follow_trajectories` and `follow_clock`")
+            f = follow_clock.at(now + self.lead_s)
+            tf = min(max(f.show_time, 0.0), follow_trajectories.end)
+            fr, fdr = (0.0, 0.0) if tf >= follow_trajectories.end else (f.rate, f.rate_change)
             rows = np.array(list(follow.values()))
-            fp, fv, fa = follow_trajectories.evaluate(min(tf, follow_trajectories.end), rows)
-            if tf >= follow_trajectories.end:
-                fv, fa = np.zeros_like(fp), np.zeros_like(fp)
+            fp, fv, fa = follow_trajectories.evaluate(tf, rows)
             for k, sysid in enumerate(follow):
                 if sysid not in self._index:
                     raise ValueError(f"`follow` names vehicle {sysid}, which is not streamed")
                 i = self._index[sysid]
-                pos[i], vel[i], acc[i] = fp[k], fv[k], fa[k]
-        stamp_s = now + (self.lead_s if moving or follow else 0.0)
+                pos[i], vel[i], acc[i] = fp[k], fr * fv[k], fr * fr * fa[k] + fdr * fv[k]
+        stamp_s = now + self.lead_s
         offsets = np.array([np.nan if (o := clock_offsets.get(s)) is None else o
                             for s in self.sysids], dtype=float)
         # Unknown offset: 0 is what autopilots read as "no timestamp" (both
         # stock ArduPilot and PX4 act on a setpoint on arrival anyway).
         ms = np.where(np.isnan(offsets), 0.0, np.maximum((stamp_s + offsets) * 1000.0, 0.0))
+        # Colours of the show clock *now*, not of the look-ahead: LED_CONTROL is applied
+        # on arrival (the runner schedules changes per vehicle; this is the fallback).
+        now_t = min(max(clock.show_time(now), 0.0), duration) \
+            if clock is not None and not ended else t
         return Setpoints(
             sysids=self.sysids,
             time_boot_ms=ms.astype(np.int64),
             pos_ned=show_to_ned(self.plan.origin, self._origins, pos),
             vel_ned=show_vel_to_ned(self.plan.origin, vel),
             acc_ned=show_vel_to_ned(self.plan.origin, acc),
-            rgb=quantise_rgb(state.rgb[self._tracks]),
+            rgb=quantise_rgb(self.plan.colors_at(now_t)[self._tracks]),
         )
 
 
@@ -218,6 +230,14 @@ class LedTracker:
                 self._sent[sysid] = (colour, now)
                 out.append((sysid, colour))
         return out
+
+    def last(self, sysid: int) -> tuple[tuple[int, int, int], float] | None:
+        """The last colour sent to ``sysid`` and when, if any."""
+        return self._sent.get(sysid)
+
+    def sent(self, sysid: int, colour: tuple[int, int, int], now: float) -> None:
+        """Record a colour sent to ``sysid`` outside :meth:`due` (a scheduled change)."""
+        self._sent[sysid] = (colour, now)
 
     def forget(self, sysid: int) -> None:
         """Drop what was sent to ``sysid`` (it rebooted or came back): it gets a fresh send."""

@@ -172,14 +172,15 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
                          "down_and_disarmed": sum(s.landed and not s.armed for s in states),
                          "sim_overruns": fleet.get("overruns"),
                          "sim_max_lag_s": round(fleet.get("max_lag"), 3)}
-            except SimulatorError as exc:
+            except SimulatorError as exc:  # a dead child too: its first failure is kept
                 truth["error"] = str(exc)
             try:
                 fleet.stop()
             except SimulatorError as exc:
-                truth["error"] = str(exc)
+                truth.setdefault("error", str(exc))
                 if error is None:
                     error = exc
+            truth["exit_code"] = fleet.exitcode
         await link.close()
         report: dict[str, Any] = {
             "show": plan.show_name, "safe": False, "landed": False, "vehicles": [],
@@ -205,18 +206,36 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
 
 
 def _truth_probe(runner: ShowRunner, fleet: SimProcess) -> Callable[[float, float], None]:
+    """Every tick: where the simulated drones really are, and their LEDs.
+
+    If the simulator process is gone (killed, crashed) there is no fleet left
+    to fly: the probe raises one :class:`SimulatorError` saying so, which ends
+    the runner's loop and becomes the report's error (and keeps raising it, should
+    it be called again).
+    """
     origin = runner.plan.origin
     ids = list(fleet.sysids)
+    gone: list[SimulatorError] = []
 
     def probe(now: float, show_time: float) -> None:
+        if gone:
+            raise gone[0]
         mon, seq = runner.monitor, runner.sequence
         if mon is None or seq is None:
             return
-        positions, leds = fleet.call("truth")  # one round trip per tick
+        try:
+            positions, leds = fleet.call("truth")  # one round trip per tick
+        except SimulatorError as exc:
+            err = exc
+            if isinstance(exc.__cause__, (EOFError, OSError)):  # its pipe broke: it died
+                err = SimulatorError(f"the simulator process died mid-flight (exit code "
+                                     f"{fleet.exitcode}): the simulated fleet is gone")
+            gone.append(err)
+            raise err from exc
         mon.observe_truth(now, ids, enu_to_show(origin, positions))
-        t0 = seq.started_at
         for sysid, (led, when) in zip(ids, leds, strict=True):
-            shown_at = None if t0 is None or when is None or when < t0 else when - t0
+            # On the show clock, which holds and ramps: not simply "when - start".
+            shown_at = None if when is None else seq.show_time_of(when)
             mon.observe_led(sysid, led, when, shown_at)
 
     return probe

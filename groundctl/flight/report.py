@@ -1,7 +1,15 @@
 """The flight report: one JSON-able dict, and its text rendering.
 
 Keys relied on elsewhere (scripts, CI): ``safe``, ``vehicles``,
-``min_separation_m``, ``max_tracking_error_m``, ``landed``.
+``min_separation_m``, ``max_tracking_error_m``, ``landed``, ``pattern_error_m``,
+``led_timing_error_s``, ``setpoint_lateness_ms``, ``link``.
+
+``commands_refused`` and ``commands_timed_out`` at the top count every
+COMMAND_LONG exchange of the flight (pre-flight requests included), one for one
+with the ``command_refused`` and ``command_timeout`` events; a vehicle's
+``commands_refused`` counts only the show sequence's commands to it.  A
+formation never flown (the flight ended before it) has ``"flown": false`` and
+null pattern errors.
 """
 
 from __future__ import annotations
@@ -13,11 +21,19 @@ from typing import Any
 import numpy as np
 
 from groundctl.execute.sequence import VehiclePhase
+from groundctl.flight.monitor import FormationError
 from groundctl.flight.runner import ShowRunner
 
 
 def _r(x: float | None, nd: int = 3) -> float | None:
     return None if x is None or not math.isfinite(x) else round(float(x), nd)
+
+
+def _formation(f: FormationError) -> dict[str, Any]:
+    # No sample means no formation: 0.0 would read as a perfect one.
+    flown = f.samples > 0
+    return {"formation": f.name, "index": f.index, "flown": flown,
+            "max_m": _r(f.max_m) if flown else None, "mean_m": _r(f.mean_m) if flown else None}
 
 
 def flight_report(runner: ShowRunner, error: str | None = None,
@@ -90,16 +106,15 @@ def flight_report(runner: ShowRunner, error: str | None = None,
         "separation_limit_m": limit,
         "max_tracking_error_m": _r(mon.max_tracking_error()) if mon is not None else None,
         "rms_tracking_error_m": _r(mon.rms_tracking_error()) if mon is not None else None,
-        "pattern_error_m": [
-            {"formation": f.name, "index": f.index, "max_m": _r(f.max_m), "mean_m": _r(f.mean_m)}
-            for f in (mon.formations if mon is not None else [])],
+        "pattern_error_m": [_formation(f) for f in (mon.formations if mon is not None else [])],
         "led_timing_error_s": {
             "changes": len(led),
             "unmatched": unmatched,
             "mean_abs": _r(float(np.mean(np.abs(led)))) if led else None,
             "max_abs": _r(float(np.max(np.abs(led)))) if led else None,
         },
-        "commands_refused": sum(r.commands_refused for r in runner.records.values()),
+        "commands_refused": stats.commands_refused,
+        "commands_timed_out": stats.commands_timed_out,
         "setpoint_lateness_ms": {
             "p50": _r(float(np.percentile(late, 50)), 2) if late.size else None,
             "p99": _r(float(np.percentile(late, 99)), 2) if late.size else None,
@@ -125,15 +140,20 @@ def render_report(report: dict[str, Any]) -> str:
     lines.append(f"tracking error max {report['max_tracking_error_m']} m, "
                  f"RMS {report['rms_tracking_error_m']} m")
     for f in report["pattern_error_m"]:
-        lines.append(f"  formation {f['index']} {f['formation']}: pattern error max "
-                     f"{f['max_m']} m, mean {f['mean_m']} m")
+        if f.get("flown", True):
+            lines.append(f"  formation {f['index']} {f['formation']}: pattern error max "
+                         f"{f['max_m']} m, mean {f['mean_m']} m")
+        else:
+            lines.append(f"  formation {f['index']} {f['formation']}: not flown")
     led = report["led_timing_error_s"]
     if led["changes"]:
         lines.append(f"LED colour timing: {led['changes']} changes, mean |error| "
                      f"{led['mean_abs']} s, max {led['max_abs']} s, unmatched {led['unmatched']}")
     lat = report["setpoint_lateness_ms"]
     lines.append(f"setpoint lateness p50 {lat['p50']} ms, p99 {lat['p99']} ms, max {lat['max']} "
-                 f"ms over {lat['ticks']} ticks; commands refused {report['commands_refused']}")
+                 f"ms over {lat['ticks']} ticks; commands refused {report['commands_refused']}"
+                 + (f", timed out {report['commands_timed_out']}"
+                    if report.get("commands_timed_out") else ""))
     link = report["link"]
     lines.append(f"link: {link['packets']} packets in, {link['sent']} out, {link['bad_packets']} "
                  f"bad, {link['unknown_system_packets']} from unknown systems")

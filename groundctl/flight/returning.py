@@ -21,6 +21,7 @@ from collections.abc import Collection, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.optimize import linear_sum_assignment
 
 from groundctl.errors import PlanningError
 from groundctl.execute.leaving import Leave, leave_duration, return_duration
@@ -36,18 +37,66 @@ from groundctl.show.model import PlannerSettings
 TRACKING_MARGIN_M = 0.25
 
 
-def plan_return(plan: Plan, tracks: list[int], start: NDArray[np.float64]) -> Trajectories:
-    """Trajectories (one row per entry of ``tracks``) from ``start`` to their landing points.
+def plan_return(plan: Plan, tracks: list[int], start: NDArray[np.float64],
+                static: NDArray[np.float64] | None = None,
+                goals: NDArray[np.float64] | None = None) -> Trajectories:
+    """Trajectories (one row per entry of ``tracks``) from ``start`` to their landing points
+    (``goals``, (n, 3), when a return re-assigned them; else the plan's), around the
+    fixed points ``static`` (k, 3): drones that are down or descending.
 
     Raises the planner's InfeasibleTransition / PlanningError if it cannot.
     """
     start = np.asarray(start, dtype=float)
-    goal = plan.landing_hover[tracks]
+    goal = plan.landing_hover[tracks] if goals is None else np.asarray(goals, dtype=float)
     duration = return_duration(plan, start, goal)
     # The planner's own tracking margin: per pair, as far as its two ends allow.
-    result = plan_quad_transition(0, "return", start, goal, duration, plan.limits,
-                                  PlannerSettings(tracking_margin=TRACKING_MARGIN_M))
+    settings = PlannerSettings(tracking_margin=TRACKING_MARGIN_M)
+    if static is not None and len(static):
+        points = np.asarray(static, dtype=float)
+
+        def still(times: NDArray[np.float64]) -> NDArray[np.float64]:
+            return np.repeat(points[:, None, :], len(times), axis=1)
+
+        return plan_among(0, "return", start, goal, duration, plan.limits, settings,
+                          still).trajectories
+    result = plan_quad_transition(0, "return", start, goal, duration, plan.limits, settings)
     return result.trajectories
+
+
+def free_landing_spots(plan: Plan, down: NDArray[np.float64],
+                       reserved: Collection[int] = ()) -> NDArray[np.intp]:
+    """Tracks whose landing spot (column included) keeps the separation limit (plus the
+    return's margin) from every drone that is down or descending at ``down`` (k, 3),
+    leaving out ``reserved`` tracks (spots others are flying to)."""
+    spots = plan.landing_hover
+    free = np.ones(len(spots), dtype=bool)
+    free[list(reserved)] = False
+    if len(down):
+        d = np.linalg.norm(spots[:, None, :2] - np.asarray(down)[None, :, :2], axis=2)
+        free &= d.min(axis=1) >= plan.limits.min_separation + TRACKING_MARGIN_M
+    return np.flatnonzero(free)
+
+
+def assign_landing(plan: Plan, tracks: list[int], start: NDArray[np.float64],
+                   down: NDArray[np.float64], reserved: Collection[int] = ()
+                   ) -> NDArray[np.float64]:
+    """Landing points (n, 3) for returning ``tracks`` from ``start``: each keeps its own
+    spot when that is free; otherwise all of them are re-assigned among the free spots
+    (least squared distance), so nobody lands on a drone that came down early.
+    Raises PlanningError if there are fewer free spots than drones."""
+    own = np.asarray(tracks, dtype=np.intp)
+    free = free_landing_spots(plan, down, reserved)
+    if np.isin(own, free).all():
+        return plan.landing_hover[own]
+    if len(free) < len(own):
+        raise PlanningError(0, "no landing spots",
+                            f"{len(own)} drones to land but only {len(free)} landing spots "
+                            "are clear of the drones already down")
+    cost = ((start[:, None, :] - plan.landing_hover[free][None, :, :]) ** 2).sum(axis=2)
+    rows, cols = linear_sum_assignment(cost)
+    goals = np.empty((len(own), 3))
+    goals[rows] = plan.landing_hover[free[cols]]
+    return goals
 
 
 # -- one drone leaving a show in progress ------------------------------------------------

@@ -26,7 +26,7 @@ import asyncio
 import contextlib
 import logging
 import math
-from collections.abc import Callable, Collection, Mapping
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,9 +40,20 @@ from groundctl.errors import (
     FlightError,
     GroundctlError,
     LinkError,
+    PlanningTimeout,
     PreflightFailed,
 )
-from groundctl.execute.frames import show_positions
+from groundctl.execute.frames import ned_vel_to_show, show_positions
+from groundctl.execute.guard import (
+    FlightGuard,
+    GuardConfig,
+    Hold,
+    LandAll,
+    Release,
+    TakeOut,
+    TickFacts,
+)
+from groundctl.execute.leds import LedSchedule
 from groundctl.execute.mapping import Assignment, auto_assign, explicit_assign
 from groundctl.execute.preflight import (
     PreflightReport,
@@ -51,6 +62,7 @@ from groundctl.execute.preflight import (
     run_preflight,
 )
 from groundctl.execute.sequence import (
+    FLEET_HOLDS,
     Action,
     Arm,
     Command,
@@ -65,11 +77,19 @@ from groundctl.execute.sequence import (
     Takeoff,
     VehiclePhase,
 )
-from groundctl.execute.setpoints import DEFAULT_LEAD_S, LedTracker, SetpointStream, StreamTarget
-from groundctl.flight.monitor import FlightMonitor
-from groundctl.flight.returning import column, plan_leave, plan_return
+from groundctl.execute.setpoints import (
+    DEFAULT_LEAD_S,
+    LedTracker,
+    Setpoints,
+    SetpointStream,
+    StreamTarget,
+)
+from groundctl.flight.monitor import FlightMonitor, nearest_pair, telemetry_positions
+from groundctl.flight.returning import assign_landing, column
+from groundctl.flight.workers import PlannerPool
 from groundctl.link.flavours import Flavour
 from groundctl.link.fleet import FleetLink
+from groundctl.link.state import VehicleState
 from groundctl.plan.plan import Plan
 from groundctl.record.events import EventSink
 
@@ -77,6 +97,44 @@ log = logging.getLogger(__name__)
 
 #: Checks a vehicle cannot pass by waiting (once their value is known).
 PERMANENT_CHECKS = frozenset({"battery", "slot"})
+#: More notices than this of one kind in one tick are folded into one line.
+FOLD_AFTER = 3
+#: Phases in which a vehicle is (or may be) in the air, for the guard's closest pair.
+_AIRBORNE = frozenset({VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
+                       VehiclePhase.RETURNING})
+#: Phases of vehicles that fly to no landing spot any more.
+_GONE = frozenset({VehiclePhase.LANDING, VehiclePhase.LANDED, VehiclePhase.FAILED,
+                   VehiclePhase.KILLED, VehiclePhase.PREFLIGHT})
+
+
+def _ids(ids: Sequence[int]) -> str:
+    """System ids as a short list: "1-4, 7, 9"."""
+    out: list[str] = []
+    run: list[int] = []
+    for i in sorted(ids):
+        if run and i == run[-1] + 1:
+            run.append(i)
+            continue
+        if run:
+            out.append(f"{run[0]}-{run[-1]}" if len(run) > 2 else
+                       ", ".join(map(str, run)))
+        run = [i]
+    if run:
+        out.append(f"{run[0]}-{run[-1]}" if len(run) > 2 else ", ".join(map(str, run)))
+    return "(" + ", ".join(out) + ")"
+
+
+def _range_rate(pa: NDArray[np.float64], pb: NDArray[np.float64], a: VehicleState,
+                b: VehicleState, plan: Plan) -> float:
+    """How fast two vehicles at ``pa``, ``pb`` (show frame) close (negative) or part, m/s."""
+    if a.velocity_ned is None or b.velocity_ned is None:
+        return 0.0
+    d = pb - pa
+    dist = float(np.linalg.norm(d))
+    if dist < 1e-9:
+        return 0.0
+    dv = ned_vel_to_show(plan.origin, np.array(b.velocity_ned) - np.array(a.velocity_ned))
+    return float(np.dot(d, dv) / dist)
 
 
 @dataclass(frozen=True)
@@ -105,6 +163,17 @@ class RunnerConfig:
     """Sequence tolerances and timeouts."""
     landing_timeout_s: float = 180.0
     """After the show ends (or land-all), every vehicle must be down within this."""
+    lost_wait_s: float = 60.0
+    """Once every other vehicle is down, lost ones are waited for this long (they may be
+    airborne under their own failsafe) before the flight ends as unaccounted for."""
+    guard: GuardConfig = field(default_factory=GuardConfig)
+    """When the show holds for our own lag, a fleet-wide silence or a safety response."""
+    return_deadline_s: float = 20.0
+    """A return (or a way out planned while the show holds) must be planned within this."""
+    planning_attempts: int = 2
+    """Attempts at a return before flying straight to the landing points."""
+    progress_every_s: float = 15.0
+    """A progress line this often during the flight."""
 
     def __post_init__(self) -> None:
         if not self.rate_hz >= 1.0:
@@ -150,17 +219,30 @@ class ShowRunner:
         """Ticks skipped because the loop fell a whole period behind."""
         self.on_tick: Callable[[float, float], None] | None = None
         """Called after every tick with (now, show time): the dry-run's truth probe."""
+        self.loop_lag_s: list[float] = []
+        """Per tick: how late the tick started against its scheduled instant."""
+        self.guard = FlightGuard(self.config.guard)
+        """Holds for our own lag, fleet-wide silence and safety responses."""
         self._stream: SetpointStream | None = None
+        self._led_schedule: LedSchedule | None = None
+        self._led_handles: list[asyncio.TimerHandle] = []
+        self._led_window_end = -math.inf
         self._leds = LedTracker(self.config.led_refresh_s)
         self._tasks: set[asyncio.Task[None]] = set()
         self._return_task: asyncio.Task[None] | None = None
         self._leave_tasks: dict[int, asyncio.Task[None]] = {}
+        self._pool: PlannerPool | None = None
+        self._pending_notices: list[Notice] = []
+        self._last_show_time: float | None = None
 
     # -- reporting -------------------------------------------------------------------
     def _say(self, text: str, event: str = "notice", **fields: Any) -> None:
         log.info("%s", text)
         if self.events is not None:
             self.events.emit(event, text=text, **fields)
+        self._notify(text)
+
+    def _notify(self, text: str) -> None:
         if self.notify is not None:
             self.notify(text)
 
@@ -209,6 +291,7 @@ class ShowRunner:
         asked: dict[tuple[int, str], float] = {}
         failing_since: dict[tuple[int, str], float] = {}
         last_lines: list[str] = []
+        next_progress = start + cfg.progress_every_s
         while True:
             now = self.clock.now()
             fleet = self._fleet()
@@ -255,24 +338,30 @@ class ShowRunner:
                     if now - since >= cfg.settle_s:
                         permanent.setdefault(sysid, []).append(str(r))
             if permanent:
-                self._say("pre-flight refused:\n" + report.render(cfg.excluded), "preflight_failed",
+                self._say("pre-flight refused: " + report.summary(cfg.excluded) + "\n"
+                          + "\n".join(report.failing_lines(cfg.excluded)), "preflight_failed",
                           failures=permanent)
                 raise PreflightFailed(permanent)
             if now - start >= cfg.preflight_timeout_s:
                 if failures:
-                    self._say("pre-flight timed out:\n" + report.render(cfg.excluded),
+                    self._say("pre-flight timed out: " + report.summary(cfg.excluded) + "\n"
+                              + "\n".join(report.failing_lines(cfg.excluded)),
                               "preflight_failed", failures=failures)
                     raise PreflightFailed(failures)
                 raise FlightError(f"pre-flight: no vehicle for track(s) {missing} after "
                                   f"{cfg.preflight_timeout_s:.0f} s; exclude or add vehicles")
+            if now >= next_progress:
+                next_progress = now + cfg.progress_every_s
+                self._say("pre-flight: " + report.summary(cfg.excluded), "progress")
             await asyncio.sleep(max(self.clock.wall_interval(0.5), 0.001))
         grounded = self._excluded_tracks()
         conflicts = remaining_plan_conflicts(self.plan, grounded) if grounded else []
         if conflicts:
             raise FlightError(f"excluding vehicle(s) {sorted(cfg.excluded)} leaves the show "
                               f"unsafe: {conflicts[0]}")
-        self._say("pre-flight passed:\n" + report.render(cfg.excluded), "preflight_passed",
-                  tracks={str(k): v for k, v in self._tracks().items()})
+        self._say("pre-flight passed: " + report.summary(cfg.excluded), "preflight_passed",
+                  tracks={str(k): v for k, v in self._tracks().items()},
+                  lines=report.lines(cfg.excluded))
         return report
 
     def _known(self, sysid: int, check: str) -> bool:
@@ -316,16 +405,20 @@ class ShowRunner:
             targets.append(StreamTarget(sysid, track, state.ekf_origin))
             self._record(sysid)
         self._stream = SetpointStream(self.plan, targets, self.config.lead_s)
+        self._led_schedule = LedSchedule.from_targets(self.plan, targets)
         self.monitor = FlightMonitor(self.plan, tracks)
         self.sequence = ShowSequence(self.plan, tracks, flavours, self.config.sequence,
                                      grounded_tracks=self._excluded_tracks())
         return self.sequence
 
     async def fly(self) -> None:
-        """Arm, take off, fly the show, land; returns once every vehicle is done."""
+        """Arm, take off, fly the show, land; returns once every vehicle is down."""
         seq = self._build()
         cfg = self.config
         period = 1.0 / cfg.rate_hz
+        if self._pool is None and self.plan.model == "quadrotor":
+            self._pool = PlannerPool(self.plan)
+            self._pool.start()  # loads in its own process while the fleet arms
         now = self.clock.now()
         self._say(f"arming {len(seq.vehicles)} vehicle(s)", "sequence_started")
         self._perform(seq.start(now))
@@ -334,77 +427,196 @@ class ShowRunner:
         deadline = now + budget
         next_tick = now
         next_check = now
-        while seq.phase is not ShowPhase.LANDED:
-            wait = next_tick - self.clock.now()
-            if wait > 0:
-                await asyncio.sleep(self.clock.wall_interval(wait))
-            now = self.clock.now()
-            scheduled = next_tick
-            next_tick += period
-            if next_tick < now:
-                skipped = int((now - next_tick) / period) + 1
-                self.overruns += skipped
-                next_tick += skipped * period
-            if seq.paused:
-                deadline += period
-            self._perform(seq.update(now, self.link.vehicles))
-            if seq.return_needed is not None and self._return_task is None:
-                self._return_task = asyncio.create_task(self._plan_return(seq))
-            for sysid, track, at, start in seq.leave_needed:
-                if sysid not in self._leave_tasks:
-                    self._leave_tasks[sysid] = asyncio.create_task(
-                        self._plan_leave(seq, sysid, track, at, start))
-            self._stream_tick(seq, now, scheduled)
-            if now >= next_check:
-                next_check = now + 1.0
-                self._flag_late(seq)
-            if self.on_tick is not None:
-                self.on_tick(now, seq.show_time(now))
-            if now > deadline:
-                left = {s: str(v.phase) for s, v in seq.vehicles.items()
-                        if v.phase not in (VehiclePhase.LANDED, VehiclePhase.LOST,
-                                           VehiclePhase.FAILED, VehiclePhase.KILLED)}
-                raise FlightError(f"the flight did not finish within {budget:.0f} s: "
-                                  f"vehicles still flying {left}")
+        next_progress = now + cfg.progress_every_s
+        lost_since: float | None = None
+        try:
+            while seq.phase is not ShowPhase.LANDED:
+                wait = next_tick - self.clock.now()
+                if wait > 0:
+                    await asyncio.sleep(self.clock.wall_interval(wait))
+                self.link.drain()  # decide on every packet that has arrived, not a backlog
+                now = self.clock.now()
+                scheduled = next_tick
+                lag = now - scheduled
+                self.loop_lag_s.append(lag)
+                next_tick += period
+                if next_tick < now:
+                    skipped = int((now - next_tick) / period) + 1
+                    self.overruns += skipped
+                    next_tick += skipped * period
+                if seq.paused:
+                    deadline += period
+                self.link.check_lost(now)
+                self._perform(seq.update(now, self.link.vehicles))
+                self._guard_tick(seq, now, lag, period)
+                self._start_planning(seq)
+                self._stream_tick(seq, now, scheduled)
+                if now >= next_check:
+                    next_check = now + 1.0
+                    self._flag_late(seq)
+                if now >= next_progress:
+                    next_progress = now + cfg.progress_every_s
+                    self._say(self.status_line(), "progress")
+                if self.on_tick is not None:
+                    self.on_tick(now, seq.show_time(now))
+                self._flush_notices()
+                if seq.settled and seq.lost:
+                    # Everyone else is down; the lost may be airborne under their own
+                    # failsafes.  Keep listening (and streaming) for a while.
+                    if lost_since is None:
+                        lost_since = now
+                        self._say(f"every vehicle is down but {_ids(seq.lost)}, lost: "
+                                  f"waiting up to {cfg.lost_wait_s:.0f} s to hear from "
+                                  f"{'it' if len(seq.lost) == 1 else 'them'} (Ctrl-C twice "
+                                  "abandons the flight)", "waiting_for_lost",
+                                  system_ids=seq.lost)
+                    elif now - lost_since > cfg.lost_wait_s:
+                        raise FlightError(
+                            f"vehicle(s) {seq.lost} lost and never seen down within "
+                            f"{cfg.lost_wait_s:.0f} s of the others landing: they may still be "
+                            "airborne, under their own failsafe")
+                else:
+                    lost_since = None
+                if now > deadline:
+                    left = {s: str(v.phase) for s, v in seq.vehicles.items()
+                            if v.phase not in (VehiclePhase.LANDED, VehiclePhase.FAILED,
+                                               VehiclePhase.KILLED)}
+                    raise FlightError(f"the flight did not finish within {budget:.0f} s: "
+                                      f"vehicles still flying or unaccounted for {left}")
+        finally:
+            self._flush_notices()
+            self._cancel_led_sends()
         self._say("every vehicle is down", "sequence_finished",
                   phases={str(s): str(v.phase) for s, v in seq.vehicles.items()})
         await self._drain()
 
+    # -- the guard: our own lag, fleet-wide silence, safety responses ------------------
+    def _guard_tick(self, seq: ShowSequence, now: float, lag: float, period: float) -> None:
+        assert self.monitor is not None
+        in_show = seq.started_at is not None and not seq.ended
+        errors: dict[int, float] = {}
+        closest, pair, closing = math.inf, None, 0.0
+        if in_show:
+            ids, pos = telemetry_positions(self.plan, self.link.vehicles, now)
+            ids_pos = dict(zip(ids, pos, strict=True))
+            for sysid, v in seq.vehicles.items():
+                if v.phase not in (VehiclePhase.SHOW, VehiclePhase.LEAVING) \
+                        or sysid not in ids_pos:
+                    continue
+                want = seq.commanded(sysid, now)
+                if want is not None:
+                    errors[sysid] = float(np.linalg.norm(ids_pos[sysid] - want))
+            flying = [k for k, s in enumerate(ids) if s in seq.vehicles
+                      and seq.vehicles[s].phase in _AIRBORNE]
+            sep = nearest_pair([ids[k] for k in flying], pos[flying])
+            closest, pair = sep.distance_m, sep.pair
+            if pair is not None:
+                closing = _range_rate(ids_pos[pair[0]], ids_pos[pair[1]],
+                                      self.link.vehicles[pair[0]],
+                                      self.link.vehicles[pair[1]], self.plan)
+        facts = TickFacts(
+            now=now, lag_s=lag, period_s=period, last_sent_show_time=self._last_show_time,
+            fleet_silent=self.link.fleet_silent, errors_m=errors, closest_m=closest,
+            closest_pair=pair, closing_mps=closing, limit_m=self.plan.limits.min_separation,
+            in_show=in_show, stopped=seq.clock.stopped(now))
+        for action in self.guard.tick(facts):
+            if isinstance(action, Hold):
+                if action.show_time is not None:
+                    seq.stop_for(action.reason, now, action.show_time)
+                else:
+                    seq.hold_for(action.reason, now)
+                self._say(action.text, "show_held", reason=action.reason,
+                          show_time=round(seq.show_time(now), 2))
+            elif isinstance(action, Release):
+                resumed = seq.release(action.reason, now)
+                others = sorted(seq.holds)
+                text = action.text if resumed or not others else \
+                    f"{action.text.split(':')[0]}; still holding for {', '.join(others)}"
+                self._say(text, "show_released", reason=action.reason, resumed=resumed)
+            elif isinstance(action, TakeOut):
+                self._say(action.text, "taken_out", system_id=action.sysid,
+                          distance_m=round(action.distance_m, 2))
+                self._perform(seq.take_out(action.sysid, now, action.distance_m,
+                                           "off its path in a safety hold,"))
+            elif isinstance(action, LandAll):
+                self._say(action.text, "guard_land_all")
+                self._perform(seq.land_all(now))
+
+    # -- planning in worker processes ---------------------------------------------------
+    def _start_planning(self, seq: ShowSequence) -> None:
+        if seq.return_needed is not None and self._return_task is None:
+            self._return_task = asyncio.create_task(self._plan_return(seq))
+        for sysid, track, at, start in seq.leave_needed:
+            if sysid not in self._leave_tasks:
+                self._leave_tasks[sysid] = asyncio.create_task(
+                    self._plan_leave(seq, sysid, track, at, start))
+
+    def _planner(self) -> PlannerPool:
+        if self._pool is None:
+            self._pool = PlannerPool(self.plan)
+            self._pool.start()
+        return self._pool
+
     async def _plan_return(self, seq: ShowSequence) -> None:
-        needed = seq.return_needed or []
-        sysids = [s for s, _ in needed]
-        tracks = [t for _, t in needed]
-        t = seq.show_time(self.clock.now())
-        start = self.plan.state_at(t).pos[tracks]
-        holds = {v.track: v.hold_point for v in seq.vehicles.values()
-                 if v.hold_point is not None}
-        for row, track in enumerate(tracks):
-            leave = seq.leaves.get(track)
-            if leave is not None and t >= leave.at:  # on its way out of the show already
-                start[row] = leave.state(t)[0]
-            elif track in holds:  # hovering where it was heard again
-                start[row] = holds[track]
-        self._say(f"planning a collision-free return for {len(sysids)} vehicle(s); they "
-                  "hover meanwhile", "return_planning")
+        cfg = self.config
         try:
-            traj = await asyncio.to_thread(plan_return, self.plan, tracks, start)
-        except GroundctlError as exc:
-            self._perform(seq.return_failed(str(exc)))
-            return
-        self._perform(seq.set_return(traj, sysids, self.clock.now()))
+            for attempt in range(1, cfg.planning_attempts + 1):
+                needed = seq.return_needed
+                if not needed:
+                    return
+                sysids = [s for s, _ in needed]
+                tracks = [t for _, t in needed]
+                now = self.clock.now()
+                start = np.array([seq.return_start(s, now) for s in sysids])
+                down = np.array(seq.down_positions()).reshape(-1, 3)
+                reserved = [v.track for v in seq.vehicles.values()
+                            if v.sysid not in sysids and v.phase not in _GONE]
+                try:
+                    goals = assign_landing(self.plan, tracks, start, down, reserved)
+                    static = np.concatenate([column(p) for p in down]) if len(down) \
+                        else None
+                    self._say(f"planning a collision-free return for {len(sysids)} "
+                              "vehicle(s); they brake along their paths and hover meanwhile"
+                              + (f" ({len(down)} drone(s) down kept clear)" if len(down)
+                                 else ""), "return_planning", attempt=attempt)
+                    traj = await self._planner().plan_return(
+                        tracks, start, self.clock.wall_interval(cfg.return_deadline_s)
+                        or cfg.return_deadline_s, static, goals=goals)
+                except PlanningTimeout as exc:
+                    self._say(f"return planning attempt {attempt}: {exc}", "return_late")
+                    continue
+                except GroundctlError as exc:
+                    self._perform(seq.return_failed(str(exc)))
+                    return
+                self._perform(seq.set_return(traj, sysids, self.clock.now(), goals))
+                return
+            self._perform(seq.return_failed(f"no plan within {cfg.planning_attempts} attempts "
+                                            f"of {cfg.return_deadline_s:.0f} s"))
+        finally:
+            self._return_task = None
 
     async def _plan_leave(self, seq: ShowSequence, sysid: int, track: int, at: float,
                           start: tuple[float, float, float] | None) -> None:
         """Plan ``sysid``'s way out of the show (land-one mid-show, or heard again off its
-        plan: from ``start``) around everyone else."""
+        plan: from ``start``) around everyone else, in a worker, before its instant."""
         try:
             absent, static = self._not_on_plan(seq, sysid)
+            now = self.clock.now()
+            # It must be ready before its instant comes on the show clock (which stands
+            # still while the show holds: then the planner has all the time it needs).
+            ahead = max(at - seq.show_time(now), 0.0)
+            allowed = max(ahead - 0.3, 0.5) if not seq.paused else self.config.return_deadline_s
             self._say(f"planning vehicle {sysid}'s way out of the show (leaving at show time "
                       f"{at:.1f} s)", "leave_planning", system_id=sysid, at=round(at, 2))
             try:
-                leave = await asyncio.to_thread(
-                    plan_leave, self.plan, track, at, seq.leaves, absent, static,
-                    None if start is None else np.asarray(start, dtype=float))
+                leave = await self._planner().plan_leave(
+                    track, at, seq.leaves, absent, static,
+                    None if start is None else np.asarray(start, dtype=float),
+                    max(self.clock.wall_interval(allowed), 0.05),
+                    what=f"planning vehicle {sysid}'s way out")
+            except PlanningTimeout as exc:
+                self._perform(seq.leave_late(sysid, str(exc), self.clock.now()))
+                return
             except GroundctlError as exc:
                 self._perform(seq.leave_failed(sysid, str(exc), self.clock.now()))
                 return
@@ -437,6 +649,7 @@ class ShowRunner:
         static = np.concatenate(columns) if columns else np.empty((0, 3))
         return absent, static
 
+    # -- streaming --------------------------------------------------------------------
     def _stream_tick(self, seq: ShowSequence, now: float, scheduled: float) -> None:
         assert self._stream is not None and self.monitor is not None
         req = seq.stream_request(now)
@@ -444,9 +657,10 @@ class ShowRunner:
             self.lateness_s.append(self.clock.now() - scheduled)
         else:
             offsets = {s: self.link.vehicles[s].clock_offset_s for s in req.sysids}
-            sp = self._stream.at(req.show_time, now, offsets, req.moving, req.fixed,
-                                 req.follow, req.follow_trajectories, req.follow_time,
-                                 req.leaves)
+            sp = self._stream.at(now, offsets, clock=req.clock, show_time=req.show_time,
+                                 ended=req.ended, fixed=req.fixed, follow=req.follow,
+                                 follow_trajectories=req.follow_trajectories,
+                                 follow_clock=req.follow_clock, leaves=req.leaves)
             send = self.link.send_position_target_local_ned
             rows = [i for i, s in enumerate(sp.sysids) if s in req.sysids]
             for i in rows:
@@ -454,32 +668,121 @@ class ShowRunner:
                      sp.vel_ned[i].tolist(), sp.acc_ned[i].tolist())
             # The tick's last setpoint has left: how late against its scheduled instant.
             self.lateness_s.append(self.clock.now() - scheduled)
-            ids = [sp.sysids[i] for i in rows]
-            for sysid, (r, g, b) in self._leds.due(ids, sp.rgb[rows], now):
-                self.link.send_led_rgb(sysid, r, g, b)
+            self._last_show_time = (min(req.clock.show_time(now + self._stream.lead_s),
+                                        self.plan.duration)
+                                    if req.clock is not None and not req.ended else None)
+            self._leds_tick(seq, now, sp, rows)
         in_show = [s for s, v in seq.vehicles.items() if v.phase is VehiclePhase.SHOW] \
-            if req.moving or seq.paused else []
+            if seq.started_at is not None and not seq.ended else []
         self.monitor.observe(now, req.show_time, in_show, self.link.vehicles)
 
+    def _leds_tick(self, seq: ShowSequence, now: float, sp: Setpoints, rows: list[int]) -> None:
+        """LED colours on the show clock *at the vehicle*: each change is sent its own
+        one-way link delay before it is due, at its own instant between ticks (LED_CONTROL
+        is applied on arrival), and every colour is refreshed once a second (it is never
+        acknowledged).  While the show clock is not running, the colours of the tick."""
+        streamed = [sp.sysids[i] for i in rows]
+        schedule = self._led_schedule
+        running = seq.started_at is not None and not seq.ended \
+            and seq.clock.at(now).rate >= 1.0 and schedule is not None
+        if not running or schedule is None:
+            self._cancel_led_sends()
+            for sysid, (r, g, b) in self._leds.due(streamed, sp.rgb[rows], now):
+                self.link.send_led_rgb(sysid, r, g, b)
+            return
+        delays = self._led_delays([int(x) for x in schedule.sysids])
+        t = seq.show_time(now)
+        period = 1.0 / self.config.rate_hz
+        # Changes whose send instant falls in the next period, sent at that instant.
+        wanted = set(streamed)
+        batch = schedule.window(max(t, self._led_window_end), t + period, delays)
+        self._led_window_end = t + period
+        loop = asyncio.get_running_loop()
+        for k in range(len(batch.sysids)):
+            sysid = int(batch.sysids[k])
+            if sysid not in wanted:
+                continue
+            colour = (int(batch.rgb[k][0]), int(batch.rgb[k][1]), int(batch.rgb[k][2]))
+            wait = max(float(batch.send_at[k]) - t, 0.0)
+            handle = loop.call_later(self.clock.wall_interval(wait), self._send_led,
+                                     sysid, colour)
+            self._led_handles.append(handle)
+        self._led_handles = [h for h in self._led_handles if not h.cancelled()
+                             and h.when() >= loop.time()]
+        # The periodic refresh, of the colour the vehicle should show when it arrives.
+        colours = schedule.colour_at(t, delays)
+        rows_of = {int(s): i for i, s in enumerate(schedule.sysids)}
+        for sysid in streamed:
+            last = self._leds.last(sysid)
+            if last is None or now - last[1] >= self.config.led_refresh_s:
+                c = colours[rows_of[sysid]]
+                self._send_led(sysid, (int(c[0]), int(c[1]), int(c[2])))
+
+    def _led_delays(self, sysids: Sequence[int]) -> NDArray[np.float64]:
+        out = np.zeros(len(sysids))
+        for i, sysid in enumerate(sysids):
+            state = self.link.vehicles.get(sysid)
+            rtt = state.median_rtt_s if state is not None else None
+            out[i] = 0.0 if rtt is None else min(max(rtt / 2.0, 0.0), 1.0)
+        return out
+
+    def _send_led(self, sysid: int, colour: tuple[int, int, int]) -> None:
+        self._leds.sent(sysid, colour, self.clock.now())
+        with contextlib.suppress(LinkError):
+            self.link.send_led_rgb(sysid, *colour)
+
+    def _cancel_led_sends(self) -> None:
+        for handle in self._led_handles:
+            handle.cancel()
+        self._led_handles.clear()
+        self._led_window_end = -math.inf
+
     def _flag_late(self, seq: ShowSequence) -> None:
+        if seq.holds & FLEET_HOLDS:
+            return  # our own trouble: its round trips say nothing about the vehicles
         for sysid, v in seq.vehicles.items():
             if v.phase not in (VehiclePhase.READY, VehiclePhase.SHOW):
                 continue
             rec = self._record(sysid)
-            rtt = self.link.vehicles[sysid].rtt_s
-            if rec.late or rtt is None or rtt / 2 <= self.config.lead_s:
+            state = self.link.vehicles[sysid]
+            rtt = state.median_rtt_s  # one stall of ours (a late answer) does not move it
+            if rec.late or rtt is None or len(state.timesync.samples) < 5 \
+                    or rtt / 2 <= self.config.lead_s:
                 continue
             rec.late = True
-            self._say(f"vehicle {sysid} is late: one-way delay ~{rtt * 500:.0f} ms exceeds the "
-                      f"setpoint lead of {self.config.lead_s * 1000:.0f} ms", "vehicle_late",
-                      system_id=sysid, rtt_ms=round(rtt * 1000, 1))
+            self._say(f"vehicle {sysid} is late: one-way delay ~{rtt * 500:.0f} ms (median "
+                      f"round trip) exceeds the setpoint lead of "
+                      f"{self.config.lead_s * 1000:.0f} ms", "vehicle_late", system_id=sysid,
+                      rtt_ms=round(rtt * 1000, 1), kind="late",
+                      summary="late: one-way delay exceeds the setpoint lead")
 
     def _perform(self, actions: list[Action]) -> None:
         for a in actions:
             if isinstance(a, Notice):
-                self._say(a.text, "sequence", system_id=a.sysid)
+                if a.kind and a.sysid is not None:
+                    self._pending_notices.append(a)  # folded per kind at the tick's end
+                else:
+                    self._say(a.text, "sequence", system_id=a.sysid)
             else:
                 self._spawn(self._command(a))
+
+    def _flush_notices(self) -> None:
+        """Notices of one kind for many vehicles in one tick become one line (each is
+        still one event)."""
+        pending, self._pending_notices = self._pending_notices, []
+        by_kind: dict[str, list[Notice]] = {}
+        for n in pending:
+            by_kind.setdefault(n.kind, []).append(n)
+        for kind, notes in by_kind.items():
+            if len(notes) <= FOLD_AFTER:
+                for n in notes:
+                    self._say(n.text, "sequence", system_id=n.sysid, kind=kind)
+                continue
+            ids = sorted({n.sysid for n in notes if n.sysid is not None})
+            for n in notes:
+                if self.events is not None:
+                    self.events.emit("sequence", text=n.text, system_id=n.sysid, kind=kind)
+            self._notify(f"{len(ids)} vehicles {_ids(ids)}: {notes[0].summary or kind}")
 
     async def _command(self, a: Command) -> None:
         link = self.link
@@ -504,10 +807,14 @@ class ShowRunner:
             rec = self._record(a.sysid)
             rec.commands_refused += 1
             rec.last_refusal = reason
-            self._say(f"vehicle {a.sysid}: {type(a).__name__.lower()} not done: {reason}",
-                      "command_failed", system_id=a.sysid, reason=reason)
+            self._perform([Notice(a.sysid, f"vehicle {a.sysid}: {type(a).__name__.lower()} "
+                                           f"not done: {reason}", "command_failed",
+                                  f"{type(a).__name__.lower()} not done: {reason}")])
+            if self.events is not None:
+                self.events.emit("command_failed", system_id=a.sysid, reason=reason)
             if self.sequence is not None:
                 self._perform(self.sequence.command_failed(a, reason, self.clock.now()))
+            self._flush_notices()
 
     async def _drain(self) -> None:
         # Commands still in flight (a final disarm's ACK): give them a moment, then cancel.
@@ -537,6 +844,9 @@ class ShowRunner:
             raise FlightError("flight abandoned by the operator") from None
         finally:
             await self._drain()
+            if self._pool is not None:
+                self._pool.close()
+                self._pool = None
 
     # -- operator ---------------------------------------------------------------------
     def _operator(self, name: str, call: Callable[[float], list[Action]]) -> None:
@@ -577,11 +887,15 @@ class ShowRunner:
 
     # -- status -------------------------------------------------------------------------
     def status_line(self) -> str:
-        """One line for a plain terminal: phase, show clock, vehicle phases, separation."""
+        """One line for a plain terminal: phase, show clock, vehicle phases, separation;
+        before the show, the pre-flight checks still pending, fleet-wide."""
         seq = self.sequence
         if seq is None:
             n = len(self.link.vehicles)
-            return f"pre-flight: {n} vehicle(s) heard"
+            report = self.preflight_report
+            if report is None:
+                return f"pre-flight: {n} vehicle(s) heard"
+            return "pre-flight: " + report.summary(self.config.excluded)
         now = self.clock.now()
         counts: dict[str, int] = {}
         for v in seq.vehicles.values():
@@ -590,6 +904,6 @@ class ShowRunner:
         mon = self.monitor
         sep = mon.separation.distance_m if mon is not None else math.inf
         err = mon.max_tracking_error() if mon is not None else 0.0
-        held = " HOLD" if seq.paused else ""
+        held = f" HOLD ({', '.join(sorted(seq.holds))})" if seq.paused else ""
         return (f"{seq.phase}{held} t={seq.show_time(now):6.1f}/{self.plan.duration:.0f} s "
                 f"[{phases}] min sep {sep:.2f} m, max err {err:.2f} m")

@@ -84,6 +84,11 @@ class LinkStats:
     """Packets sent."""
     socket_errors: int = 0
     """Errors the socket reported (ICMP unreachable, send failures)."""
+    commands_refused: int = 0
+    """COMMAND_LONG exchanges a vehicle answered with a refusal (every ``command_refused``
+    event; pre-flight requests included)."""
+    commands_timed_out: int = 0
+    """COMMAND_LONG exchanges never answered after every retry (``command_timeout`` events)."""
 
 
 def _log_worthy(count: int) -> bool:
@@ -118,6 +123,7 @@ class FleetLink:
         tlog: TlogWriter | None = None,
         events: EventSink | None = None,
         lost_timeout: float = 3.0,
+        fleet_silence: float = 1.0,
         heartbeat_period: float = 1.0,
         timesync_period: float = 1.0,
         tick: float = 0.05,
@@ -146,6 +152,7 @@ class FleetLink:
         self.tlog = tlog
         self.events = events
         self.lost_timeout = lost_timeout
+        self.fleet_silence = fleet_silence
         self.heartbeat_period = heartbeat_period
         self.timesync_period = timesync_period
         self.tick = tick
@@ -167,6 +174,11 @@ class FleetLink:
         self._exchanges: dict[tuple[int, int], tuple[CommandExchange, asyncio.Event]] = {}
         self._command_locks: dict[tuple[int, int], asyncio.Lock] = {}
         self._heard = asyncio.Event()
+        self.last_packet_at: float | None = None
+        """Our time of the last well-formed packet from any vehicle of the fleet."""
+        self.fleet_silent = False
+        """Nobody has been heard for ``fleet_silence`` s: the link (or we) went quiet."""
+        self._fleet_back_at = -math.inf
         self._transport: UdpTransport | None = None
         self._task: asyncio.Task[None] | None = None
         self.local_address: Address | None = None
@@ -277,6 +289,7 @@ class FleetLink:
             state.lost = False
             self._emit("vehicle_found", system_id=sysid,
                        silent_for_s=round(state.silent_for(now), 3))
+        self.last_packet_at = now
         for change in apply(state, msg, now):
             self._emit(change.event, system_id=sysid, **change.fields)
         self._heard.set()
@@ -379,8 +392,38 @@ class FleetLink:
         for sysid in list(self._addresses):
             self._send(sysid, msg)
 
+    def drain(self) -> int:
+        """Read every datagram waiting in the socket now; returns how many.
+
+        Called before anything is decided from the vehicles' states: after a stall
+        of our own loop the socket holds their packets, and they are not silent.
+        """
+        return self._transport.drain() if self._transport is not None else 0
+
+    def fleet_silent_for(self, now: float) -> float:
+        """Seconds since any vehicle was heard (infinite before the first packet)."""
+        return math.inf if self.last_packet_at is None else now - self.last_packet_at
+
     def check_lost(self, now: float) -> list[int]:
-        """Mark vehicles silent for longer than ``lost_timeout``; returns newly lost ids."""
+        """Mark vehicles silent for longer than ``lost_timeout``; returns newly lost ids.
+
+        Silence must be the vehicle's own: the socket is drained first (our own stall
+        leaves its packets waiting there), and while the whole fleet is silent (a cut
+        of the whole link, the receive path stopped) nobody is marked lost, since
+        that says nothing about any one vehicle: the ``fleet_silent`` flag is set
+        instead and the executor holds the show.
+        """
+        self.drain()
+        silent = self.fleet_silent_for(now) > self.fleet_silence and bool(self.vehicles)
+        if silent != self.fleet_silent:
+            self.fleet_silent = silent
+            self._emit("fleet_silent" if silent else "fleet_heard",
+                       silent_for_s=round(min(self.fleet_silent_for(now), 1e9), 3))
+            if not silent:
+                self._fleet_back_at = now
+        if silent or now - self._fleet_back_at < self.fleet_silence:
+            # Silent, or just back: the rest of the fleet's packets are on their way.
+            return []
         newly = []
         for sysid, state in self.vehicles.items():
             if not state.lost and state.silent_for(now) > self.lost_timeout:
@@ -479,6 +522,10 @@ class FleetLink:
                 del self._exchanges[key]
         if exchange.error is not None:
             event = "command_refused" if exchange.ack is not None else "command_timeout"
+            if exchange.ack is not None:
+                self.stats.commands_refused += 1
+            else:
+                self.stats.commands_timed_out += 1
             self._emit(event, system_id=sysid, command=exchange.name, error=str(exchange.error))
             raise exchange.error
         return exchange.result()

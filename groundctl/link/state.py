@@ -19,6 +19,10 @@ from groundctl.link.timesync import TimesyncEstimator, TimesyncSample
 
 Vec3 = tuple[float, float, float]
 
+#: Two position samples further apart than this on the vehicle's own clock mean its
+#: stream stopped (it streams at 10 Hz), s.
+STREAM_GAP_S = 0.5
+
 
 @dataclass(frozen=True)
 class GlobalPosition:
@@ -94,6 +98,12 @@ class VehicleState:
     """LOCAL_POSITION_NED vx, vy, vz in m/s."""
     local_time_boot_ms: int | None = None
     """time_boot_ms of the last LOCAL_POSITION_NED."""
+    stream_gaps: int = 0
+    """Silences in its own position stream: consecutive LOCAL_POSITION_NED further apart
+    than STREAM_GAP_S on the *vehicle's* clock.  Our own stalls never count here (their
+    packets waited in our socket, they were not missing)."""
+    last_stream_gap_s: float = 0.0
+    """The length of the last such silence, s."""
     global_position: GlobalPosition | None = None
     """Last GLOBAL_POSITION_INT."""
     battery_remaining_pct: float | None = None
@@ -142,6 +152,12 @@ class VehicleState:
     def rtt_s(self) -> float | None:
         """Latest TIMESYNC round-trip time in seconds."""
         return self.timesync.rtt_s
+
+    @property
+    def median_rtt_s(self) -> float | None:
+        """Median TIMESYNC round trip over the recent window: one stall of ours (a late
+        answer) does not move it."""
+        return self.timesync.median_rtt_s
 
     @property
     def clock_offset_s(self) -> float | None:
@@ -210,6 +226,12 @@ def _heartbeat(state: VehicleState, msg: Any, now: float, changes: list[StateCha
 
 
 def _local_position(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
+    prev = state.local_time_boot_ms
+    if prev is not None and msg.time_boot_ms > prev:
+        gap = (msg.time_boot_ms - prev) / 1000.0
+        if gap > STREAM_GAP_S:
+            state.stream_gaps += 1
+            state.last_stream_gap_s = gap
     state.position_ned = (msg.x, msg.y, msg.z)
     state.velocity_ned = (msg.vx, msg.vy, msg.vz)
     state.local_time_boot_ms = msg.time_boot_ms

@@ -73,6 +73,14 @@ class TimesyncEstimator:
         return min(self.samples, key=lambda s: s.rtt_ns, default=None)
 
     @property
+    def median_rtt_s(self) -> float | None:
+        """Median round trip over the window, s (None before the first answer)."""
+        if not self.samples:
+            return None
+        rtts = sorted(x.rtt_ns for x in self.samples)
+        return rtts[len(rtts) // 2] / NS
+
+    @property
     def offset_s(self) -> float | None:
         """Vehicle time minus our time in seconds, or None before the first answer."""
         best = self.best

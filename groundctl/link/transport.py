@@ -24,63 +24,89 @@ SOCKET_BUFFER_BYTES = 4 * 1024 * 1024
 Address = tuple[str, int]
 
 
-class _Protocol(asyncio.DatagramProtocol):
-    def __init__(self, on_datagram: Callable[[bytes, Address], None],
-                 on_error: Callable[[Exception], None]) -> None:
-        self._on_datagram = on_datagram
-        self._on_error = on_error
-
-    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
-        try:
-            self._on_datagram(data, (addr[0], addr[1]))
-        except Exception:  # a bug in a handler must not kill the socket
-            log.exception("error handling datagram from %s:%s", addr[0], addr[1])
-
-    def error_received(self, exc: Exception) -> None:
-        # ICMP port-unreachable from a vehicle that went away lands here on Linux.
-        self._on_error(exc)
+#: Datagrams read per readiness callback (and per :meth:`UdpTransport.drain`): enough
+#: to empty a backlog at once, bounded so a flood cannot starve the event loop.
+MAX_READS = 4096
 
 
 class UdpTransport:
-    """One bound UDP socket."""
+    """One bound, non-blocking UDP socket read straight from the event loop's selector.
+
+    Not asyncio's DatagramTransport: that reads one datagram per loop iteration, so
+    after a stall of the loop a backlog of thousands is handed over interleaved with
+    everything else and the control loop decides on stale telemetry.  Here each
+    readiness callback empties the socket, and :meth:`drain` lets the control loop
+    do so itself before it decides anything.
+    """
 
     def __init__(self, on_datagram: Callable[[bytes, Address], None],
                  on_error: Callable[[Exception], None] | None = None) -> None:
         self._on_datagram = on_datagram
         self._on_error = on_error or (lambda exc: None)
-        self._transport: asyncio.DatagramTransport | None = None
+        self._sock: socket.socket | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
         self.send_errors = 0
 
     async def open(self, listen: Address) -> Address:
         """Bind to ``listen``; returns the bound (host, port)."""
         loop = asyncio.get_running_loop()
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
-            transport, _ = await loop.create_datagram_endpoint(
-                lambda: _Protocol(self._on_datagram, self._on_error), local_addr=listen
-            )
-        except OSError as exc:
-            raise LinkError(f"cannot listen on {listen[0]}:{listen[1]}: {exc}") from exc
-        self._transport = transport
-        sock = transport.get_extra_info("socket")
-        if sock is not None:
+            sock.setblocking(False)
             # The kernel caps it at net.core.rmem_max / wmem_max; best effort.
             for opt in (socket.SO_RCVBUF, socket.SO_SNDBUF):
                 with contextlib.suppress(OSError):
                     sock.setsockopt(socket.SOL_SOCKET, opt, SOCKET_BUFFER_BYTES)
-        sockname = transport.get_extra_info("sockname")
-        return (sockname[0], sockname[1])
+            sock.bind(listen)
+        except OSError as exc:
+            sock.close()
+            raise LinkError(f"cannot listen on {listen[0]}:{listen[1]}: {exc}") from exc
+        self._sock, self._loop = sock, loop
+        loop.add_reader(sock.fileno(), self.drain)
+        name = sock.getsockname()
+        return (name[0], name[1])
+
+    def drain(self) -> int:
+        """Hand on every datagram waiting in the socket (at most MAX_READS); returns how
+        many.  Never raises."""
+        sock = self._sock
+        count = 0
+        while sock is not None and count < MAX_READS:
+            try:
+                data, addr = sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError as exc:
+                # ICMP port-unreachable from a vehicle that went away lands here on Linux.
+                self._on_error(exc)
+                break
+            count += 1
+            try:
+                self._on_datagram(data, (addr[0], addr[1]))
+            except Exception:  # a bug in a handler must not kill the socket
+                log.exception("error handling datagram from %s:%s", addr[0], addr[1])
+            sock = self._sock  # the handler may have closed us
+        return count
 
     def send(self, data: bytes, addr: Address) -> None:
-        """Queue ``data`` for ``addr``; never blocks, never raises for a send failure."""
-        if self._transport is None or self._transport.is_closing():
+        """Send ``data`` to ``addr``; never blocks, never raises for a send failure (UDP:
+        a full send buffer drops the datagram, as the network would)."""
+        if self._sock is None:
             raise LinkError("link is not open")
         try:
-            self._transport.sendto(data, addr)
+            self._sock.sendto(data, addr)
+        except (BlockingIOError, InterruptedError) as exc:
+            self.send_errors += 1
+            self._on_error(exc)
         except OSError as exc:
             self.send_errors += 1
             log.warning("send to %s:%s failed: %s", addr[0], addr[1], exc)
+            self._on_error(exc)
 
     def close(self) -> None:
-        if self._transport is not None:
-            self._transport.close()
-            self._transport = None
+        if self._sock is not None:
+            if self._loop is not None and not self._loop.is_closed():
+                with contextlib.suppress(Exception):
+                    self._loop.remove_reader(self._sock.fileno())
+            self._sock.close()
+            self._sock = None

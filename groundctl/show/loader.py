@@ -14,7 +14,8 @@ optional)::
     [show]      name, drones, takeoff_altitude = 3
     [origin]    lat, lon, alt, heading = 0
     [limits]    max_speed_h, max_speed_up, max_speed_down, max_accel,
-                min_separation, min_altitude, max_altitude, geofence = [[x, y], ...]
+                min_separation, min_altitude, max_altitude, geofence = [[x, y], ...],
+                land_battery_pct = 20
     [model]     kind = "quadrotor" | "unicycle"; unicycle: speed, r_min, max_turn_rate
     [planner]   dt, steps, max_iterations, tolerance, pattern_tolerance, alpha, beta
     [takeoff]   layout = "grid" | "points" | "random", layout keys, headings
@@ -64,6 +65,7 @@ _LIMIT_KEYS = {
     "min_separation": "min_separation",
     "min_altitude": "min_alt",
     "max_altitude": "max_alt",
+    "land_battery_pct": "land_battery_pct",
 }
 _PLANNER_FLOATS = ("dt", "tolerance", "pattern_tolerance")
 LANDING_SHAPE = "home"
@@ -125,6 +127,9 @@ def _read_limits(t: Table) -> Limits:
     values = {field: t.number(key, getattr(d, field), positive=field != "min_alt",
                               minimum=0.0 if field == "min_alt" else None)
               for key, field in _LIMIT_KEYS.items()}
+    if values["land_battery_pct"] >= 100.0:
+        raise t.error(f"'land_battery_pct' {fmt(values['land_battery_pct'])} must be below "
+                      "100 (the percentage below which a drone leaves the show to land)")
     if values["max_alt"] <= values["min_alt"]:
         raise t.error(f"'max_altitude' {fmt(values['max_alt'])} m must be above "
                       f"'min_altitude' {fmt(values['min_alt'])} m")

@@ -53,6 +53,9 @@ class Limits:
     """Max altitude, m."""
     geofence: tuple[tuple[float, float], ...] | None = None
     """Optional horizontal polygon (x, y) in show-frame metres; None = no fence."""
+    land_battery_pct: float = 20.0
+    """A drone whose battery falls below this mid-show leaves the show on a way out and
+    lands (below half of it, it lands where it is), percent."""
 
 
 @dataclass(frozen=True)

@@ -96,38 +96,70 @@ class SimProcess:
         """System ids, in vehicle order."""
         self._stopped = False
 
+    @property
+    def alive(self) -> bool:
+        """True while the child process runs (False once it stopped, was killed or died)."""
+        return self._proc.is_alive()
+
+    @property
+    def pid(self) -> int:
+        """The child process's id."""
+        assert self._proc.pid is not None  # started in __init__
+        return self._proc.pid
+
+    @property
+    def exitcode(self) -> int | None:
+        """The child's exit code (negative: the signal that ended it), None while it runs."""
+        return self._proc.exitcode
+
+    def _died(self, what: str, exc: BaseException) -> SimulatorError:
+        # The pipe breaks as the child exits, a moment before it can be reaped.
+        self._proc.join(1.0)
+        self._kill()
+        error = SimulatorError(f"the simulator process died (exit code {self._proc.exitcode}) "
+                               f"during {what}")
+        error.__cause__ = exc  # a broken pipe: how callers tell a death from a refusal
+        return error
+
     def _receive(self, timeout: float, what: str) -> Any:
-        if not self._conn.poll(timeout):
-            self._kill()
-            raise SimulatorError(f"the simulator process did not answer {what} within "
-                                 f"{timeout:.0f} s")
         try:
+            if not self._conn.poll(timeout):
+                self._kill()
+                raise SimulatorError(f"the simulator process did not answer {what} within "
+                                     f"{timeout:.0f} s")
             kind, value = self._conn.recv()
         except (EOFError, OSError) as exc:
-            self._kill()
-            raise SimulatorError(f"the simulator process died during {what}") from exc
+            raise self._died(what, exc) from exc
         if kind == "err":
             raise value
         return value
 
-    def call(self, name: str, *args: Any, **kwargs: Any) -> Any:
-        """``fleet.name(*args, **kwargs)`` in the child; its exception is raised here."""
+    def _request(self, kind: str, name: str, args: tuple[Any, ...],
+                 kwargs: dict[str, Any]) -> Any:
         with self._lock:
             if self._stopped:
-                raise SimulatorError("the simulator process has stopped")
-            self._conn.send(("call", name, args, kwargs))
+                raise SimulatorError(f"the simulator process has stopped: cannot {kind} "
+                                     f"{name}")
+            try:
+                self._conn.send((kind, name, args, kwargs))
+            except OSError as exc:  # BrokenPipeError, ConnectionResetError: the child is gone
+                raise self._died(name, exc) from exc
             return self._receive(CALL_TIMEOUT_S, name)
+
+    def call(self, name: str, *args: Any, **kwargs: Any) -> Any:
+        """``fleet.name(*args, **kwargs)`` in the child; its exception is raised here.
+
+        A child that died raises :class:`SimulatorError` (caused by the broken pipe).
+        """
+        return self._request("call", name, args, kwargs)
 
     def get(self, name: str) -> Any:
         """``fleet.name`` (an attribute or property) in the child."""
-        with self._lock:
-            if self._stopped:
-                raise SimulatorError("the simulator process has stopped")
-            self._conn.send(("get", name, (), {}))
-            return self._receive(CALL_TIMEOUT_S, name)
+        return self._request("get", name, (), {})
 
     def stop(self) -> None:
-        """Stop the fleet and the process; raises the loop's failure if it had one."""
+        """Stop the fleet and the process; raises the loop's failure if it had one, or
+        :class:`SimulatorError` if the child had died (it is cleaned up all the same)."""
         with self._lock:
             if self._stopped:
                 return
@@ -140,8 +172,10 @@ class SimProcess:
                     if kind == "stopped":
                         error = value
                         break
-            except (EOFError, OSError):
-                pass
+            except (EOFError, OSError) as exc:
+                self._proc.join(CALL_TIMEOUT_S)
+                if self._proc.exitcode != 0:  # 0: it stopped without a word (pipe closing)
+                    error = self._died("stop", exc)
             self._proc.join(CALL_TIMEOUT_S)
             self._kill()
             self._conn.close()
