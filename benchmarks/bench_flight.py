@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_flight.py demo --speed 2          # both flavours
     .venv/bin/python benchmarks/bench_flight.py load --sizes 100 200 254
+    .venv/bin/python benchmarks/bench_flight.py overload [--speeds 2 4 6] [--hog-speeds 2]
 
 ``demo`` flies shows/demo.toml (64 drones, ~130 s) through ``groundctl
 dry-run``'s machinery for ArduPilot and PX4 and prints the report's figures:
@@ -17,6 +18,13 @@ the simulator's), the lateness of each tick's last setpoint against its
 scheduled instant on the show clock (p50 / p99 / max; target p99 < 20 ms),
 and the per-vehicle cost, from which the largest fleet one core sustains is
 extrapolated (the dry-run's system ids stop at 254).
+
+``overload`` flies the demo at ``--speeds`` (faster than real time loads the
+ground station and the simulator alike) and at ``--hog-speeds`` beside two
+busy processes, one per core, and prints per run: safe, the simulator's true
+minimum separation, overruns, show-clock freezes for our own trouble (stall,
+overload, silence), ``vehicle_lost`` events, lines printed to the operator.
+Target: every run safe, no ``vehicle_lost`` (there are no link faults).
 """
 
 from __future__ import annotations
@@ -128,9 +136,59 @@ def bench_demo(speed: float, flavours: list[Flavour]) -> None:
         print(f"{flavour}: safe={r['safe']} landed={r['landed']} max tracking "
               f"{r['max_tracking_error_m']} m (RMS {r['rms_tracking_error_m']}), min separation "
               f"{r['min_separation_m']} m (truth {r['true_min_separation_m']}), worst pattern "
-              f"{max(f['max_m'] for f in r['pattern_error_m'])} m, lateness p99 {lat['p99']} "
+              f"{max(f['max_m'] or 0.0 for f in r['pattern_error_m'])} m, lateness p99 "
+              f"{lat['p99']} "
               f"ms (show clock), LED |error| mean {led['mean_abs']} s, max {led['max_abs']} s "
               f"over {led['changes']} changes, {time.perf_counter() - t:.0f} s wall", flush=True)
+        if r["unsafe_reasons"]:
+            print("   ", "; ".join(r["unsafe_reasons"]))
+
+
+def _hog() -> None:
+    while True:
+        pass
+
+
+def bench_overload(speeds: list[float], hog_speeds: list[float], flavour: Flavour) -> None:
+    """The demo dry-run pushed: faster than real time, and beside two busy processes."""
+    import multiprocessing as mp
+    import tempfile
+
+    from groundctl.commands.flying import BUNDLED_DEMO, load_or_plan
+    from groundctl.record.events import read_events
+
+    plan = load_or_plan(BUNDLED_DEMO, quiet=True)
+    print(f"overload: demo ({plan.drones} drones, {plan.duration:.0f} s), {flavour}; "
+          f"{mp.cpu_count()} cores")
+    print(f"{'run':<16} {'safe':>5} {'true sep m':>10} {'overruns':>8} {'ticks':>6} "
+          f"{'freezes':>7} {'lost':>5} {'lines':>5} {'p99 ms':>7} {'wall s':>6}  holds")
+    runs = [(speed, False) for speed in speeds] + [(speed, True) for speed in hog_speeds]
+    for speed, hog in runs:
+        hogs = [mp.Process(target=_hog, daemon=True) for _ in range(2)] if hog else []
+        for h in hogs:
+            h.start()
+        lines: list[str] = []
+        try:
+            with tempfile.TemporaryDirectory() as tmp:
+                t = time.perf_counter()
+                options = DryRunOptions(flavour=flavour, speed=speed, record_dir=Path(tmp))
+                result = asyncio.run(fly_dry_run(plan, options, notify=lines.append))
+                wall = time.perf_counter() - t
+                events = list(read_events(Path(tmp) / "events.jsonl"))
+        finally:
+            for h in hogs:
+                h.kill()
+                h.join()
+        r = result.report
+        held = [e["reason"] for e in events if e["event"] == "show_held"]
+        freezes = sum(1 for x in held if x in ("stall", "overload", "silence"))
+        lost = sum(1 for e in events if e["event"] == "vehicle_lost")
+        lat = r["setpoint_lateness_ms"] or {}
+        name = f"x{speed:g}" + (" + 2 hogs" if hog else "")
+        print(f"{name:<16} {r['safe']!s:>5} {r.get('true_min_separation_m')!s:>10} "
+              f"{lat.get('overruns')!s:>8} {lat.get('ticks')!s:>6} {freezes:>7} {lost:>5} "
+              f"{len(lines):>5} {lat.get('p99')!s:>7} {wall:>6.0f}  "
+              f"{','.join(sorted(set(held))) or '-'}", flush=True)
         if r["unsafe_reasons"]:
             print("   ", "; ".join(r["unsafe_reasons"]))
 
@@ -144,8 +202,15 @@ def main() -> None:
     ld = sub.add_parser("load")
     ld.add_argument("--sizes", type=int, nargs="+", default=[100, 200, 254])
     ld.add_argument("--seconds", type=float, default=30.0)
+    o = sub.add_parser("overload")
+    o.add_argument("--speeds", type=float, nargs="*", default=[2.0, 4.0, 6.0])
+    o.add_argument("--hog-speeds", type=float, nargs="*", default=[2.0],
+                   help="speeds flown beside two busy processes (a CPU hog on both cores)")
+    o.add_argument("--autopilot", choices=["ardupilot", "px4"], default="ardupilot")
     args = parser.parse_args()
-    if args.what == "demo":
+    if args.what == "overload":
+        bench_overload(args.speeds, args.hog_speeds, Flavour(args.autopilot))
+    elif args.what == "demo":
         flavours = list(Flavour) if args.autopilot == "both" else [Flavour(args.autopilot)]
         bench_demo(args.speed, flavours)
     else:

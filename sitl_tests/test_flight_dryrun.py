@@ -61,6 +61,7 @@ def test_quick_show_is_flown_landed_and_recorded(flavour: Flavour, tmp_path: Pat
     if flavour is Flavour.ARDUPILOT:  # PX4 ignores LED_CONTROL, as the real one does
         led = report["led_timing_error_s"]
         assert led["changes"] > 9 and led["max_abs"] < 0.5
+        assert led["mean_abs"] < 0.05  # scheduled at the vehicle, not the setpoint lead
     # The recordings: the report, every event, and a tlog pymavlink reads back.
     assert json.loads((tmp_path / "report.json").read_text())["safe"] is True
     events = [e["event"] for e in read_events(tmp_path / "events.jsonl")]
@@ -289,9 +290,10 @@ def test_land_one_mid_show_leaves_around_the_others_and_lands_on_its_spot(
 @pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
 def test_a_three_second_link_cut_mid_show(flavour: Flavour) -> None:
     """ArduPilot holds GUIDED through it (FS_GCS_TIMEOUT 5 s) at its last setpoint while
-    the show flies on: heard again off its plan, it holds there and leaves on a planned
-    way out instead of dashing back.  PX4's offboard-loss failsafe takes it (hold, then
-    land where it is): out of the show, not fought over, and the flight still ends."""
+    the show flies on; PX4's offboard-loss failsafe holds it (AUTO.LOITER) and would land
+    it where it is, in the formation, so once heard again it is taken back into OFFBOARD.
+    Either way it is heard again off its plan: it holds there and leaves on a planned way
+    out instead of dashing back, and the flight ends with everyone down safely."""
     async def cut(runner: ShowRunner, sim: SimProcess) -> None:
         await until(runner, lambda: show_time(runner) > 12.0)  # mid-transition
         sim.call("cut_link", 5, None, float(sim.get("time")) + 3.0)
@@ -299,14 +301,5 @@ def test_a_three_second_link_cut_mid_show(flavour: Flavour) -> None:
     result = dry_run(flavour=flavour, during=cut)
     report = result.report
     assert result.error is None, result.error
-    assert report["landed"] and [v["phase"] for v in report["vehicles"]] == ["landed"] * 9
-    assert report["simulator"]["crashed"] == []
-    if flavour is Flavour.ARDUPILOT:
-        _assert_flown_safely(report)
-        assert "m off its plan" in vehicle(report, 5)["reason"]
-    else:
-        # (Its first packets back may come before the HEARTBEAT with the new mode: it can
-        # be seen off its plan first, then taken over.)
-        assert vehicle(report, 5)["reason"].startswith("left OFFBOARD for AUTO.LOITER during")
-        # It came down through the show where its failsafe put it: the report says so.
-        assert all("did not" not in why for why in report["unsafe_reasons"])
+    _assert_flown_safely(report)
+    assert "m off its plan" in vehicle(report, 5)["reason"]

@@ -192,6 +192,16 @@ SILENCE_GAP_S = 0.5
 #: Holds of the whole fleet for what the vehicles did not do (our stall or overload, a
 #: fleet-wide silence): while one is in force, a vehicle's own gap is not its fault.
 FLEET_HOLDS = frozenset({"stall", "overload", "silence"})
+#: Modes an autopilot's link-loss failsafe puts a vehicle in (hold, land, return), as
+#: decoded by the link; a vehicle found in one after a silence is taken back.
+_LINK_FAILSAFE_MODES = {
+    Flavour.ARDUPILOT: frozenset({"LOITER", "BRAKE", "LAND", "RTL", "SMART_RTL"}),
+    Flavour.PX4: frozenset({"AUTO.LOITER", "AUTO.LAND", "AUTO.RTL"}),
+}
+#: A vehicle is taken back from a link-loss failsafe at most this many times.
+MAX_RETAKES = 2
+#: ... if the failsafe comes within this long of its own silence ending, s.
+RETAKE_WINDOW_S = 10.0
 #: A way out planned too late this many times is given up (no retry storm).
 MAX_LATE_LEAVES = 3
 #: The mode each autopilot flies our setpoints in.
@@ -282,6 +292,12 @@ class VehicleRun:
     """Its battery fell below the show's threshold (it has been told to land)."""
     leave_late: int = 0
     """Ways out that were planned too late for their instant."""
+    retaking: str | None = None
+    """The failsafe mode it is being taken back from, while that is under way."""
+    retakes: int = 0
+    """Times it was taken back from a link-loss failsafe."""
+    gap_at: float | None = None
+    """Our time its own telemetry last came back from a silence."""
 
 
 @dataclass(frozen=True)
@@ -512,8 +528,11 @@ class ShowSequence:
 
     # -- landing spots ---------------------------------------------------------------------
     def down_positions(self) -> list[np.ndarray]:
-        """Show-frame positions of the drones that are down, descending or given up (from
-        this update's telemetry, else their slot): obstacles for every landing."""
+        """Show-frame positions of the drones that are down, descending or given up
+        somewhere the plan did not put them (land-here, a crash, a failsafe landing, a
+        drone that never took off), from this update's telemetry (else their slot):
+        obstacles for every landing.  A drone descending over its own landing point is
+        not one: landing points are separated by the plan."""
         # Excluded drones, and drones that never took off, stand on their slots.
         out: list[np.ndarray] = [self.plan.home[t] for t in sorted(self.grounded_tracks)]
         for v in self.vehicles.values():
@@ -521,8 +540,33 @@ class ShowSequence:
                            VehiclePhase.KILLED) or (v.phase is VehiclePhase.LOST
                                                     and v.lost_from is VehiclePhase.LANDING):
                 pos = self._positions.get(v.sysid)
-                if pos is not None:
-                    out.append(np.asarray(pos, dtype=float))
+                if pos is None or (v.track in self.grounded_tracks and v.phase
+                                   is not VehiclePhase.FAILED):
+                    continue
+                spot = self._landing_point(v)
+                if v.phase is not VehiclePhase.FAILED and v.phase is not VehiclePhase.KILLED \
+                        and float(np.hypot(*(pos[:2] - spot[:2]))) \
+                        <= self.config.arrive_tolerance_m:
+                    continue  # down on its own landing point, as planned
+                out.append(np.asarray(pos, dtype=float))
+        return out
+
+    def reserved_spots(self, returning: Collection[int]) -> list[np.ndarray]:
+        """Landing points of the vehicles outside ``returning`` (system ids) that are
+        landing, or will land, on them: nobody else may be sent there."""
+        out = []
+        for v in self.vehicles.values():
+            if v.sysid in returning or v.phase in (VehiclePhase.FAILED, VehiclePhase.KILLED,
+                                                   VehiclePhase.PREFLIGHT):
+                continue
+            if v.track in self.grounded_tracks and v.landing_point is None:
+                continue  # standing on its slot: in down_positions
+            pos = self._positions.get(v.sysid)
+            spot = self._landing_point(v)
+            if v.phase in (VehiclePhase.LANDING, VehiclePhase.LANDED) and pos is not None \
+                    and float(np.hypot(*(pos[:2] - spot[:2]))) > self.config.arrive_tolerance_m:
+                continue  # down elsewhere: in down_positions, its spot is free
+            out.append(spot)
         return out
 
     def spot_blocked(self, v: VehicleRun) -> bool:
@@ -876,7 +920,7 @@ class ShowSequence:
 
     def _rejoin(self, v: VehicleRun, now: float, state: VehicleState) -> list[Action]:
         assert v.lost_from is not None
-        v.gap_seen = state.stream_gaps  # this silence is handled here
+        v.gap_seen, v.gap_at = state.stream_gaps, now  # this silence is handled here
         if v.lost_from in (VehiclePhase.ARMING, VehiclePhase.TAKEOFF):
             # Lost before the show and counted as standing on its slot meanwhile: it
             # does not join a show planned without it; it stands down.
@@ -992,6 +1036,36 @@ class ShowSequence:
                                 f"(failsafe or pilot) during {was}: out of the show, its "
                                 "autopilot is in charge until it is down")]
 
+    def _link_failsafe(self, v: VehicleRun, state: VehicleState, now: float) -> bool:
+        """Whether a mode change looks like the vehicle's own reaction to losing us (an
+        offboard- or GCS-loss failsafe: hold, land or return where it was), as opposed to
+        a pilot or a battery failsafe: it came while the whole fleet was silent or right
+        after a silence of its own, and its battery is fine."""
+        if state.mode not in _LINK_FAILSAFE_MODES[v.flavour]:
+            return False
+        if v.retakes >= MAX_RETAKES:
+            return False
+        battery = state.battery_remaining_pct
+        if battery is not None and self._battery is not None and battery < self._battery:
+            return False
+        recent_gap = v.gap_at is not None and now - v.gap_at <= RETAKE_WINDOW_S
+        return bool(self.holds & FLEET_HOLDS) or recent_gap or state.stream_gaps > v.gap_seen
+
+    def _retake(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
+        """Back in touch after a link loss that tripped its failsafe (a hold, or a blind
+        descent or return through the formation): the ground station knows where everyone
+        is and takes it back into its flight mode, setpoints already flowing."""
+        if v.retaking is not None and now - v.sent_at < self.config.step_timeout_s:
+            return []
+        if v.retaking is None:
+            v.retakes += 1
+        v.retaking = state.mode
+        flight = _FLIGHT_MODE[v.flavour]
+        return [Notice(v.sysid, f"vehicle {v.sysid} went to {state.mode} on its own after the "
+                                f"link loss: taking it back into {flight}", "retaking",
+                       f"in a link-loss failsafe: taking it back into {flight}"),
+                self._send(v, SetMode(v.sysid, flight), now)]
+
     def _altitude(self, state: VehicleState) -> float | None:
         if state.global_position is not None:
             return state.global_position.relative_alt_m
@@ -1001,8 +1075,15 @@ class ShowSequence:
         cfg = self.config
         v.altitude = self._altitude(state)
         # Streamed phases fly our setpoints, so must be in the flight mode.
+        if v.retaking is not None and state.mode == _FLIGHT_MODE[v.flavour]:
+            v.retaking, v.pending = None, None
+            return [Notice(v.sysid, f"vehicle {v.sysid} back in {state.mode}: in the sequence "
+                                    f"again ({v.phase})", "retaken",
+                           f"back in {state.mode} after its link-loss failsafe")]
         if v.phase in _STREAMED and state.mode is not None \
                 and state.mode not in (_FLIGHT_MODE[v.flavour], "UNKNOWN"):
+            if self._link_failsafe(v, state, now):
+                return self._retake(v, state, now)
             return self._taken_over(v, state)
         if v.phase in _STREAMED and not state.armed and state.last_heartbeat is not None:
             # Disarmed while flying our setpoints: a crash, a motor failure, a pilot's
@@ -1020,7 +1101,7 @@ class ShowSequence:
             # Its own telemetry (on its own clock) stopped for a while: it may have flown
             # on without us.  Our own stalls never show here (the packets were queued,
             # not missing), and a fleet-wide silence holds the whole show instead.
-            v.gap_seen = state.stream_gaps
+            v.gap_seen, v.gap_at = state.stream_gaps, now
             gap = state.last_stream_gap_s
             if v.phase is VehiclePhase.SHOW and not self.holds & FLEET_HOLDS \
                     and (off := self._off_plan(v, now)) is not None:
@@ -1195,10 +1276,14 @@ class ShowSequence:
                 f"{d:.1f} m from its first plan point after "
                 f"{self.config.settle_timeout_s:.0f} s (tolerance "
                 f"{self.config.exclude_tolerance_m:.1f} m)")
+            # Back over its own takeoff slot, then down there (the exclusion check below
+            # says whether the others can fly the show with it standing on it).
+            v.phase, v.pending, v.returning_since = VehiclePhase.RETURNING, None, now
+            v.landing_point = tuple(float(x) for x in self._home_hover[v.track])  # type: ignore[assignment]
             actions += [Notice(v.sysid, f"vehicle {v.sysid} is {v.reason}: landing it on its "
                                         "slot instead of starting it", "start_excluded",
-                               "could not reach its first plan point: landed on its slot"),
-                        self._send(v, Land(v.sysid), now), *self._left_on_slot(v, now)]
+                               "could not reach its first plan point: landing on its slot"),
+                        *self._left_on_slot(v, now)]
         if self._ended:
             return actions  # the exclusion left the show unsafe: aborted
         ready = [v for v in ready if v not in far]

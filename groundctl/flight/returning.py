@@ -63,39 +63,52 @@ def plan_return(plan: Plan, tracks: list[int], start: NDArray[np.float64],
     return result.trajectories
 
 
-def free_landing_spots(plan: Plan, down: NDArray[np.float64],
-                       reserved: Collection[int] = ()) -> NDArray[np.intp]:
-    """Tracks whose landing spot (column included) keeps the separation limit (plus the
-    return's margin) from every drone that is down or descending at ``down`` (k, 3),
-    leaving out ``reserved`` tracks (spots others are flying to)."""
+def landing_candidates(plan: Plan) -> NDArray[np.float64]:
+    """Points a returning drone may descend from (m, 3): the plan's landing spots, then
+    every takeoff slot that is not one of them, at the landing altitude."""
     spots = plan.landing_hover
-    free = np.ones(len(spots), dtype=bool)
-    free[list(reserved)] = False
-    if len(down):
-        d = np.linalg.norm(spots[:, None, :2] - np.asarray(down)[None, :, :2], axis=2)
-        free &= d.min(axis=1) >= plan.limits.min_separation + TRACKING_MARGIN_M
+    homes = plan.home + np.array([0.0, 0.0, float(spots[:, 2].mean())])
+    d = np.linalg.norm(homes[:, None, :2] - spots[None, :, :2], axis=2)
+    extra = homes[d.min(axis=1) >= plan.limits.min_separation]
+    return np.concatenate([spots, extra])
+
+
+def free_spots(plan: Plan, candidates: NDArray[np.float64], blocked: NDArray[np.float64]
+               ) -> NDArray[np.intp]:
+    """Indices of ``candidates`` whose column keeps the separation limit from every point
+    of ``blocked`` (k, 3): drones down or descending there, spots others fly to."""
+    free = np.ones(len(candidates), dtype=bool)
+    if len(blocked):
+        d = np.linalg.norm(candidates[:, None, :2] - np.asarray(blocked)[None, :, :2], axis=2)
+        free &= d.min(axis=1) >= plan.limits.min_separation
     return np.flatnonzero(free)
 
 
 def assign_landing(plan: Plan, tracks: list[int], start: NDArray[np.float64],
-                   down: NDArray[np.float64], reserved: Collection[int] = ()
+                   down: NDArray[np.float64], reserved: NDArray[np.float64] | None = None
                    ) -> NDArray[np.float64]:
     """Landing points (n, 3) for returning ``tracks`` from ``start``: each keeps its own
-    spot when that is free; otherwise all of them are re-assigned among the free spots
-    (least squared distance), so nobody lands on a drone that came down early.
+    spot when every one of them is free; otherwise all of them are re-assigned among the
+    free spots (the plan's landing spots, then its takeoff slots; least squared
+    distance), so nobody lands on a drone that came down early.  ``down`` are drones
+    down or descending off their spots, ``reserved`` the points others are landing on.
     Raises PlanningError if there are fewer free spots than drones."""
-    own = np.asarray(tracks, dtype=np.intp)
-    free = free_landing_spots(plan, down, reserved)
-    if np.isin(own, free).all():
-        return plan.landing_hover[own]
+    own = plan.landing_hover[np.asarray(tracks, dtype=np.intp)]
+    blocked = np.concatenate([np.asarray(down, dtype=float).reshape(-1, 3),
+                              np.zeros((0, 3)) if reserved is None
+                              else np.asarray(reserved, dtype=float).reshape(-1, 3)])
+    if len(free_spots(plan, own, blocked)) == len(own):
+        return own
+    candidates = landing_candidates(plan)
+    free = free_spots(plan, candidates, blocked)
     if len(free) < len(own):
         raise PlanningError(0, "no landing spots",
                             f"{len(own)} drones to land but only {len(free)} landing spots "
                             "are clear of the drones already down")
-    cost = ((start[:, None, :] - plan.landing_hover[free][None, :, :]) ** 2).sum(axis=2)
+    cost = ((start[:, None, :] - candidates[free][None, :, :]) ** 2).sum(axis=2)
     rows, cols = linear_sum_assignment(cost)
     goals = np.empty((len(own), 3))
-    goals[rows] = plan.landing_hover[free[cols]]
+    goals[rows] = candidates[free[cols]]
     return goals
 
 

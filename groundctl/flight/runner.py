@@ -569,8 +569,7 @@ class ShowRunner:
                 now = self.clock.now()
                 start = np.array([seq.return_start(s, now) for s in sysids])
                 down = np.array(seq.down_positions()).reshape(-1, 3)
-                reserved = [v.track for v in seq.vehicles.values()
-                            if v.sysid not in sysids and v.phase not in _GONE]
+                reserved = np.array(seq.reserved_spots(sysids)).reshape(-1, 3)
                 try:
                     goals = assign_landing(self.plan, tracks, start, down, reserved)
                     static = np.concatenate([column(p) for p in down]) if len(down) \

@@ -36,6 +36,10 @@ class Dynamics:
     """Vertical acceleration limit, m/s² (PSC_ACCZ / MPC_ACC_UP_MAX)."""
     max_jerk: float = 5.0
     """Jerk limit on the commanded acceleration, m/s³ (PSC_JERK_XY / MPC_JERK_AUTO)."""
+    max_tilt_accel: float = 5.66
+    """Horizontal acceleration the airframe can produce at its lean-angle limit, m/s²
+    (g tan 30°: ArduCopter's ANGLE_MAX; PX4's MPC_TILTMAX_AIR is 45°).  Path shaping
+    keeps to ``max_accel_xy``; rejecting wind may use up to this."""
     pos_p: float = 1.1
     """Position-loop gain, 1/s (PSC_POSXY_P / MPC_XY_P)."""
     pos_p_z: float = 1.0
@@ -68,6 +72,7 @@ PX4_DYNAMICS = Dynamics(
     max_speed_down=1.5,
     max_accel_xy=3.0,
     max_accel_z=4.0,
+    max_tilt_accel=9.81,
     max_jerk=8.0,
     pos_p=0.95,
     pos_p_z=1.0,

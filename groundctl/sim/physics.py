@@ -66,6 +66,10 @@ def _sqrt_controller(err: np.ndarray, p: float, accel: float) -> np.ndarray:
     return np.sign(err) * np.where(dist <= linear, p * dist, far)
 
 
+#: The velocity integrator runs only while the velocity error is below this, m/s.
+INTEGRATE_BELOW_MPS = 3.0
+
+
 class FleetPhysics:
     """State and dynamics of ``n`` vehicles; mutate the targets, then :meth:`step`."""
 
@@ -169,11 +173,20 @@ class FleetPhysics:
         v_dem[:, 2] = np.clip(v_dem[:, 2], -d.max_speed_down, self.climb_limit)
 
         # Velocity loop with integrator (rejects steady wind) and acceleration feed-forward.
+        # The path demand (P term and feed-forward) keeps to the acceleration limit; the
+        # integrator, which carries the steady wind, may add up to the tilt authority.
+        # Conditional integration (anti-windup): only near the demanded velocity, so a
+        # long move does not wind it up and overshoot.
         v_err = v_dem - self.vel
-        self._vint = np.clip(self._vint + d.vel_i * v_err * dt, -2.0, 2.0)
-        a_dem = d.vel_p * v_err + self._vint
+        near = np.linalg.norm(v_err[:, :2], axis=1, keepdims=True) < INTEGRATE_BELOW_MPS
+        self._vint = self._vint + np.where(near, d.vel_i * v_err * dt, 0.0)
+        self._vint[:, :2] = _limit_norm(self._vint[:, :2], d.max_tilt_accel)
+        self._vint[:, 2] = np.clip(self._vint[:, 2], -2.0, 2.0)
+        a_dem = d.vel_p * v_err
         a_dem += np.where(self.use_acc[:, None], self.tgt_acc, 0.0)
         a_dem[:, :2] = _limit_norm(a_dem[:, :2], d.max_accel_xy)
+        a_dem += self._vint
+        a_dem[:, :2] = _limit_norm(a_dem[:, :2], d.max_tilt_accel)
         a_dem[:, 2] = np.clip(a_dem[:, 2], -d.max_accel_z, d.max_accel_z)
         self._acc_dem += _limit_norm(a_dem - self._acc_dem, d.max_jerk * dt)
         acc = self.acc + (self._acc_dem - self.acc) * min(1.0, dt / d.response_tau)

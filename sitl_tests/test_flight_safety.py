@@ -1,0 +1,217 @@
+"""End to end: the executor degrades safely (its own stalls, fleet-wide silence, operator
+commands in sequence, wind, failures), against the simulator over real UDP.
+
+Each test is one dry-run of the quick show at four times real time.  What is
+checked is what an operator relies on: the simulator's truth (separation,
+crashes, who is down), the report and the event log.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from flight_fixtures import dry_run, quick_plan, show_time, until, vehicle
+
+from groundctl.execute.frames import ned_to_show
+from groundctl.execute.sequence import VehiclePhase
+from groundctl.flight.runner import RunnerConfig, ShowRunner
+from groundctl.link.flavours import Flavour
+from groundctl.record.events import read_events
+from groundctl.sim.process import SimProcess
+
+FLAVOURS = [Flavour.ARDUPILOT, Flavour.PX4]
+
+
+def _events(record: Path, name: str) -> list[dict]:
+    return [e for e in read_events(record / "events.jsonl") if e["event"] == name]
+
+
+def _assert_safe(report: dict, drones: int = 9) -> None:
+    why = (report["unsafe_reasons"], [(v["system_id"], v["phase"], v["reason"])
+                                      for v in report["vehicles"]])
+    assert report["safe"], why
+    assert [v["phase"] for v in report["vehicles"]] == ["landed"] * drones, why
+    assert report["true_min_separation_m"] >= report["separation_limit_m"]
+    assert report["simulator"]["crashed"] == []
+    assert report["simulator"]["down_and_disarmed"] == drones
+
+
+def _block_loop(runner: ShowRunner, seconds: float) -> None:
+    """Stall the runner's event loop for ``seconds`` of its clock (as a busy machine or a
+    blocking call would): nothing of ours runs meanwhile, the vehicles fly on."""
+    time.sleep(runner.clock.wall_interval(seconds))
+
+
+def test_a_stall_of_the_ground_station_holds_the_show_and_blames_no_vehicle(
+        tmp_path: Path) -> None:
+    async def stall(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 12.0)  # mid-transition
+        _block_loop(runner, 1.5)
+
+    result = dry_run(tmp_path, during=stall)
+    _assert_safe(result.report)
+    assert _events(tmp_path, "vehicle_lost") == []
+    assert _events(tmp_path, "vehicle_late") == []
+    held = _events(tmp_path, "show_held")
+    assert [e["reason"] for e in held][:1] == ["stall"]
+    assert [e["reason"] for e in _events(tmp_path, "show_released")][:1] == ["stall"]
+    assert result.report["max_tracking_error_m"] < 1.0
+
+
+def test_a_way_out_requested_while_the_ground_station_is_overloaded(tmp_path: Path) -> None:
+    seen: dict[str, object] = {}
+
+    async def overload(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 1.0)
+        seq = runner.sequence
+        assert seq is not None
+        runner.land_one(5)
+        for _ in range(30):  # every tick late by more than a period, for a while
+            _block_loop(runner, 0.15)
+            await asyncio.sleep(runner.clock.wall_interval(0.05))
+        await until(runner, lambda: seq.vehicles[5].phase is VehiclePhase.LANDED, 200.0)
+        seen["reason"] = seq.vehicles[5].reason
+
+    result = dry_run(tmp_path, during=overload)
+    _assert_safe(result.report)
+    assert "overload" in {e["reason"] for e in _events(tmp_path, "show_held")}
+    assert _events(tmp_path, "vehicle_lost") == []
+    # Planned in a worker process, bounded: no storm of late ways out.
+    assert len(_events(tmp_path, "leave_planning")) <= 3
+
+
+@pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
+def test_a_five_second_cut_of_the_whole_link_holds_the_fleet_and_lands_it(
+        flavour: Flavour, tmp_path: Path) -> None:
+    """Nobody is heard for 5 s: that says nothing about any one vehicle.  The show holds
+    (every drone brakes along its path), nobody is marked lost, and the flight does not
+    end while the fleet is in the air."""
+    async def cut(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 8.0)
+        sim.call("cut_link", None, None, float(sim.get("time")) + 5.0)
+
+    result = dry_run(tmp_path, flavour=flavour, during=cut)
+    report = result.report
+    assert result.error is None, result.error
+    assert _events(tmp_path, "vehicle_lost") == []
+    assert "silence" in {e["reason"] for e in _events(tmp_path, "show_held")}
+    assert report["simulator"]["crashed"] == []
+    assert report["simulator"]["down_and_disarmed"] == 9
+    assert report["true_min_separation_m"] >= report["separation_limit_m"]
+    assert [v["phase"] for v in report["vehicles"]] == ["landed"] * 9
+    if flavour is Flavour.ARDUPILOT:  # GUIDED survives 5 s (FS_GCS_TIMEOUT): it goes on
+        _assert_safe(report)
+
+
+@pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
+def test_land_here_then_land_all_lands_nobody_on_the_drone_already_down(
+        flavour: Flavour, tmp_path: Path) -> None:
+    plan = quick_plan()
+    # The vehicle whose landing spot is nearest to where vehicle 2 comes down.
+    seen: dict[str, object] = {}
+
+    async def operate(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 9.0)
+        seq = runner.sequence
+        assert seq is not None
+        runner.land_here(2)
+        await until(runner, lambda: seq.vehicles[2].phase is VehiclePhase.LANDED, 120.0)
+        state = runner.link.vehicles[2]
+        assert state.ekf_origin is not None and state.position_ned is not None
+        seen["down_at"] = ned_to_show(plan.origin, state.ekf_origin, state.position_ned)
+        runner.land_all()
+
+    result = dry_run(tmp_path, flavour=flavour, during=operate)
+    _assert_safe(result.report)  # the truth includes the drones on the ground
+    # Every other drone came down at least the separation limit away from vehicle 2.
+    assert result.report["min_separation_m"] >= plan.limits.min_separation
+    assert np.asarray(seen["down_at"]).shape == (3,)
+
+
+@pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
+def test_hold_brakes_along_the_paths_and_resume_tracks_closely(flavour: Flavour) -> None:
+    async def operate(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 11.0)  # mid-transition, at speed
+        runner.hold()
+        start = runner.clock.now()
+        await until(runner, lambda: runner.clock.now() - start > 5.0)
+        runner.resume()
+
+    result = dry_run(flavour=flavour, during=operate)
+    _assert_safe(result.report)
+    assert result.report["max_tracking_error_m"] < 0.3
+
+
+def test_a_motor_failure_takes_the_vehicle_out_and_keeps_its_crash_site_clear(
+        tmp_path: Path) -> None:
+    async def fail(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 6.0)
+        sim.call("motor_failure", 3)
+
+    result = dry_run(tmp_path, during=fail)
+    report = result.report
+    assert result.error is None, result.error
+    assert vehicle(report, 3)["phase"] == "failed"
+    assert "disarmed during show" in vehicle(report, 3)["reason"]
+    others = [v for v in report["vehicles"] if v["system_id"] != 3]
+    assert [v["phase"] for v in others] == ["landed"] * 8
+    assert not report["safe"]  # a crash is never a safe flight
+    assert report["simulator"]["crashed"] == [3]
+    # Nobody came down on it or flew through where it fell.
+    assert report["simulator"]["down_and_disarmed"] == 9
+
+
+def test_a_low_battery_sends_the_vehicle_home_on_a_way_out() -> None:
+    async def drain(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 1.0)
+        sim.call("low_battery", 0.15, 6)
+
+    result = dry_run(during=drain)
+    _assert_safe(result.report)
+    assert vehicle(result.report, 6)["reason"].startswith("battery 15 %")
+
+
+@pytest.mark.parametrize("seed", [3, 4])
+def test_eight_metres_per_second_of_gusting_wind_is_flown_safely(seed: int) -> None:
+    result = dry_run(wind=(8.0, 0.0, 0.0), gust_std=2.0, seed=seed)
+    _assert_safe(result.report)
+    assert result.report["max_tracking_error_m"] < 1.5
+
+
+def test_a_gust_that_blows_a_drone_off_its_path_holds_the_show_and_takes_it_out(
+        tmp_path: Path) -> None:
+    async def blow(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 9.0)
+        sim.call("gust", (0.0, 30.0, 0.0), 2.0, 5)  # a violent gust on vehicle 5 alone
+
+    result = dry_run(tmp_path, during=blow)
+    report = result.report
+    assert report["true_min_separation_m"] >= report["separation_limit_m"], \
+        report["unsafe_reasons"]
+    assert report["simulator"]["crashed"] == []
+    assert report["simulator"]["down_and_disarmed"] == 9
+    held = _events(tmp_path, "show_held")
+    assert "safety" in {e["reason"] for e in held}
+    assert "vehicle 5" in next(e["text"] for e in held if e["reason"] == "safety")
+
+
+def test_a_vehicle_that_never_reaches_its_first_point_is_not_started(tmp_path: Path) -> None:
+    async def blow(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: runner.sequence is not None
+                    and runner.sequence.vehicles[7].phase is VehiclePhase.TAKEOFF)
+        sim.call("gust", (25.0, 0.0, 0.0), 60.0, 7)  # more than it can fly against
+
+    result = dry_run(tmp_path, during=blow, runner=RunnerConfig())
+    (excluded,) = [e for e in _events(tmp_path, "sequence") if e.get("kind") == "start_excluded"]
+    assert excluded["system_id"] == 7 and "from its first plan point" in excluded["text"]
+    started = next(e for e in _events(tmp_path, "sequence") if "show started" in e["text"]
+                   or "aborting the show" in e["text"])
+    assert started["text"] in ("show started with 8 vehicle(s)",) \
+        or started["text"].startswith("aborting the show")
+    report = result.report
+    assert report["simulator"]["crashed"] == []
+    assert report["simulator"]["down_and_disarmed"] == 9
