@@ -639,3 +639,95 @@ def test_off_its_plan_too_late_for_a_way_out_it_holds_until_the_end_then_returns
     assert seq.vehicles[2].phase is VehiclePhase.RETURNING
     np.testing.assert_allclose(seq.stream_request(start + 10.6).fixed[2],
                                plan.landing_hover[1])
+
+
+# -- degrading safely ------------------------------------------------------------------
+
+
+def test_a_lost_vehicle_keeps_the_flight_open_until_it_is_seen_down() -> None:
+    _plan, states, seq, start = _in_formation_show()
+    states[2].lost = True
+    seq.update(start + 1.0, states)
+    assert seq.vehicles[2].phase is VehiclePhase.LOST
+    states[1].armed = False  # the other one is down (say, after landing)
+    seq.vehicles[1].phase = VehiclePhase.LANDED
+    assert seq.phase is not ShowPhase.LANDED  # silence is never "down"
+    assert seq.settled and seq.lost == [2]
+    assert 2 in seq.stream_request(start + 1.0).sysids  # still streamed its plan
+
+
+def test_a_vehicle_disarmed_in_the_air_is_out_of_the_show_and_an_obstacle() -> None:
+    _plan, states, seq, start = _in_formation_show()
+    states[2].armed = False
+    (notice,) = seq.update(start + 1.0, states)
+    assert isinstance(notice, Notice) and "disarmed in the air during show" in notice.text
+    v = seq.vehicles[2]
+    assert v.phase is VehiclePhase.FAILED and "crash or motor failure" in (v.reason or "")
+    assert 2 not in seq.stream_request(start + 1.0).sysids
+    assert len(seq.down_positions()) == 1  # where it fell is kept clear
+
+
+def test_a_low_battery_sends_a_vehicle_home_and_a_critical_one_down_where_it_is() -> None:
+    _plan, states, seq, start = _in_formation_show()
+    states[1].battery_remaining_pct = 15.0  # below the default 20 %
+    actions = seq.update(start + 1.0, states)
+    assert any(isinstance(a, Notice) and "battery 15 % is below the show's 20 %" in a.text
+               for a in actions)
+    assert seq.vehicles[1].leave_at is not None  # it leaves on a way out
+    states[2].battery_remaining_pct = 8.0
+    actions = seq.update(start + 1.1, states)
+    assert Land(2) in actions and seq.vehicles[2].phase is VehiclePhase.LANDING
+
+
+def test_a_link_loss_failsafe_after_a_silence_is_taken_back_but_a_pilot_is_not() -> None:
+    _plan, states, seq, start = _in_formation_show()
+    # Vehicle 2's own telemetry stopped for 2 s and it came back in AUTO-like LOITER.
+    states[2].stream_gaps, states[2].last_stream_gap_s = 1, 2.0
+    states[2].mode = "LOITER"
+    actions = seq.update(start + 1.0, states)
+    assert SetMode(2, "GUIDED") in actions
+    assert seq.vehicles[2].phase is VehiclePhase.SHOW
+    states[2].mode = "GUIDED"
+    (back,) = seq.update(start + 1.2, states)
+    assert isinstance(back, Notice) and "back in GUIDED" in back.text
+    # Vehicle 1 switched to LOITER with no silence of its own: a pilot, not fought.
+    states[1].mode = "LOITER"
+    seq.update(start + 1.3, states)
+    assert seq.vehicles[1].phase is VehiclePhase.LANDING
+
+
+def test_holds_for_the_ground_stations_own_trouble_do_not_strand_a_vehicle() -> None:
+    _plan, states, seq, start = _in_formation_show()
+    assert seq.hold_for("silence", start + 1.0)
+    states[2].stream_gaps, states[2].last_stream_gap_s = 1, 3.0
+    _at_plan_point(states[2], seq, 1, start + 1.5, off=(2.5, 0.0, 0.0))
+    seq.update(start + 1.5, states)
+    assert seq.vehicles[2].phase is VehiclePhase.SHOW  # the whole fleet was silent
+    assert seq.release("silence", start + 5.0)
+    assert not seq.paused
+
+
+def test_a_stall_stops_the_show_clock_where_the_last_setpoints_were() -> None:
+    _plan, _states, seq, start = _in_formation_show()
+    seq.stop_for("stall", start + 3.0, 1.6)
+    assert seq.show_time(start + 3.0) == pytest.approx(1.6)
+    assert seq.holds == {"stall"} and not seq.stream_request(start + 3.0).moving
+    seq.release("stall", start + 4.0)
+    assert seq.stream_request(start + 4.0 + seq.clock.default_ramp_s).moving
+
+
+def test_a_landing_spot_taken_by_a_drone_down_elsewhere_calls_for_a_new_return() -> None:
+    plan, states, seq, start = _in_formation_show()
+    seq.land_here(1, start + 1.0)
+    states[1].armed = False
+    slot2 = plan.landing_hover[1]
+    # Vehicle 1 came down right under vehicle 2's landing spot.
+    _at_plan_point(states[1], seq, 0, start + 1.0)
+    states[1].position_ned = (float(slot2[1]), float(slot2[0]), 0.0)  # NED of show x, y
+    seq.update(start + 2.0, states)
+    assert seq.vehicles[1].phase is VehiclePhase.LANDED
+    seq.update(start + plan.duration + 1.0, states)  # the show ends
+    states[2].position_ned = (float(slot2[1]), float(slot2[0]), -float(slot2[2]))
+    actions = seq.update(start + plan.duration + 2.0, states)
+    assert Land(2) not in actions
+    assert seq.return_needed == [(2, 1)]

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import asyncio
 import socket
+import time
 from pathlib import Path
 from typing import Any
 
@@ -298,3 +300,34 @@ async def test_tlog_records_both_directions_and_events_file(tmp_path: Path) -> N
             ("COMMAND_LONG", 255), ("LED_CONTROL", 255)} <= seen
     names = [e["event"] for e in read_events(events_path)]
     assert {"link_started", "vehicle_appeared", "statustext", "link_closed"} <= set(names)
+
+
+@run
+async def test_a_fleet_wide_silence_marks_nobody_lost() -> None:
+    events = EventList()
+    async with new_link(lost_timeout=0.3, fleet_silence=0.1, events=events) as link:
+        with peer_for(link, 1) as a, peer_for(link, 2) as b:
+            a.heartbeat_period = b.heartbeat_period = 0.02
+            await link.wait_for_vehicles([1, 2], 2.0)
+            a.muted = b.muted = True  # the whole link is cut (or our receive path)
+            await eventually(lambda: link.fleet_silent, what="fleet silent")
+            await asyncio.sleep(0.6)  # twice the lost timeout
+            assert not link.vehicles[1].lost and not link.vehicles[2].lost
+            assert events.named("fleet_silent") and not events.named("vehicle_lost")
+            a.muted = False  # one comes back: now the other's silence is its own
+            await eventually(lambda: link.vehicles[2].lost, what="vehicle 2 lost")
+            assert not link.vehicles[1].lost and not link.fleet_silent
+            assert [e["system_id"] for e in events.named("vehicle_lost")] == [2]
+
+
+@run
+async def test_a_stall_of_our_loop_is_not_the_vehicles_silence() -> None:
+    events = EventList()
+    async with new_link(lost_timeout=0.3, fleet_silence=0.2, events=events) as link:
+        with peer_for(link, 1) as a, peer_for(link, 2) as b:
+            a.heartbeat_period = b.heartbeat_period = 0.02
+            await link.wait_for_vehicles([1, 2], 2.0)
+            time.sleep(0.6)  # the event loop is blocked; their packets wait in the socket
+            assert link.check_lost(link.clock.now()) == []  # drained first
+            assert not events.named("vehicle_lost") and not events.named("fleet_silent")
+            assert link.vehicles[1].silent_for(link.clock.now()) < 0.1
