@@ -254,7 +254,9 @@ def test_a_vehicle_heard_again_off_its_plan_holds_there_and_leaves_from_there() 
     assert req.fixed == {2: v.hold_point} and 1 in req.sysids  # hovering, the other flies on
     # Its way out, from where it hovers.
     leave = Leave(at, Trajectories(np.array([0.0, 3.0]), np.stack(
-        [np.asarray(here), plan.landing_hover[1]])[None], np.zeros((1, 2, 3))))
+        [np.asarray(here), plan.landing_hover[1]])[None], np.zeros((1, 2, 3))), held=True)
+    # A way out planned from its plan point (before it was stranded) is stale: refused.
+    assert seq.set_leave(2, replace(leave, held=False), start + 2.5) == []
     assert seq.set_leave(2, leave, start + 2.5)[0].text.startswith("way out for vehicle 2")
     assert seq.stream_request(start + 2.5).fixed == {2: v.hold_point}  # not begun yet
     req = seq.stream_request(start + 4.5)

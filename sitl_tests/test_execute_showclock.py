@@ -74,7 +74,12 @@ def test_ramp_lengths_follow_the_braking_limit() -> None:
         brake_ramp(1.0, 0.0)
     with pytest.raises(ValueError, match="`ramp_s` must be at least"):
         ShowClock(ramp_s=0.1)
-    clock = ShowClock()
-    clock.start(5.0)
-    with pytest.raises(ValueError, match="went backwards"):
-        clock.hold(4.0, "operator")
+
+
+def test_a_clock_started_for_later_takes_holds_from_its_start() -> None:
+    clock = ShowClock(ramp_s=1.0)
+    clock.start(10.0)  # a return that begins once the fleet has braked
+    assert clock.hold(8.0, "operator")  # held before it began: it begins held
+    assert clock.stopped(11.5) and clock.show_time(11.5) == pytest.approx(0.5)
+    assert clock.release(9.0, "operator")
+    assert clock.at(13.0).rate == 1.0

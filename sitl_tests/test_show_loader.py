@@ -412,6 +412,8 @@ def test_model_and_takeoff_errors():
         "'max_altitude' 40.0 m must be above 'min_altitude' 50.0 m")
     assert error(base(limits={"geofence": [[0, 0], [1, 1], [2, 2]]})).message.startswith(
         "'geofence' encloses no area")
+    assert error(base(limits={"land_battery_pct": 100})).message.startswith(
+        "'land_battery_pct' 100.0 must be below 100")
 
 
 def test_planner_tolerance_above_what_keeps_the_scp_safe_is_refused():

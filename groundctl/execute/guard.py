@@ -30,6 +30,8 @@ from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from groundctl.execute.sequence import FLEET_HOLDS
+
 
 @dataclass(frozen=True)
 class GuardConfig:
@@ -62,6 +64,11 @@ class GuardConfig:
     this long before the show resumes."""
     max_safety_holds: int = 3
     """Safety holds before the fleet is landed."""
+    max_safety_hold_s: float = 30.0
+    """A safety hold that has not cleared after this long lands the fleet."""
+    closing_below_plan_m: float = 0.05
+    """A pair within the margin counts only if it is also this much closer than the plan
+    has it (plans keep pairs just above the limit by design)."""
 
 
 @dataclass(frozen=True)
@@ -122,10 +129,16 @@ class TickFacts:
     """Its system ids."""
     closing_mps: float = 0.0
     """Its range rate (negative: closing), m/s."""
+    closest_planned_m: float = math.inf
+    """The distance the plan has between that pair now, m."""
+    unheard: int = 0
+    """Vehicles flying our setpoints without fresh telemetry."""
     limit_m: float = 0.0
     """The separation limit, m."""
     in_show: bool = False
     """The show clock is running or held mid-show (not before the start or after the end)."""
+    flying: bool = False
+    """Drones are flying our setpoints on a clock (the show, or a return after it)."""
     stopped: bool = False
     """The show clock is at rest (held and done braking)."""
 
@@ -151,6 +164,7 @@ class FlightGuard:
         self._stopped_since: float | None = None
         self._clear_since: float | None = None
         self._last_now: float | None = None
+        self._heard_again_at: float | None = None
 
     def tick(self, f: TickFacts) -> list[GuardAction]:
         cfg = self.config
@@ -168,17 +182,18 @@ class FlightGuard:
             self._quiet_since = None
         elif self._quiet_since is None:
             self._quiet_since = f.now
-        if f.in_show and f.lag_s > cfg.stall_s:
+        busy = f.in_show or f.flying
+        if busy and f.lag_s > cfg.stall_s:
             out += self._hold("stall", f, f"the ground station stalled for {f.lag_s:.1f} s: "
                                           "the show holds where its last setpoints were until "
                                           "it keeps time again",
                               f.last_sent_show_time)
-        elif f.in_show and len(self._overruns) >= cfg.overload_ticks:
+        elif busy and len(self._overruns) >= cfg.overload_ticks:
             out += self._hold("overload", f, f"the ground station is overloaded "
                                              f"({len(self._overruns)} late ticks in "
                                              f"{cfg.overload_window_s:.0f} s): holding the "
                                              "show until it keeps time again")
-        if f.in_show and f.fleet_silent:
+        if busy and f.fleet_silent:
             out += self._hold("silence", f, "no vehicle heard for a while (the whole link, "
                                             "or our receive path): holding the show; every "
                                             "drone brakes along its path and hovers")
@@ -189,14 +204,21 @@ class FlightGuard:
                     and (settled or quiet_for >= cfg.settle_timeout_s):
                 out.append(self._release(reason, "the ground station keeps time again: "
                                                  "resuming the show"))
+        if f.fleet_silent:
+            self._heard_again_at = None
+        elif self._heard_again_at is None:
+            self._heard_again_at = f.now
         if "silence" in self.active and not f.fleet_silent:
-            since = f.now - self.active["silence"]
-            if settled or since >= cfg.settle_timeout_s:
+            # Every drone flying our setpoints must be heard again (and settled), or the
+            # settle time must have passed since the fleet was heard again.
+            since = f.now - (self._heard_again_at if self._heard_again_at is not None
+                             else f.now)
+            if (settled and f.unheard == 0) or since >= cfg.settle_timeout_s:
                 out.append(self._release("silence", "the fleet is heard again: resuming "
                                                     "the show"))
         if not self.landed_all and (self.held_s > cfg.max_held_s
                                     or self.freezes > cfg.max_freezes):
-            self.landed_all = True
+            self._land_all()
             out.append(LandAll(f"the ground station cannot keep the show's time (held "
                                f"{self.held_s:.0f} s, {self.freezes} times): landing every "
                                "vehicle"))
@@ -220,14 +242,15 @@ class FlightGuard:
             if f.now - since >= cfg.off_path_for_s:
                 off.append((sysid, e))
         close = f.closest_m < f.limit_m or (
-            f.closest_m < f.limit_m + cfg.separation_margin_m and f.closing_mps < 0)
+            f.closest_m < f.limit_m + cfg.separation_margin_m and f.closing_mps < 0
+            and f.closest_m < f.closest_planned_m - cfg.closing_below_plan_m)
         trouble = bool(off) or close
         if trouble:
             self._clear_since = None
             if "safety" not in self.active:
                 self.safety_holds += 1
                 if self.safety_holds > cfg.max_safety_holds:
-                    self.landed_all = True
+                    self._land_all()
                     return [LandAll(f"the flight keeps going wrong ({self.safety_holds - 1} "
                                     "safety holds): landing every vehicle")]
                 if close:
@@ -245,6 +268,10 @@ class FlightGuard:
         if "safety" not in self.active:
             self._stopped_since = None
             return out
+        if f.now - self.active["safety"] > cfg.max_safety_hold_s:
+            self._land_all()
+            return [*out, LandAll(f"the safety hold has not cleared in "
+                                  f"{cfg.max_safety_hold_s:.0f} s: landing every vehicle")]
         if f.stopped:
             if self._stopped_since is None:
                 self._stopped_since = f.now
@@ -264,6 +291,11 @@ class FlightGuard:
                                                "show"))
         return out
 
+    def _land_all(self) -> None:
+        # The show is over: the land-all return takes no safety hold with it.
+        self.landed_all = True
+        self.active.pop("safety", None)
+
     def _hold(self, reason: str, f: TickFacts, text: str,
               show_time: float | None = None) -> list[GuardAction]:
         if reason in self.active:
@@ -281,4 +313,4 @@ class FlightGuard:
 
 
 #: Reasons that are the ground station's own trouble.
-_OWN = frozenset({"stall", "overload", "silence"})
+_OWN = FLEET_HOLDS

@@ -7,9 +7,16 @@ Written once without I/O, h11 style.  A thin async driver, every tick::
         takeoff, Land -> land, Disarm -> disarm, Kill -> disarm(force=True),
         Notice -> console and event log), and on CommandRefused/CommandTimeout
         call seq.command_failed(a, reason, now)
-    req = seq.stream_request(now)                 # whom to send setpoints, for which time
-    send SetpointStream.at(req.show_time, now, offsets, req.moving, req.fixed)
-        rows for req.sysids, and LedTracker.due(...) colours
+    guard: seq.hold_for / stop_for / release (the driver's own lag, a fleet-wide
+        silence, safety responses), seq.take_out, seq.land_all
+    req = seq.stream_request(now)                 # whom to send setpoints, on which clock
+    send SetpointStream.at(now, offsets, clock=req.clock, fixed=req.fixed, ...)
+        rows for req.sysids, and LED colours
+
+The show clock (:attr:`ShowSequence.clock`, :mod:`groundctl.execute.showclock`)
+holds by braking along the plan, for reasons (``operator``, ``stall``,
+``overload``, ``silence``, ``safety``, ``land-all``); the show runs only when none
+is left.  A LOST vehicle is never done: silence is not "down".
 
 Streaming is not an action: :meth:`ShowSequence.stream_request` is the one
 source of truth for who gets setpoints each tick, so a start/stop event can
@@ -198,10 +205,14 @@ _LINK_FAILSAFE_MODES = {
     Flavour.ARDUPILOT: frozenset({"LOITER", "BRAKE", "LAND", "RTL", "SMART_RTL"}),
     Flavour.PX4: frozenset({"AUTO.LOITER", "AUTO.LAND", "AUTO.RTL"}),
 }
+#: Returns planned again because a landing spot was taken (then: nearest free spot).
+MAX_REPLANS = 2
 #: A vehicle is taken back from a link-loss failsafe at most this many times.
 MAX_RETAKES = 2
-#: ... if the failsafe comes within this long of its own silence ending, s.
+#: ... if the failsafe comes within this long of its own silence ending, s ...
 RETAKE_WINDOW_S = 10.0
+#: ... and that silence was at least this long (PX4's COM_OF_LOSS_T default), s.
+LINK_FAILSAFE_GAP_S = 1.0
 #: A way out planned too late this many times is given up (no retry storm).
 MAX_LATE_LEAVES = 3
 #: The mode each autopilot flies our setpoints in.
@@ -292,6 +303,8 @@ class VehicleRun:
     """Its battery fell below the show's threshold (it has been told to land)."""
     leave_late: int = 0
     """Ways out that were planned too late for their instant."""
+    battery_critical: bool = False
+    """Its battery fell below half the threshold (it has been landed where it is)."""
     retaking: str | None = None
     """The failsafe mode it is being taken back from, while that is under way."""
     retakes: int = 0
@@ -362,6 +375,8 @@ class ShowSequence:
         self.clock = ShowClock(brake_ramp(float(speeds.max(initial=0.0)), brake))
         """The show clock (braking holds; see :mod:`groundctl.execute.showclock`)."""
         self._pre_start_hold = False  # the operator held before the show clock started
+        self._replans = 0  # returns planned again for blocked landing spots
+        self._after_return = False  # a new return starts from the landing points
         self._battery = (self.config.land_battery_pct if self.config.land_battery_pct
                          is not None else plan.limits.land_battery_pct)
         # This update's show-frame positions (one vectorised conversion per update).
@@ -414,15 +429,37 @@ class ShowSequence:
             fresh |= clock.hold(now, reason)
         return fresh
 
-    def stop_for(self, reason: str, now: float, show_time: float) -> None:
-        """Stop the show clock at once at ``show_time`` (the driver stalled: its drones stand
-        near the last setpoints they were sent, taken at that show time)."""
+    def stop_for(self, reason: str, now: float, show_time: float, rate: float = 0.0) -> None:
+        """Re-synchronise the show clock to ``show_time`` and brake from ``rate`` (the
+        driver stalled: its drones flew on stale setpoints, and :meth:`fit_show_time`
+        found where along the plan they are)."""
         if self._ended or self._t0 is None:
             self.hold_for(reason, now)
             return
-        self.clock.stop_at(now, min(max(show_time, 0.0), self.plan.duration), reason)
-        if self._return_clock is not None:
-            self._return_clock.hold(now, reason)
+        self.clock.stop_at(now, min(max(show_time, 0.0), self.plan.duration), reason, rate)
+
+    def fit_show_time(self, lo: float, hi: float, positions: Mapping[int, np.ndarray],
+                      velocities: Mapping[int, np.ndarray]) -> tuple[float, float]:
+        """The show time in [``lo``, ``hi``] at which the plan best matches where the
+        drones flying the show are (least median distance), and their speed along the
+        plan there as a clock rate (0 standing .. 1 at the plan's speed)."""
+        rows = [(v.track, positions[s], velocities.get(s)) for s, v in self.vehicles.items()
+                if v.phase is VehiclePhase.SHOW and s in positions]
+        lo, hi = max(lo, 0.0), min(max(hi, lo), self.plan.duration)
+        if not rows or hi <= lo:
+            return lo, 0.0
+        tracks = np.array([r[0] for r in rows])
+        here = np.array([r[1] for r in rows])
+        times = np.linspace(lo, hi, max(int((hi - lo) / 0.05) + 1, 2))
+        path = self.plan.trajectories.evaluate(times, tracks)[0]  # (drones, times, 3)
+        cost = np.median(np.linalg.norm(path - here[:, None, :], axis=2), axis=0)
+        best = float(times[int(np.argmin(cost))])
+        plan_vel = self.plan.trajectories.evaluate(best, tracks)[1]
+        ratios = [float(np.dot(v, pv) / np.dot(pv, pv))
+                  for (_, _, v), pv in zip(rows, plan_vel, strict=True)
+                  if v is not None and float(np.dot(pv, pv)) > 0.09]
+        rate = float(np.clip(np.median(ratios), 0.0, 1.0)) if ratios else 0.0
+        return best, rate
 
     def release(self, reason: str, now: float) -> bool:
         """Drop the hold ``reason``; the clocks ramp back up once no hold is left."""
@@ -527,15 +564,19 @@ class ShowSequence:
         return actions
 
     # -- landing spots ---------------------------------------------------------------------
-    def down_positions(self) -> list[np.ndarray]:
+    def down_positions(self, asking: VehicleRun | None = None) -> list[np.ndarray]:
         """Show-frame positions of the drones that are down, descending or given up
         somewhere the plan did not put them (land-here, a crash, a failsafe landing, a
         drone that never took off), from this update's telemetry (else their slot):
         obstacles for every landing.  A drone descending over its own landing point is
         not one: landing points are separated by the plan."""
-        # Excluded drones, and drones that never took off, stand on their slots.
-        out: list[np.ndarray] = [self.plan.home[t] for t in sorted(self.grounded_tracks)]
+        # Excluded drones, and drones that never took off, stand on their slots (not the
+        # one ``asking``: a drone sent back to its own slot does not block itself).
+        out: list[np.ndarray] = [self.plan.home[t] for t in sorted(self.grounded_tracks)
+                                 if asking is None or t != asking.track]
         for v in self.vehicles.values():
+            if v is asking:
+                continue
             if v.phase in (VehiclePhase.LANDING, VehiclePhase.LANDED, VehiclePhase.FAILED,
                            VehiclePhase.KILLED) or (v.phase is VehiclePhase.LOST
                                                     and v.lost_from is VehiclePhase.LANDING):
@@ -548,6 +589,15 @@ class ShowSequence:
                         and float(np.hypot(*(pos[:2] - spot[:2]))) \
                         <= self.config.arrive_tolerance_m:
                     continue  # down on its own landing point, as planned
+                out.append(np.asarray(pos, dtype=float))
+        return out
+
+    def landing_positions(self) -> list[np.ndarray]:
+        """Show-frame positions of the drones descending (LANDING) now."""
+        out = []
+        for v in self.vehicles.values():
+            pos = self._positions.get(v.sysid)
+            if v.phase is VehiclePhase.LANDING and pos is not None:
                 out.append(np.asarray(pos, dtype=float))
         return out
 
@@ -575,7 +625,7 @@ class ShowSequence:
         point = np.asarray(self._landing_point(v), dtype=float)
         limit = self.plan.limits.min_separation
         return any(float(np.hypot(*(p[:2] - point[:2]))) < limit
-                   for p in self.down_positions())
+                   for p in self.down_positions(v))
 
     def command_failed(self, command: Command, reason: str, now: float) -> list[Action]:
         """A command was refused or timed out; retry it later or give the vehicle up."""
@@ -623,9 +673,13 @@ class ShowSequence:
         leaves = {v.sysid: v.leave for v in self.vehicles.values()
                   if v.leave is not None and v.sysid in sysids and v.sysid not in follow
                   and v.sysid not in fixed}
+        # After land-all the show clock is still braking: keep sampling it (with its
+        # feed-forward) until it is at rest.
+        braking = self._ended and self._t0 is not None and self.clock.at(now).rate > 0 \
+            and self.clock.show_time(now) < self.plan.duration
         return StreamRequest(show_t, moving, sysids,
                              self.clock if self._t0 is not None else None,
-                             self._ended or self._t0 is None,
+                             self._t0 is None or (self._ended and not braking),
                              fixed, follow, traj if follow else None,  # type: ignore[arg-type]
                              t_ret, self._return_clock if follow else None, leaves)
 
@@ -648,6 +702,8 @@ class ShowSequence:
         """Where vehicle ``sysid`` starts its return from (show frame): where the braking
         show clock stops it on its plan, its way out, or the point it holds."""
         v = self.vehicles[sysid]
+        if self._after_return:
+            return np.asarray(self._landing_point(v), dtype=float)  # hovering over it
         t = min(self.clock.stop_time(now) if self._t0 is not None else 0.0,
                 self.plan.duration)
         if self._stopped_at is not None:
@@ -668,15 +724,15 @@ class ShowSequence:
         self._return = (trajectories, {s: i for i, s in enumerate(sysids)})
         clock = ShowClock(self.clock.default_ramp_s)
         clock.start(max(now, self.clock.rest_at()) if self._t0 is not None else now)
-        for reason in self.clock.holds - {"land-all"}:
+        for reason in self.clock.holds & FLEET_HOLDS:  # the ground station's own trouble
             clock.hold(now, reason)
         self._return_clock = clock
         if goals is not None:
             for row, sysid in enumerate(sysids):
                 v = self.vehicles[sysid]
                 point = tuple(float(x) for x in goals[row])
-                if not np.allclose(point, self._slots[v.track]):
-                    v.landing_point = point  # type: ignore[assignment]
+                v.landing_point = None if np.allclose(point, self._slots[v.track]) \
+                    else point  # type: ignore[assignment]
         for sysid in sysids:
             self.vehicles[sysid].returning_since = now
         return [Notice(None, f"flying the {trajectories.end:.1f} s return to the landing "
@@ -718,8 +774,8 @@ class ShowSequence:
         """Fly ``leave`` from its show time on, then land."""
         v = self.vehicles.get(sysid)
         if v is None or v.leave_at is None or v.leave is not None or self._ended \
-                or not self._awaits_leave(v):
-            return []  # overtaken: landed, lost from elsewhere, or the show ended
+                or not self._awaits_leave(v) or leave.held != (v.hold_point is not None):
+            return []  # overtaken: landed, lost, stranded meanwhile, or the show ended
         if self.show_time(now) > leave.at:
             # Planned too late for its instant: the next one, a bounded number of times.
             v.leave_late += 1
@@ -1048,23 +1104,35 @@ class ShowSequence:
         battery = state.battery_remaining_pct
         if battery is not None and self._battery is not None and battery < self._battery:
             return False
-        recent_gap = v.gap_at is not None and now - v.gap_at <= RETAKE_WINDOW_S
-        return bool(self.holds & FLEET_HOLDS) or recent_gap or state.stream_gaps > v.gap_seen
+        own_silence = state.last_stream_gap_s >= LINK_FAILSAFE_GAP_S and (
+            state.stream_gaps > v.gap_seen
+            or (v.gap_at is not None and now - v.gap_at <= RETAKE_WINDOW_S))
+        # Our own stall starves it of setpoints without any gap in its telemetry.
+        return own_silence or bool(self.holds & {"stall", "silence"})
 
     def _retake(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
         """Back in touch after a link loss that tripped its failsafe (a hold, or a blind
         descent or return through the formation): the ground station knows where everyone
         is and takes it back into its flight mode, setpoints already flowing."""
-        if v.retaking is not None and now - v.sent_at < self.config.step_timeout_s:
-            return []
-        if v.retaking is None:
-            v.retakes += 1
-        v.retaking = state.mode
         flight = _FLIGHT_MODE[v.flavour]
-        return [Notice(v.sysid, f"vehicle {v.sysid} went to {state.mode} on its own after the "
-                                f"link loss: taking it back into {flight}", "retaking",
-                       f"in a link-loss failsafe: taking it back into {flight}"),
-                self._send(v, SetMode(v.sysid, flight), now)]
+        if v.retaking is not None:
+            if now - v.sent_at < self.config.step_timeout_s:
+                return []
+            if v.attempts >= self.config.max_attempts:
+                v.retaking = None
+                return self._taken_over(v, state)  # it will not come back: its autopilot's
+            return [self._send(v, SetMode(v.sysid, flight), now)]
+        v.retakes += 1
+        v.retaking = state.mode
+        actions: list[Action] = [
+            Notice(v.sysid, f"vehicle {v.sysid} went to {state.mode} on its own after the "
+                            f"link loss: taking it back into {flight}", "retaking",
+                   f"in a link-loss failsafe: taking it back into {flight}")]
+        if v.phase is VehiclePhase.SHOW and (off := self._off_plan(v, now)) is not None:
+            # Its failsafe stopped it short of the plan: back in the flight mode it must
+            # not dash to catch up; it holds where it is and leaves on a way out.
+            actions += self._strand(v, off, now, "taken back")
+        return [*actions, self._send(v, SetMode(v.sysid, flight), now)]
 
     def _altitude(self, state: VehicleState) -> float | None:
         if state.global_position is not None:
@@ -1106,10 +1174,12 @@ class ShowSequence:
             if v.phase is VehiclePhase.SHOW and not self.holds & FLEET_HOLDS \
                     and (off := self._off_plan(v, now)) is not None:
                 return self._strand(v, off, now, f"heard again after {gap:.1f} s,")
-        if v.phase is VehiclePhase.SHOW and not v.battery_low and self._battery is not None \
-                and state.battery_remaining_pct is not None \
-                and state.battery_remaining_pct < self._battery:
-            return self._battery_landing(v, state, now)
+        pct = state.battery_remaining_pct
+        if self._battery is not None and pct is not None and v.phase in _STREAMED:
+            if pct < self._battery / 2 and not v.battery_critical:
+                return self._battery_landing(v, state, now)
+            if v.phase is VehiclePhase.SHOW and not v.battery_low and pct < self._battery:
+                return self._battery_landing(v, state, now)
         cmd = v.pending
         if v.retry_at is not None and now >= v.retry_at and cmd is not None:
             return [self._send(v, cmd, now)]
@@ -1179,22 +1249,20 @@ class ShowSequence:
             return []
         if v.returning_since is None:
             v.returning_since = now
+        if self._return_wanted and self._return is None:
+            v.returning_since = now  # waiting for a return plan (bounded by the driver)
+            return []
+        if self._return is not None and self._return_clock is not None \
+                and self._return_clock.show_time(now) < self._return[0].end:
+            return []  # still flying the return
+        if self.paused and self.holds - {"land-all"}:
+            v.returning_since = now  # held: the time to reach its spot does not run
         if np.linalg.norm(pos - self._landing_point(v)) <= self.config.arrive_tolerance_m:
-            if self._return_wanted and self._return is None:
-                return []  # a return is being planned: wait for it
-            if self.spot_blocked(v):
-                # Another drone came down under it (land-here, a failsafe, a crash):
-                # descending now would land on it.  A return re-assigns the spot.
-                if not self._return_wanted:
-                    self._return_wanted, self._return = True, None
-                    self._return_clock = None
-                    return [Notice(v.sysid, f"vehicle {v.sysid}: its landing spot is taken "
-                                            "by a drone that is down; planning a new spot")]
-                return []
+            if self._ended and self.spot_blocked(v):
+                return self._blocked(v, now)
             v.phase = VehiclePhase.LANDING
             return [self._send(v, Land(v.sysid), now)]
-        overdue = now - v.returning_since - self._return_span()
-        if overdue > self.config.return_timeout_s:
+        if now - v.returning_since > self.config.return_timeout_s:
             v.phase, v.reason = VehiclePhase.LANDING, (
                 f"did not reach its landing point within {self.config.return_timeout_s:.0f} s "
                 f"({float(np.linalg.norm(pos - self._landing_point(v))):.1f} m away)")
@@ -1204,9 +1272,42 @@ class ShowSequence:
                     self._send(v, Land(v.sysid), now)]
         return []
 
-    def _return_span(self) -> float:
-        """How long the current return (if any) takes, s."""
-        return 0.0 if self._return is None else float(self._return[0].end)
+    def _blocked(self, v: VehicleRun, now: float) -> list[Action]:
+        """Over its landing point, but a drone came down under it (land-here, a failsafe,
+        a crash): descending now would land on it.  Once every return in flight is over,
+        a new one re-assigns the spots from where the drones hover, a bounded number of
+        times; after that the drone moves to the nearest free spot and lands there."""
+        if self._replans < MAX_REPLANS:
+            self._replans += 1
+            self._return_wanted, self._return, self._return_clock = True, None, None
+            self._after_return = True
+            return [Notice(v.sysid, f"vehicle {v.sysid}: its landing spot is taken by a drone "
+                                    "that is down; planning new spots", "spot_taken",
+                           "landing spot taken by a drone that is down: planning new spots")]
+        spot = self.nearest_free_spot(v)
+        if spot is None:
+            v.phase, v.reason = VehiclePhase.LANDING, "no free landing spot left"
+            return [Notice(v.sysid, f"vehicle {v.sysid}: no free landing spot left: landing "
+                                    "where it is; watch it"), self._send(v, Land(v.sysid), now)]
+        v.landing_point, v.returning_since = spot, now
+        return [Notice(v.sysid, f"vehicle {v.sysid}: its landing spot is taken; moving to the "
+                                f"nearest free spot ({spot[0]:.1f}, {spot[1]:.1f}) to land")]
+
+    def nearest_free_spot(self, v: VehicleRun) -> tuple[float, float, float] | None:
+        """The closest landing candidate (plan landing spots, then takeoff slots) clear of
+        every drone down and every spot someone else lands on."""
+        spots = self.plan.landing_hover
+        homes = self.plan.home + np.array([0.0, 0.0, float(spots[:, 2].mean())])
+        candidates = np.concatenate([spots, homes])
+        blocked = self.down_positions(v) + self.reserved_spots({v.sysid})
+        limit = self.plan.limits.min_separation
+        here = np.asarray(self._landing_point(v))
+        best = None
+        for c in candidates[np.argsort(np.linalg.norm(candidates - here, axis=1))]:
+            if all(float(np.hypot(*(c[:2] - b[:2]))) >= limit for b in blocked):
+                best = (float(c[0]), float(c[1]), float(c[2]))
+                break
+        return best
 
     def _leaving(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
         if v.leave is None:
@@ -1236,7 +1337,9 @@ class ShowSequence:
         v.battery_low = True
         pct = state.battery_remaining_pct
         if pct < self._battery / 2:
+            v.battery_critical = True
             v.phase, v.reason = VehiclePhase.LANDING, f"battery {pct:.0f} % (critical)"
+            v.leave_at = None
             return [Notice(v.sysid, f"vehicle {v.sysid}: battery {pct:.0f} % is below half "
                                     f"the show's {self._battery:.0f} %: landing where it is",
                            "battery_critical", "battery critical: landing where it is"),
@@ -1272,7 +1375,7 @@ class ShowSequence:
         far = [v for v in ready if self._start_distance(v) > self.config.exclude_tolerance_m]
         for v in far:
             d = self._start_distance(v)
-            v.phase, v.reason = VehiclePhase.LANDING, (
+            v.reason = (
                 f"{d:.1f} m from its first plan point after "
                 f"{self.config.settle_timeout_s:.0f} s (tolerance "
                 f"{self.config.exclude_tolerance_m:.1f} m)")

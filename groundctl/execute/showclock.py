@@ -138,16 +138,21 @@ class ShowClock:
         fresh = not self.holds
         self.holds.add(reason)
         if fresh and self._segments:
-            self._ramp(now, 0.0, ramp_s)
+            self._ramp(self._not_before(now), 0.0, ramp_s)
         return fresh
 
-    def stop_at(self, now: float, show_time: float, reason: str) -> None:
-        """Hold at once at ``show_time`` (rate 0, no ramp): after a stall of the ground
-        station, the drones stand near the last setpoints they were sent, so the
-        clock goes back to those rather than on to where it would have been."""
+    def stop_at(self, now: float, show_time: float, reason: str, rate: float = 0.0,
+                ramp_s: float | None = None) -> None:
+        """Hold from ``show_time`` at ``rate``, braking from there: after a stall of the
+        ground station the clock is re-synchronised to where the fleet really is (found
+        from telemetry), not where it would have been, and brakes from the speed the
+        drones really have along their paths (0: they already stand)."""
         self.holds.add(reason)
         if self._segments:
-            self._push(_Segment(now, show_time, 0.0, 0.0, 0.0))
+            rate = min(max(rate, 0.0), 1.0)
+            ramp = max(self.default_ramp_s if ramp_s is None else ramp_s, MIN_RAMP_S)
+            self._push(_Segment(self._not_before(now), show_time, rate, 0.0,
+                                -1.0 / ramp if rate > 0 else 0.0))
 
     def release(self, now: float, reason: str, ramp_s: float | None = None) -> bool:
         """Drop one hold; the clock ramps back up once none is left.  True if it resumes."""
@@ -156,8 +161,13 @@ class ShowClock:
         self.holds.discard(reason)
         if self.holds or not self._segments:
             return False
-        self._ramp(now, 1.0, ramp_s)
+        self._ramp(self._not_before(now), 1.0, ramp_s)
         return True
+
+    def _not_before(self, now: float) -> float:
+        # A clock started for a later instant (a return that begins once the fleet has
+        # braked) takes a hold from its start on.
+        return max(now, self._times[-1]) if self._times else now
 
     def _ramp(self, now: float, target: float, ramp_s: float | None) -> None:
         here = self.at(now)

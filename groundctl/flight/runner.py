@@ -62,6 +62,7 @@ from groundctl.execute.preflight import (
     run_preflight,
 )
 from groundctl.execute.sequence import (
+    AIRBORNE_M,
     FLEET_HOLDS,
     Action,
     Arm,
@@ -102,10 +103,6 @@ FOLD_AFTER = 3
 #: Phases in which a vehicle is (or may be) in the air, for the guard's closest pair.
 _AIRBORNE = frozenset({VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
                        VehiclePhase.RETURNING})
-#: Phases of vehicles that fly to no landing spot any more.
-_GONE = frozenset({VehiclePhase.LANDING, VehiclePhase.LANDED, VehiclePhase.FAILED,
-                   VehiclePhase.KILLED, VehiclePhase.PREFLIGHT})
-
 
 def _ids(ids: Sequence[int]) -> str:
     """System ids as a short list: "1-4, 7, 9"."""
@@ -234,6 +231,7 @@ class ShowRunner:
         self._pool: PlannerPool | None = None
         self._pending_notices: list[Notice] = []
         self._last_show_time: float | None = None
+        self._finished = False
 
     # -- reporting -------------------------------------------------------------------
     def _say(self, text: str, event: str = "notice", **fields: Any) -> None:
@@ -444,8 +442,8 @@ class ShowRunner:
                     skipped = int((now - next_tick) / period) + 1
                     self.overruns += skipped
                     next_tick += skipped * period
-                if seq.paused:
-                    deadline += period
+                if seq.holds - {"land-all"}:
+                    deadline += period  # held: the flight's time budget does not run
                 self.link.check_lost(now)
                 self._perform(seq.update(now, self.link.vehicles))
                 self._guard_tick(seq, now, lag, period)
@@ -494,11 +492,13 @@ class ShowRunner:
     def _guard_tick(self, seq: ShowSequence, now: float, lag: float, period: float) -> None:
         assert self.monitor is not None
         in_show = seq.started_at is not None and not seq.ended
+        streamed = seq.stream_request(now).sysids
+        flying = bool(streamed) and seq.started_at is not None
         errors: dict[int, float] = {}
-        closest, pair, closing = math.inf, None, 0.0
+        closest, pair, closing, planned = math.inf, None, 0.0, math.inf
+        ids, pos = telemetry_positions(self.plan, self.link.vehicles, now)
+        ids_pos = dict(zip(ids, pos, strict=True))
         if in_show:
-            ids, pos = telemetry_positions(self.plan, self.link.vehicles, now)
-            ids_pos = dict(zip(ids, pos, strict=True))
             for sysid, v in seq.vehicles.items():
                 if v.phase not in (VehiclePhase.SHOW, VehiclePhase.LEAVING) \
                         or sysid not in ids_pos:
@@ -506,23 +506,42 @@ class ShowRunner:
                 want = seq.commanded(sysid, now)
                 if want is not None:
                     errors[sysid] = float(np.linalg.norm(ids_pos[sysid] - want))
-            flying = [k for k, s in enumerate(ids) if s in seq.vehicles
-                      and seq.vehicles[s].phase in _AIRBORNE]
-            sep = nearest_pair([ids[k] for k in flying], pos[flying])
+            # Everything in the air counts, a drone descending through the show included.
+            airborne = [k for k, s in enumerate(ids) if s in seq.vehicles
+                        and (seq.vehicles[s].phase in _AIRBORNE
+                             or (seq.vehicles[s].phase is VehiclePhase.LANDING
+                                 and pos[k][2] > AIRBORNE_M))]
+            sep = nearest_pair([ids[k] for k in airborne], pos[airborne])
             closest, pair = sep.distance_m, sep.pair
             if pair is not None:
                 closing = _range_rate(ids_pos[pair[0]], ids_pos[pair[1]],
                                       self.link.vehicles[pair[0]],
                                       self.link.vehicles[pair[1]], self.plan)
+                a, b = seq.commanded(pair[0], now), seq.commanded(pair[1], now)
+                if a is not None and b is not None:
+                    planned = float(np.linalg.norm(a - b))
+        # The link judges a fleet-wide silence over the drones in the air only.
+        self.link.silence_ids = set(streamed) if flying else None
         facts = TickFacts(
             now=now, lag_s=lag, period_s=period, last_sent_show_time=self._last_show_time,
             fleet_silent=self.link.fleet_silent, errors_m=errors, closest_m=closest,
-            closest_pair=pair, closing_mps=closing, limit_m=self.plan.limits.min_separation,
-            in_show=in_show, stopped=seq.clock.stopped(now))
+            closest_pair=pair, closing_mps=closing, closest_planned_m=planned,
+            unheard=sum(1 for s in streamed if s not in ids_pos),
+            limit_m=self.plan.limits.min_separation, in_show=in_show, flying=flying,
+            stopped=seq.clock.stopped(now))
         for action in self.guard.tick(facts):
             if isinstance(action, Hold):
-                if action.show_time is not None:
-                    seq.stop_for(action.reason, now, action.show_time)
+                if action.show_time is not None and in_show:
+                    # Where along the plan are the drones, after flying on stale setpoints
+                    # (between the last setpoints' show time and where the clock is now)?
+                    lead = self._stream.lead_s if self._stream is not None else 0.0
+                    vel = {sid: ned_vel_to_show(self.plan.origin,
+                                                np.array(st.velocity_ned))
+                           for sid, st in self.link.vehicles.items()
+                           if st.velocity_ned is not None}
+                    at, rate = seq.fit_show_time(action.show_time - lead,
+                                                 seq.clock.show_time(now), ids_pos, vel)
+                    seq.stop_for(action.reason, now, at, rate)
                 else:
                     seq.hold_for(action.reason, now)
                 self._say(action.text, "show_held", reason=action.reason,
@@ -546,12 +565,21 @@ class ShowRunner:
     def _start_planning(self, seq: ShowSequence) -> None:
         if seq.return_needed is not None and self._return_task is None:
             self._return_task = asyncio.create_task(self._plan_return(seq))
+            self._own(self._return_task)
         for sysid, track, at, start in seq.leave_needed:
             if sysid not in self._leave_tasks:
-                self._leave_tasks[sysid] = asyncio.create_task(
+                self._leave_tasks[sysid] = task = asyncio.create_task(
                     self._plan_leave(seq, sysid, track, at, start))
+                self._own(task)
+
+    def _own(self, task: asyncio.Task[None]) -> None:
+        # Cancelled with the rest on the way out (see _drain).
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
 
     def _planner(self) -> PlannerPool:
+        if self._finished:
+            raise FlightError("the flight is over: nothing more is planned")
         if self._pool is None:
             self._pool = PlannerPool(self.plan)
             self._pool.start()
@@ -569,10 +597,15 @@ class ShowRunner:
                 now = self.clock.now()
                 start = np.array([seq.return_start(s, now) for s in sysids])
                 down = np.array(seq.down_positions()).reshape(-1, 3)
+                # Drones descending on their own spots are no spot thieves, but their
+                # columns are in the way of a path that crosses them.
+                descending = [p for p in seq.landing_positions() if len(down) == 0
+                              or np.min(np.linalg.norm(down - p, axis=1)) > 0.01]
                 reserved = np.array(seq.reserved_spots(sysids)).reshape(-1, 3)
                 try:
                     goals = assign_landing(self.plan, tracks, start, down, reserved)
-                    static = np.concatenate([column(p) for p in down]) if len(down) \
+                    obstacles = list(down) + descending
+                    static = np.concatenate([column(p) for p in obstacles]) if obstacles \
                         else None
                     self._say(f"planning a collision-free return for {len(sysids)} "
                               "vehicle(s); they brake along their paths and hover meanwhile"
@@ -694,7 +727,8 @@ class ShowRunner:
         period = 1.0 / self.config.rate_hz
         # Changes whose send instant falls in the next period, sent at that instant.
         wanted = set(streamed)
-        batch = schedule.window(max(t, self._led_window_end), t + period, delays)
+        start = self._led_window_end if math.isfinite(self._led_window_end) else t
+        batch = schedule.window(min(start, t + period), t + period, delays)
         self._led_window_end = t + period
         loop = asyncio.get_running_loop()
         for k in range(len(batch.sysids)):
@@ -843,6 +877,7 @@ class ShowRunner:
             raise FlightError("flight abandoned by the operator") from None
         finally:
             await self._drain()
+            self._finished = True
             if self._pool is not None:
                 self._pool.close()
                 self._pool = None

@@ -179,6 +179,10 @@ class FleetLink:
         self.fleet_silent = False
         """Nobody has been heard for ``fleet_silence`` s: the link (or we) went quiet."""
         self._fleet_back_at = -math.inf
+        self.silence_ids: set[int] | None = None
+        """The vehicles a fleet-wide silence is judged over (the executor sets those in
+        the air: a drone on the ground still talking must not hide a cut of the rest);
+        None: every vehicle."""
         self._transport: UdpTransport | None = None
         self._task: asyncio.Task[None] | None = None
         self.local_address: Address | None = None
@@ -401,7 +405,12 @@ class FleetLink:
         return self._transport.drain() if self._transport is not None else 0
 
     def fleet_silent_for(self, now: float) -> float:
-        """Seconds since any vehicle was heard (infinite before the first packet)."""
+        """Seconds since any vehicle of :attr:`silence_ids` (default: any) was heard
+        (infinite before the first packet)."""
+        if self.silence_ids is not None:
+            heard = [v.last_heard for s, v in self.vehicles.items()
+                     if s in self.silence_ids and v.last_heard is not None]
+            return now - max(heard) if heard else math.inf
         return math.inf if self.last_packet_at is None else now - self.last_packet_at
 
     def check_lost(self, now: float) -> list[int]:
@@ -414,7 +423,8 @@ class FleetLink:
         instead and the executor holds the show.
         """
         self.drain()
-        silent = self.fleet_silent_for(now) > self.fleet_silence and bool(self.vehicles)
+        silent = self.fleet_silent_for(now) > self.fleet_silence and bool(self.vehicles) \
+            and self.silence_ids != set()
         if silent != self.fleet_silent:
             self.fleet_silent = silent
             self._emit("fleet_silent" if silent else "fleet_heard",

@@ -76,8 +76,13 @@ class UdpTransport:
                 data, addr = sock.recvfrom(65535)
             except (BlockingIOError, InterruptedError):
                 break
+            except ConnectionRefusedError as exc:
+                # ICMP port-unreachable from a vehicle that went away lands here on Linux;
+                # the datagrams queued behind it are still to be read.
+                self._on_error(exc)
+                count += 1
+                continue
             except OSError as exc:
-                # ICMP port-unreachable from a vehicle that went away lands here on Linux.
                 self._on_error(exc)
                 break
             count += 1
