@@ -386,8 +386,9 @@ def test_a_way_out_ready_too_late_moves_on_and_one_that_fails_flies_on() -> None
     seq.land_one(2, start + 1.0)
     # Planning outlived its instant (show time 5.0 s): the next one is past the plan's end.
     assert seq.set_leave(2, _way_out(plan, 1, 5.0), start + 5.5) == [Notice(
-        2, "vehicle 2: its way out was ready too late and no formation is left to leave from; "
-           "it lands with the others at the end")]
+        2, "no safe way out of the show for vehicle 2 (its way out was ready too late; no "
+           "formation left to leave from); it flies on and lands with the others (land-here 2 "
+           "brings it straight down now)")]
     assert seq.leave_needed == [] and seq.vehicles[2].phase is VehiclePhase.SHOW
     _, _, seq2, start = _in_formation_show()
     seq2.land_one(2, start + 1.0)
@@ -516,15 +517,35 @@ def test_land_all_mid_show_hovers_until_a_return_plan_is_given_then_follows_it()
     assert not req.follow and set(req.fixed) == {1, 2}
 
 
-def test_a_failed_return_plan_falls_back_to_straight_lines_with_a_warning() -> None:
+def test_a_failed_return_plan_mid_show_flies_the_rest_of_the_show_home() -> None:
+    """The plan is the one way home known to be collision-free: rather than straight
+    lines across the formation, the show flies on to its end and lands from there."""
     states = _fleet(ARDU, n=2)
-    seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    plan = make_plan()
+    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
     t0 = _airborne_ardupilot(seq, states, 0.0)
     seq.land_all(t0 + 2.0)
-    (notice,) = seq.return_failed("planner gave up")
-    assert "no collision-free return could be planned (planner gave up)" in notice.text
-    assert seq.return_needed is None
-    assert set(seq.stream_request(t0 + 2.5).fixed) == {1, 2}
+    (notice,) = seq.return_failed("planner gave up", t0 + 3.0)
+    assert "no collision-free return could be planned (planner gave up): the show flies on" \
+        in notice.text
+    assert seq.return_needed is None and not seq.ended and not seq.paused
+    assert [v.phase for v in seq.vehicles.values()] == [VehiclePhase.SHOW] * 2
+    req = seq.stream_request(t0 + 3.0 + 2 * seq.clock.default_ramp_s)
+    assert req.moving and not req.fixed
+    seq.update(t0 + plan.duration + 10.0, states)  # its end: to the landing spots, as usual
+    assert [v.phase for v in seq.vehicles.values()] == [VehiclePhase.RETURNING] * 2
+
+
+def test_a_failed_return_after_the_show_flies_straight_with_a_warning() -> None:
+    states = _fleet(ARDU, n=2)
+    plan = make_plan()
+    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    t0 = _airborne_ardupilot(seq, states, 0.0)
+    seq.update(t0 + plan.duration + 1.0, states)
+    seq.land_all(t0 + plan.duration + 1.0)
+    (notice,) = seq.return_failed("planner gave up", t0 + plan.duration + 2.0)
+    assert "flying straight to the landing points" in notice.text
+    assert set(seq.stream_request(t0 + plan.duration + 2.5).fixed) == {1, 2}
 
 
 def test_an_abort_before_the_show_brings_drones_down_their_own_takeoff_column() -> None:

@@ -305,6 +305,8 @@ class VehicleRun:
     """Ways out that were planned too late for their instant."""
     battery_critical: bool = False
     """Its battery fell below half the threshold (it has been landed where it is)."""
+    before_return: VehiclePhase | None = None
+    """The phase land-all took it out of (restored if no return can be planned)."""
     retaking: str | None = None
     """The failsafe mode it is being taken back from, while that is under way."""
     retakes: int = 0
@@ -738,11 +740,32 @@ class ShowSequence:
         return [Notice(None, f"flying the {trajectories.end:.1f} s return to the landing "
                              "points")]
 
-    def return_failed(self, reason: str) -> list[Action]:
-        """No return plan: fly straight to the landing points (the old way), loudly."""
+    def return_failed(self, reason: str, now: float | None = None) -> list[Action]:
+        """No return plan.  Interrupted mid-show, the show itself is the one way home known
+        to be collision-free: it flies on to its end (ramping up from the hold), where
+        every drone is over its landing spot, and lands from there.  Otherwise (spots
+        re-planned after the show) each flies straight to its landing point, loudly."""
         self._return_wanted = False
-        return [Notice(None, f"no collision-free return could be planned ({reason}); flying "
-                             "straight to the landing points: watch the fleet")]
+        interrupted = self._stopped_at is not None and self._stopped_at < self.plan.duration \
+            and not self._after_return and now is not None
+        if not interrupted:
+            return [Notice(None, f"no collision-free return could be planned ({reason}); "
+                                 "flying straight to the landing points: watch the fleet")]
+        assert now is not None
+        self._ended, self._stopped_at = False, None
+        for v in self.vehicles.values():
+            if v.phase is VehiclePhase.RETURNING and v.before_return is not None:
+                v.phase = v.before_return
+                if v.phase is VehiclePhase.READY:
+                    v.phase = VehiclePhase.SHOW
+            elif v.phase is VehiclePhase.LOST and v.lost_from is VehiclePhase.RETURNING \
+                    and v.before_return is not None:
+                v.lost_from = v.before_return
+            v.before_return = None
+        self.release("land-all", now)
+        return [Notice(None, f"no collision-free return could be planned ({reason}): the "
+                             "show flies on to its end, the one way known to be clear, and "
+                             "every drone lands from there")]
 
     # -- land-one mid-show: a way out -------------------------------------------------------
     @property
@@ -777,18 +800,7 @@ class ShowSequence:
                 or not self._awaits_leave(v) or leave.held != (v.hold_point is not None):
             return []  # overtaken: landed, lost, stranded meanwhile, or the show ended
         if self.show_time(now) > leave.at:
-            # Planned too late for its instant: the next one, a bounded number of times.
-            v.leave_late += 1
-            if v.leave_late >= MAX_LATE_LEAVES:
-                return self.leave_failed(sysid, f"planned too late {v.leave_late} times", now)
-            v.leave_at = (self._hold_leave_time(v, now) if v.hold_point is not None
-                          else leave_time(self.plan, v.track, self.show_time(now)))
-            if v.leave_at is None:
-                return [Notice(sysid, f"vehicle {sysid}: its way out was ready too late and "
-                                      "no formation is left to leave from; it lands with the "
-                                      "others at the end")]
-            return [Notice(sysid, f"vehicle {sysid}: its way out was ready too late; leaving "
-                                  f"at show time {v.leave_at:.1f} s instead")]
+            return self.leave_late(sysid, "its way out was ready too late", now)
         v.leave = leave
         return [Notice(sysid, f"way out for vehicle {sysid} planned: from show time "
                               f"{leave.at:.1f} s, {leave.trajectory.end:.1f} s to its landing "
@@ -949,9 +961,11 @@ class ShowSequence:
         if v.leave is None:
             v.leave_at = None  # a way out not planned yet: the landing replaces it
         if v.phase in (VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING):
+            v.before_return = v.phase
             v.phase, v.pending = VehiclePhase.RETURNING, None
         if v.phase is VehiclePhase.LOST and v.lost_from in (
                 VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING):
+            v.before_return = v.lost_from
             v.lost_from = VehiclePhase.RETURNING
         return []
 

@@ -166,7 +166,9 @@ class RunnerConfig:
     guard: GuardConfig = field(default_factory=GuardConfig)
     """When the show holds for our own lag, a fleet-wide silence or a safety response."""
     return_deadline_s: float = 20.0
-    """A return (or a way out planned while the show holds) must be planned within this."""
+    """A return (or a way out planned while the show holds) must be planned within this
+    many *wall* seconds: the fleet hovers meanwhile, so planning time costs battery, not
+    safety, whatever the dry-run's speed."""
     planning_attempts: int = 2
     """Attempts at a return before flying straight to the landing points."""
     progress_every_s: float = 15.0
@@ -612,18 +614,18 @@ class ShowRunner:
                               + (f" ({len(down)} drone(s) down kept clear)" if len(down)
                                  else ""), "return_planning", attempt=attempt)
                     traj = await self._planner().plan_return(
-                        tracks, start, self.clock.wall_interval(cfg.return_deadline_s)
-                        or cfg.return_deadline_s, static, goals=goals)
+                        tracks, start, cfg.return_deadline_s, static, goals=goals)
                 except PlanningTimeout as exc:
                     self._say(f"return planning attempt {attempt}: {exc}", "return_late")
                     continue
                 except GroundctlError as exc:
-                    self._perform(seq.return_failed(str(exc)))
+                    self._perform(seq.return_failed(str(exc), self.clock.now()))
                     return
                 self._perform(seq.set_return(traj, sysids, self.clock.now(), goals))
                 return
             self._perform(seq.return_failed(f"no plan within {cfg.planning_attempts} attempts "
-                                            f"of {cfg.return_deadline_s:.0f} s"))
+                                            f"of {cfg.return_deadline_s:.0f} s",
+                                            self.clock.now()))
         finally:
             self._return_task = None
 
@@ -637,14 +639,15 @@ class ShowRunner:
             # It must be ready before its instant comes on the show clock (which stands
             # still while the show holds: then the planner has all the time it needs).
             ahead = max(at - seq.show_time(now), 0.0)
-            allowed = max(ahead - 0.3, 0.5) if not seq.paused else self.config.return_deadline_s
+            wall = max(self.clock.wall_interval(max(ahead - 0.3, 0.5)), 0.05) \
+                if not seq.paused else self.config.return_deadline_s
             self._say(f"planning vehicle {sysid}'s way out of the show (leaving at show time "
                       f"{at:.1f} s)", "leave_planning", system_id=sysid, at=round(at, 2))
             try:
                 leave = await self._planner().plan_leave(
                     track, at, seq.leaves, absent, static,
                     None if start is None else np.asarray(start, dtype=float),
-                    max(self.clock.wall_interval(allowed), 0.05),
+                    wall,
                     what=f"planning vehicle {sysid}'s way out")
             except PlanningTimeout as exc:
                 self._perform(seq.leave_late(sysid, str(exc), self.clock.now()))
