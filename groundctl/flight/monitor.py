@@ -149,6 +149,8 @@ class FlightMonitor:
         self.separation = Separation(math.inf)
         self.true_separation = Separation(math.inf)
         self.ticks = 0
+        self.last_positions: tuple[float, list[int], FloatArray] | None = None
+        """(time, system ids, show-frame positions) of the last :meth:`observe`."""
         self._led_shown: dict[int, float | None] = {}
 
     def observe(self, now: float, show_time: float, in_show: Collection[int],
@@ -156,6 +158,7 @@ class FlightMonitor:
         """One tick: ``in_show`` are the vehicles flying the plan (tracking error counts)."""
         self.ticks += 1
         ids, pos = telemetry_positions(self.plan, states, now)
+        self.last_positions = (now, ids, pos)
         sep = nearest_pair(ids, pos)
         if sep.distance_m < self.separation.distance_m:
             self.separation = Separation(sep.distance_m, sep.pair, now)

@@ -132,6 +132,8 @@ def render_report(report: dict[str, Any]) -> str:
     lines = [f"show {report['show']}: {'SAFE' if report['safe'] else 'NOT SAFE'}"]
     for why in report["unsafe_reasons"]:
         lines.append(f"  - {why}")
+    if "separation_limit_m" not in report:
+        return "\n".join(lines)  # the flight never started: nothing was measured
     sep = report["min_separation_m"]
     lines.append(f"min separation flown {sep if sep is not None else '-'} m "
                  f"(limit {report['separation_limit_m']} m)"
@@ -151,9 +153,13 @@ def render_report(report: dict[str, Any]) -> str:
                      f"{led['mean_abs']} s, max {led['max_abs']} s, unmatched {led['unmatched']}")
     lat = report["setpoint_lateness_ms"]
     lines.append(f"setpoint lateness p50 {lat['p50']} ms, p99 {lat['p99']} ms, max {lat['max']} "
-                 f"ms over {lat['ticks']} ticks; commands refused {report['commands_refused']}"
+                 f"ms over {lat['ticks']} ticks")
+    flight = sum(v["commands_refused"] for v in report["vehicles"])
+    lines.append(f"flight commands refused or unanswered: {flight}; all commands refused "
+                 f"{report['commands_refused']}"
                  + (f", timed out {report['commands_timed_out']}"
-                    if report.get("commands_timed_out") else ""))
+                    if report.get("commands_timed_out") else "")
+                 + " (pre-flight requests asked again until the vehicles can answer included)")
     link = report["link"]
     lines.append(f"link: {link['packets']} packets in, {link['sent']} out, {link['bad_packets']} "
                  f"bad, {link['unknown_system_packets']} from unknown systems")

@@ -448,9 +448,14 @@ class ShowRunner:
                     deadline += period  # held: the flight's time budget does not run
                 self.link.check_lost(now)
                 self._perform(seq.update(now, self.link.vehicles))
+                if lag > cfg.guard.stall_s and seq.started_at is not None:
+                    # We stalled: setpoints on the clock as it stands would send the fleet
+                    # where it never went.  The guard re-synchronises the clock first.
+                    self.lateness_s.append(lag)
+                else:
+                    self._stream_tick(seq, now, scheduled)
                 self._guard_tick(seq, now, lag, period)
                 self._start_planning(seq)
-                self._stream_tick(seq, now, scheduled)
                 if now >= next_check:
                     next_check = now + 1.0
                     self._flag_late(seq)
@@ -498,7 +503,11 @@ class ShowRunner:
         flying = bool(streamed) and seq.started_at is not None
         errors: dict[int, float] = {}
         closest, pair, closing, planned = math.inf, None, 0.0, math.inf
-        ids, pos = telemetry_positions(self.plan, self.link.vehicles, now)
+        last = self.monitor.last_positions
+        if last is not None and last[0] == now:
+            _, ids, pos = last  # measured by the monitor this tick
+        else:
+            ids, pos = telemetry_positions(self.plan, self.link.vehicles, now)
         ids_pos = dict(zip(ids, pos, strict=True))
         if in_show:
             for sysid, v in seq.vehicles.items():
