@@ -697,9 +697,19 @@ def test_a_low_battery_sends_a_vehicle_home_and_a_critical_one_down_where_it_is(
     assert any(isinstance(a, Notice) and "battery 15 % is below the show's 20 %" in a.text
                for a in actions)
     assert seq.vehicles[1].leave_at is not None  # it leaves on a way out
-    states[2].battery_remaining_pct = 8.0
+    _plan, states, seq, start = _in_formation_show()
+    states[2].battery_remaining_pct = 8.0  # critical, and nobody below it
     actions = seq.update(start + 1.1, states)
     assert Land(2) in actions and seq.vehicles[2].phase is VehiclePhase.LANDING
+
+
+def test_low_batteries_across_the_fleet_land_everyone_on_one_return() -> None:
+    _plan, states, seq, start = _in_formation_show()
+    states[1].battery_remaining_pct = states[2].battery_remaining_pct = 15.0
+    actions = seq.update(start + 1.0, states)
+    assert Notice(None, "batteries low across the fleet (2 vehicles below 20 %): landing "
+                        "every vehicle") in actions
+    assert seq.ended and seq.return_needed == [(1, 0), (2, 1)]
 
 
 def test_a_link_loss_failsafe_after_a_silence_is_taken_back_but_a_pilot_is_not() -> None:

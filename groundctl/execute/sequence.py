@@ -213,6 +213,8 @@ MAX_RETAKES = 2
 RETAKE_WINDOW_S = 10.0
 #: ... and that silence was at least this long (PX4's COM_OF_LOSS_T default), s.
 LINK_FAILSAFE_GAP_S = 1.0
+#: This share of the fleet (at least two) below the battery threshold lands everyone.
+LOW_BATTERY_FLEET = 0.1
 #: A way out planned too late this many times is given up (no retry storm).
 MAX_LATE_LEAVES = 3
 #: The mode each autopilot flies our setpoints in.
@@ -1350,20 +1352,47 @@ class ShowSequence:
         assert self._battery is not None and state.battery_remaining_pct is not None
         v.battery_low = True
         pct = state.battery_remaining_pct
-        if pct < self._battery / 2:
+        low = [u for u in self.vehicles.values() if u.battery_low and u.phase in _STREAMED]
+        if not self._ended and len(low) >= max(2, math.ceil(LOW_BATTERY_FLEET * len(
+                self.vehicles))):
+            # The batteries are running out across the fleet: one planned return for all,
+            # not a way out (or a descent in place) each.
+            v.reason = f"battery {pct:.0f} %"
+            return [Notice(None, f"batteries low across the fleet ({len(low)} vehicles below "
+                                 f"{self._battery:.0f} %): landing every vehicle"),
+                    *self.land_all(now)]
+        if pct < self._battery / 2 and self._column_clear(v):
             v.battery_critical = True
             v.phase, v.reason = VehiclePhase.LANDING, f"battery {pct:.0f} % (critical)"
             v.leave_at = None
             return [Notice(v.sysid, f"vehicle {v.sysid}: battery {pct:.0f} % is below half "
-                                    f"the show's {self._battery:.0f} %: landing where it is",
-                           "battery_critical", "battery critical: landing where it is"),
+                                    f"the show's {self._battery:.0f} %: landing where it is "
+                                    "(nobody below it)", "battery_critical",
+                           "battery critical: landing where it is"),
                     self._send(v, Land(v.sysid), now)]
+        if v.phase is not VehiclePhase.SHOW:
+            return []  # already leaving or returning: that is the fastest safe way down
         v.reason = f"battery {pct:.0f} % (minimum {self._battery:.0f} %)"
         actions: list[Action] = [Notice(
             v.sysid, f"vehicle {v.sysid}: battery {pct:.0f} % is below the show's "
                      f"{self._battery:.0f} %: it leaves the show", "battery_low",
             "battery low: leaving the show")]
         return actions + self.land_one(v.sysid, now)
+
+    def _column_clear(self, v: VehicleRun) -> bool:
+        """Whether no other drone is within the separation limit, horizontally, of the
+        column below ``v`` (descending there would not pass through anyone)."""
+        here = self._positions.get(v.sysid)
+        if here is None:
+            return False
+        limit = self.plan.limits.min_separation
+        for u in self.vehicles.values():
+            pos = self._positions.get(u.sysid)
+            if u is v or pos is None or u.phase in (VehiclePhase.PREFLIGHT,):
+                continue
+            if pos[2] < here[2] + limit and float(np.hypot(*(pos[:2] - here[:2]))) < limit:
+                return False
+        return True
 
     def _maybe_start_show(self, now: float, states: Mapping[int, VehicleState]) -> list[Action]:
         if self._t0 is not None or self._ended or not self._started or self.paused:
