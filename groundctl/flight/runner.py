@@ -804,6 +804,8 @@ class ShowRunner:
     def _perform(self, actions: list[Action]) -> None:
         for a in actions:
             if isinstance(a, Notice):
+                if a.kind in ("heard_again", "retaken") and a.sysid is not None:
+                    self._leds.forget(a.sysid)  # back from a silence: its colour afresh
                 if a.kind and a.sysid is not None:
                     self._pending_notices.append(a)  # folded per kind at the tick's end
                 else:
