@@ -89,3 +89,24 @@ def leave_time(plan: Plan, track: int, show_time: float) -> float | None:
         if at <= w.end + 1e-9 and at + leave_duration(plan, track, at) <= plan.duration:
             return at
     return None
+
+
+def landing_candidates(plan: Plan) -> NDArray[np.float64]:
+    """Points a returning drone may descend from (m, 3): the plan's landing spots, then
+    every takeoff slot that is not one of them, at the landing altitude."""
+    spots = plan.landing_hover
+    homes = plan.home + np.array([0.0, 0.0, float(spots[:, 2].mean())])
+    d = np.linalg.norm(homes[:, None, :2] - spots[None, :, :2], axis=2)
+    extra = homes[d.min(axis=1) >= plan.limits.min_separation]
+    return np.concatenate([spots, extra])
+
+
+def free_spots(plan: Plan, candidates: NDArray[np.float64], blocked: NDArray[np.float64]
+               ) -> NDArray[np.intp]:
+    """Indices of ``candidates`` whose column keeps the separation limit from every point
+    of ``blocked`` (k, 3): drones down or descending there, spots others fly to."""
+    free = np.ones(len(candidates), dtype=bool)
+    if len(blocked):
+        d = np.linalg.norm(candidates[:, None, :2] - np.asarray(blocked)[None, :, :2], axis=2)
+        free &= d.min(axis=1) >= plan.limits.min_separation
+    return np.flatnonzero(free)

@@ -68,7 +68,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from groundctl.execute.frames import show_positions
-from groundctl.execute.leaving import LEAVE_LEAD_S, Leave, leave_duration, leave_time
+from groundctl.execute.leaving import (
+    LEAVE_LEAD_S,
+    Leave,
+    free_spots,
+    landing_candidates,
+    leave_duration,
+    leave_time,
+)
 from groundctl.execute.preflight import remaining_plan_conflicts
 from groundctl.execute.showclock import ShowClock, brake_ramp
 from groundctl.link.flavours import Flavour
@@ -393,10 +400,6 @@ class ShowSequence:
         return self.clock.started_at
 
     @property
-    def _t0(self) -> float | None:
-        return self.clock.started_at
-
-    @property
     def paused(self) -> bool:
         """The show is held (braking or stopped) for any reason."""
         return self.clock.held or self._pre_start_hold
@@ -437,7 +440,7 @@ class ShowSequence:
         """Re-synchronise the show clock to ``show_time`` and brake from ``rate`` (the
         driver stalled: its drones flew on stale setpoints, and :meth:`fit_show_time`
         found where along the plan they are)."""
-        if self._ended or self._t0 is None:
+        if self._ended or self.started_at is None:
             self.hold_for(reason, now)
             return
         self.clock.stop_at(now, min(max(show_time, 0.0), self.plan.duration), reason, rate)
@@ -554,7 +557,7 @@ class ShowSequence:
             actions += self._advance(v, states[v.sysid], now)
         actions += self._maybe_start_show(now, states)
         actions += self._begin_leaves(now)
-        if self._t0 is not None and not self._ended \
+        if self.started_at is not None and not self._ended \
                 and self.clock.show_time(now) >= self.plan.duration:
             self._ended = True
             for v in self.vehicles.values():
@@ -626,10 +629,9 @@ class ShowSequence:
     def spot_blocked(self, v: VehicleRun) -> bool:
         """Whether the column under ``v``'s landing point comes within the separation
         limit of a drone that is down or descending."""
-        point = np.asarray(self._landing_point(v), dtype=float)
-        limit = self.plan.limits.min_separation
-        return any(float(np.hypot(*(p[:2] - point[:2]))) < limit
-                   for p in self.down_positions(v))
+        point = np.asarray(self._landing_point(v), dtype=float)[None, :]
+        down = np.array(self.down_positions(v)).reshape(-1, 3)
+        return len(free_spots(self.plan, point, down)) == 0
 
     def command_failed(self, command: Command, reason: str, now: float) -> list[Action]:
         """A command was refused or timed out; retry it later or give the vehicle up."""
@@ -673,17 +675,17 @@ class ShowSequence:
             if v.hold_point is not None and v.sysid in sysids and v.sysid not in follow \
                     and v.sysid not in fixed and (v.leave is None or show_t < v.leave.at):
                 fixed[v.sysid] = v.hold_point
-        moving = self._t0 is not None and not self._ended and self.clock.at(now).moving
+        moving = self.started_at is not None and not self._ended and self.clock.at(now).moving
         leaves = {v.sysid: v.leave for v in self.vehicles.values()
                   if v.leave is not None and v.sysid in sysids and v.sysid not in follow
                   and v.sysid not in fixed}
         # After land-all the show clock is still braking: keep sampling it (with its
         # feed-forward) until it is at rest.
-        braking = self._ended and self._t0 is not None and self.clock.at(now).rate > 0 \
+        braking = self._ended and self.started_at is not None and self.clock.at(now).rate > 0 \
             and self.clock.show_time(now) < self.plan.duration
         return StreamRequest(show_t, moving, sysids,
-                             self.clock if self._t0 is not None else None,
-                             self._t0 is None or (self._ended and not braking),
+                             self.clock if self.started_at is not None else None,
+                             self.started_at is None or (self._ended and not braking),
                              fixed, follow, traj if follow else None,  # type: ignore[arg-type]
                              t_ret, self._return_clock if follow else None, leaves)
 
@@ -708,7 +710,7 @@ class ShowSequence:
         v = self.vehicles[sysid]
         if self._after_return:
             return np.asarray(self._landing_point(v), dtype=float)  # hovering over it
-        t = min(self.clock.stop_time(now) if self._t0 is not None else 0.0,
+        t = min(self.clock.stop_time(now) if self.started_at is not None else 0.0,
                 self.plan.duration)
         if self._stopped_at is not None:
             t = min(t, self._stopped_at)
@@ -727,7 +729,7 @@ class ShowSequence:
             return []
         self._return = (trajectories, {s: i for i, s in enumerate(sysids)})
         clock = ShowClock(self.clock.default_ramp_s)
-        clock.start(max(now, self.clock.rest_at()) if self._t0 is not None else now)
+        clock.start(max(now, self.clock.rest_at()) if self.started_at is not None else now)
         for reason in self.clock.holds & FLEET_HOLDS:  # the ground station's own trouble
             clock.hold(now, reason)
         self._return_clock = clock
@@ -851,7 +853,7 @@ class ShowSequence:
         hovers on it (the plan keeps them apart at every instant)."""
         if "operator" in self.holds:
             return [Notice(None, "already holding")]
-        if self._t0 is None:
+        if self.started_at is None:
             self._pre_start_hold = True
             return [Notice(None, "holding: the show clock will not start until resume")]
         self.hold_for("operator", now)
@@ -874,7 +876,7 @@ class ShowSequence:
     def land_all(self, now: float) -> list[Action]:
         """Every vehicle back to its landing slot and down; the show is over."""
         if self._stopped_at is None:
-            interrupted = self._t0 is not None and not self._ended \
+            interrupted = self.started_at is not None and not self._ended \
                 and self.clock.show_time(now) < self.plan.duration
             self._pre_start_hold = False
             self.release("operator", now)
@@ -1005,7 +1007,7 @@ class ShowSequence:
             v.lost_from = None
             return self._strand(v, off, now, "heard again")
         v.phase, v.lost_from, v.reason = v.lost_from, None, None
-        if v.phase is VehiclePhase.READY and self._t0 is not None:
+        if v.phase is VehiclePhase.READY and self.started_at is not None:
             v.phase = VehiclePhase.SHOW if not self._ended else VehiclePhase.RETURNING
         return [Notice(v.sysid, f"vehicle {v.sysid} heard again: back in the sequence "
                                 f"({v.phase})", "heard_again", f"heard again ({v.phase})")]
@@ -1016,7 +1018,7 @@ class ShowSequence:
         ``rejoin_tolerance_m`` from its plan over the last ``OFF_PLAN_WINDOW_S`` (so a
         late telemetry sample or a lagging autopilot does not count); None otherwise."""
         pos = self._positions.get(v.sysid)
-        if self._t0 is None or self._ended or pos is None:
+        if self.started_at is None or self._ended or pos is None:
             return None
         t = self.show_time(now)
         recent = np.linspace(max(t - OFF_PLAN_WINDOW_S, 0.0), t, 6)
@@ -1252,7 +1254,7 @@ class ShowSequence:
         """
         if v.landing_point is not None:
             return np.asarray(v.landing_point, dtype=float)
-        if self._t0 is None:
+        if self.started_at is None:
             return self._home_hover[v.track]
         return self._slots[v.track]
 
@@ -1312,18 +1314,13 @@ class ShowSequence:
     def nearest_free_spot(self, v: VehicleRun) -> tuple[float, float, float] | None:
         """The closest landing candidate (plan landing spots, then takeoff slots) clear of
         every drone down and every spot someone else lands on."""
-        spots = self.plan.landing_hover
-        homes = self.plan.home + np.array([0.0, 0.0, float(spots[:, 2].mean())])
-        candidates = np.concatenate([spots, homes])
-        blocked = self.down_positions(v) + self.reserved_spots({v.sysid})
-        limit = self.plan.limits.min_separation
-        here = np.asarray(self._landing_point(v))
-        best = None
-        for c in candidates[np.argsort(np.linalg.norm(candidates - here, axis=1))]:
-            if all(float(np.hypot(*(c[:2] - b[:2]))) >= limit for b in blocked):
-                best = (float(c[0]), float(c[1]), float(c[2]))
-                break
-        return best
+        candidates = landing_candidates(self.plan)
+        blocked = np.array(self.down_positions(v) + self.reserved_spots({v.sysid}))
+        free = candidates[free_spots(self.plan, candidates, blocked.reshape(-1, 3))]
+        if not len(free):
+            return None
+        best = free[np.argmin(np.linalg.norm(free - self._landing_point(v), axis=1))]
+        return (float(best[0]), float(best[1]), float(best[2]))
 
     def _leaving(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
         if v.leave is None:
@@ -1333,7 +1330,7 @@ class ShowSequence:
         return self._returning(v, state, now)
 
     def _begin_leaves(self, now: float) -> list[Action]:
-        if self._t0 is None or self._ended:
+        if self.started_at is None or self._ended:
             return []
         t = self.show_time(now)
         actions: list[Action] = []
@@ -1395,7 +1392,7 @@ class ShowSequence:
         return True
 
     def _maybe_start_show(self, now: float, states: Mapping[int, VehicleState]) -> list[Action]:
-        if self._t0 is not None or self._ended or not self._started or self.paused:
+        if self.started_at is not None or self._ended or not self._started or self.paused:
             return []
         phases = [v.phase for v in self.vehicles.values()]
         if any(p in (VehiclePhase.ARMING, VehiclePhase.TAKEOFF) for p in phases):

@@ -24,7 +24,13 @@ from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
 from groundctl.errors import PlanningError
-from groundctl.execute.leaving import Leave, leave_duration, return_duration
+from groundctl.execute.leaving import (
+    Leave,
+    free_spots,
+    landing_candidates,
+    leave_duration,
+    return_duration,
+)
 from groundctl.execute.preflight import segment_distance
 from groundctl.plan.plan import Plan
 from groundctl.plan.scp_quad import plan_among, plan_quad_transition
@@ -61,27 +67,6 @@ def plan_return(plan: Plan, tracks: list[int], start: NDArray[np.float64],
                           still).trajectories
     result = plan_quad_transition(0, "return", start, goal, duration, plan.limits, settings)
     return result.trajectories
-
-
-def landing_candidates(plan: Plan) -> NDArray[np.float64]:
-    """Points a returning drone may descend from (m, 3): the plan's landing spots, then
-    every takeoff slot that is not one of them, at the landing altitude."""
-    spots = plan.landing_hover
-    homes = plan.home + np.array([0.0, 0.0, float(spots[:, 2].mean())])
-    d = np.linalg.norm(homes[:, None, :2] - spots[None, :, :2], axis=2)
-    extra = homes[d.min(axis=1) >= plan.limits.min_separation]
-    return np.concatenate([spots, extra])
-
-
-def free_spots(plan: Plan, candidates: NDArray[np.float64], blocked: NDArray[np.float64]
-               ) -> NDArray[np.intp]:
-    """Indices of ``candidates`` whose column keeps the separation limit from every point
-    of ``blocked`` (k, 3): drones down or descending there, spots others fly to."""
-    free = np.ones(len(candidates), dtype=bool)
-    if len(blocked):
-        d = np.linalg.norm(candidates[:, None, :2] - np.asarray(blocked)[None, :, :2], axis=2)
-        free &= d.min(axis=1) >= plan.limits.min_separation
-    return np.flatnonzero(free)
 
 
 def assign_landing(plan: Plan, tracks: list[int], start: NDArray[np.float64],

@@ -75,6 +75,7 @@ from groundctl.execute.sequence import (
     SetMode,
     ShowPhase,
     ShowSequence,
+    StreamRequest,
     Takeoff,
     VehiclePhase,
 )
@@ -234,6 +235,7 @@ class ShowRunner:
         self._pending_notices: list[Notice] = []
         self._last_show_time: float | None = None
         self._finished = False
+        self._request: tuple[float, StreamRequest] | None = None
 
     # -- reporting -------------------------------------------------------------------
     def _say(self, text: str, event: str = "notice", **fields: Any) -> None:
@@ -499,7 +501,9 @@ class ShowRunner:
     def _guard_tick(self, seq: ShowSequence, now: float, lag: float, period: float) -> None:
         assert self.monitor is not None
         in_show = seq.started_at is not None and not seq.ended
-        streamed = seq.stream_request(now).sysids
+        req = self._request
+        streamed = (req[1] if req is not None and req[0] == now
+                    else seq.stream_request(now)).sysids
         flying = bool(streamed) and seq.started_at is not None
         errors: dict[int, float] = {}
         closest, pair, closing, planned = math.inf, None, 0.0, math.inf
@@ -697,6 +701,7 @@ class ShowRunner:
     def _stream_tick(self, seq: ShowSequence, now: float, scheduled: float) -> None:
         assert self._stream is not None and self.monitor is not None
         req = seq.stream_request(now)
+        self._request = (now, req)  # the guard reads the same request this tick
         if not req.sysids:
             self.lateness_s.append(self.clock.now() - scheduled)
         else:
