@@ -112,3 +112,45 @@ def test_a_refusal_by_the_runner_is_said_not_raised() -> None:
     calls, said = run("land 2", runner)
     assert calls == [("land_one", 2)]
     assert said == ["land: the flight has not started"]
+
+
+def test_stdin_kinds_that_can_carry_operator_lines(tmp_path: pytest.TempPathFactory) -> None:
+    import os
+
+    from groundctl.commands.flying import stdin_is_interactive
+
+    read_fd, write_fd = os.pipe()
+    with os.fdopen(read_fd) as pipe, open(os.devnull) as devnull:
+        assert stdin_is_interactive(pipe)
+        assert not stdin_is_interactive(devnull)  # a character device, not a terminal
+    os.close(write_fd)
+    regular = tmp_path / "commands.txt"  # type: ignore[operator]
+    regular.write_text("hold\n")
+    with open(regular) as f:
+        assert not stdin_is_interactive(f)
+    closed = open(os.devnull)  # noqa: SIM115
+    closed.close()
+    assert not stdin_is_interactive(closed)
+    assert not stdin_is_interactive(None)
+
+
+def test_no_operator_input_from_dev_null_and_no_traceback(monkeypatch: pytest.MonkeyPatch
+                                                         ) -> None:
+    """`fly </dev/null` (a service manager): no operator commands, nothing raised in the loop."""
+    import asyncio
+    import os
+
+    from groundctl.commands.flying import read_operator_commands
+
+    errors: list[dict[str, object]] = []
+
+    async def main() -> None:
+        asyncio.get_running_loop().set_exception_handler(lambda _loop, ctx: errors.append(ctx))
+        await asyncio.wait_for(read_operator_commands(RecordingRunner(), print),  # type: ignore[arg-type]
+                               timeout=5.0)
+        await asyncio.sleep(0.05)  # callbacks the reader may have scheduled run now
+
+    with open(os.devnull) as devnull:
+        monkeypatch.setattr("sys.stdin", devnull)
+        asyncio.run(main())
+    assert errors == []

@@ -6,11 +6,13 @@ import argparse
 import asyncio
 import contextlib
 import json
+import os
 import signal
+import stat
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Protocol
+from typing import IO, Any, Protocol
 
 from groundctl.commands.options import positive, signing_key
 from groundctl.commands.progress import ProgressBar
@@ -254,8 +256,29 @@ def operator_line(runner: OperatorTarget, line: str, notify: Callable[[str], Non
         notify(f"{verb}: {exc}")
 
 
+def stdin_is_interactive(stream: IO[str] | None) -> bool:
+    """Whether ``stream`` can be watched for operator lines: a terminal, a pipe or a socket.
+
+    ``/dev/null`` (a character device that is not a terminal), a regular file or a
+    closed stream cannot: the event loop's epoll refuses them (``PermissionError``
+    raised inside a callback, printed as a traceback), so they mean "no operator".
+    """
+    if stream is None:
+        return False
+    try:
+        fd = stream.fileno()
+        if os.isatty(fd):
+            return True
+        mode = os.fstat(fd).st_mode
+    except (OSError, ValueError):
+        return False
+    return stat.S_ISFIFO(mode) or stat.S_ISSOCK(mode)
+
+
 async def read_operator_commands(runner: ShowRunner, notify: Callable[[str], None]) -> None:
     """Operator commands from stdin, one per line, until end of input."""
+    if not stdin_is_interactive(sys.stdin):
+        return  # /dev/null, a regular file, closed (a service manager): no operator input
     loop = asyncio.get_running_loop()
     reader = asyncio.StreamReader()
     try:
