@@ -764,3 +764,73 @@ def test_a_landing_spot_taken_by_a_drone_down_elsewhere_calls_for_a_new_return()
     actions = seq.update(start + plan.duration + 2.0, states)
     assert Land(2) not in actions
     assert seq.return_needed == [(2, 1)]
+
+
+def _landing_after_show(flavour: Flavour = ARDU) -> tuple[ShowSequence, dict[int, VehicleState]]:
+    """Two vehicles flown through the show to the end; vehicle 1 sent LAND at t=13."""
+    states = _fleet(flavour)
+    seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: flavour, 2: flavour})
+    _airborne_ardupilot(seq, states, 0.0)
+    for v in states.values():
+        set_altitude(v, 3.0)
+    seq.update(1.0, states)
+    assert seq.phase is ShowPhase.SHOW
+    seq.update(12.5, states)
+    states[1].position_ned = (0.1, 0.0, -3.0)  # over its slot
+    states[2].position_ned = (0.0, 1.0, -3.0)  # still 2 m short of its slot
+    assert seq.update(13.0, states) == [Land(1)]
+    assert seq.vehicles[1].phase is VehiclePhase.LANDING
+    return seq, states
+
+
+def test_a_land_lost_in_a_silence_is_sent_again_when_heard_still_in_guided() -> None:
+    seq, states = _landing_after_show()
+    states[1].lost = True  # frozen: the LAND (and its retries) went nowhere
+    actions = seq.update(14.0, states)
+    assert seq.vehicles[1].phase is VehiclePhase.LOST
+    assert [a.kind for a in actions if isinstance(a, Notice)] == ["lost"]
+    states[1].lost = False  # heard again, still hovering in GUIDED over its spot
+    actions = seq.update(22.0, states)
+    assert Land(1) in actions
+    notice = next(a for a in actions if isinstance(a, Notice))
+    assert notice.text == "vehicle 1 heard again still in GUIDED: its LAND was lost, " \
+                          "sending it again"
+    assert seq.vehicles[1].phase is VehiclePhase.LANDING
+    states[1].mode = "LAND"
+    assert seq.update(23.0, states) == []  # descending
+    states[1].armed = False
+    assert seq.update(35.0, states) == [Notice(1, "vehicle 1 landed")]
+    assert seq.vehicles[1].phase is VehiclePhase.LANDED
+    assert seq.lost == []
+
+
+def test_a_vehicle_lost_while_landing_and_heard_again_disarmed_is_counted_landed() -> None:
+    seq, states = _landing_after_show()
+    states[1].lost = True
+    seq.update(14.0, states)
+    states[2].position_ned = (0.0, 3.2, -3.0)
+    assert seq.update(15.0, states) == [Land(2)]
+    states[2].armed = False
+    seq.update(20.0, states)
+    assert seq.settled and seq.lost == [1]  # everyone else down: the driver waits for it
+    # It got the LAND before the silence, touched down and disarmed meanwhile.
+    states[1].lost, states[1].armed, states[1].mode = False, False, "LAND"
+    actions = seq.update(30.0, states)
+    assert Land(1) not in actions
+    assert [a.text for a in actions if isinstance(a, Notice)] == [
+        "vehicle 1 heard again: down and disarmed", "vehicle 1 landed"]
+    assert seq.vehicles[1].phase is VehiclePhase.LANDED
+    assert seq.lost == [] and seq.phase is ShowPhase.LANDED
+
+
+def test_heard_again_while_landing_in_another_mode_is_not_fought() -> None:
+    seq, states = _landing_after_show()
+    states[1].lost = True
+    seq.update(14.0, states)
+    states[1].lost, states[1].mode = False, "RTL"  # its GCS failsafe took it home
+    actions = seq.update(20.0, states)
+    assert not any(isinstance(a, Land) for a in actions)
+    assert [a.text for a in actions if isinstance(a, Notice)] == [
+        "vehicle 1 heard again: in RTL (its failsafe or a pilot)"]
+    states[1].armed = False
+    assert seq.update(40.0, states) == [Notice(1, "vehicle 1 landed")]

@@ -226,6 +226,8 @@ LOW_BATTERY_FLEET = 0.1
 MAX_LATE_LEAVES = 3
 #: The mode each autopilot flies our setpoints in.
 _FLIGHT_MODE = {Flavour.ARDUPILOT: "GUIDED", Flavour.PX4: "OFFBOARD"}
+#: Where a vehicle that lost our setpoints waits (PX4's offboard-loss failsafe: Hold).
+_HOLD_MODE = {Flavour.ARDUPILOT: "GUIDED", Flavour.PX4: "AUTO.LOITER"}
 
 
 @dataclass(frozen=True)
@@ -1009,8 +1011,30 @@ class ShowSequence:
         v.phase, v.lost_from, v.reason = v.lost_from, None, None
         if v.phase is VehiclePhase.READY and self.started_at is not None:
             v.phase = VehiclePhase.SHOW if not self._ended else VehiclePhase.RETURNING
+        if v.phase is VehiclePhase.LANDING:
+            return self._rejoin_landing(v, state, now)
         return [Notice(v.sysid, f"vehicle {v.sysid} heard again: back in the sequence "
                                 f"({v.phase})", "heard_again", f"heard again ({v.phase})")]
+
+    def _rejoin_landing(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
+        """Heard again after being lost while landing: what it does now decides what is
+        still needed.  Disarmed: down (the next update counts it landed).  In its land
+        mode: descending.  Still in our flight mode (or PX4's Hold, where losing its
+        setpoints put it): the LAND was lost in the silence, so send it again.  Any other
+        mode: its failsafe or a pilot has it, and we do not fight them."""
+        if not state.armed:
+            doing = "down and disarmed"
+        elif state.mode in _LAND_MODES:
+            doing = "landing"
+        elif state.mode in (_FLIGHT_MODE[v.flavour], _HOLD_MODE[v.flavour]):
+            return [Notice(v.sysid, f"vehicle {v.sysid} heard again still in {state.mode}: "
+                                    "its LAND was lost, sending it again", "heard_again",
+                           f"heard again in {state.mode}: LAND re-sent"),
+                    self._send(v, Land(v.sysid), now)]
+        else:
+            doing = f"in {state.mode} (its failsafe or a pilot)"
+        return [Notice(v.sysid, f"vehicle {v.sysid} heard again: {doing}", "heard_again",
+                       f"heard again: {doing}")]
 
     def _off_plan(self, v: VehicleRun, now: float
                   ) -> tuple[float, tuple[float, float, float]] | None:
