@@ -37,8 +37,10 @@ def add_runner_options(p: argparse.ArgumentParser) -> None:
                         "be safe without it")
     p.add_argument("--rate", type=positive, default=10.0, metavar="HZ",
                    help="setpoint rate per vehicle (default 10)")
-    p.add_argument("--lead", type=float, default=150.0, metavar="MS",
-                   help="setpoints are taken this far ahead to cover link latency (default 150)")
+    p.add_argument("--lead", type=lead_ms, default=None, metavar="MS|auto",
+                   help="setpoints are taken this far ahead of the show clock, to cover the "
+                        "link delay and the vehicle's response; 'auto' (the default) "
+                        "measures each vehicle's own in flight")
     p.add_argument("--min-battery", type=float, default=Thresholds.min_battery_pct,
                    metavar="PCT", help="pre-flight battery minimum (default %(default)s %%)")
     p.add_argument("--preflight-timeout", type=positive, default=120.0, metavar="S",
@@ -49,8 +51,23 @@ def add_runner_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
 
 
+def lead_ms(text: str) -> float | None:
+    """``--lead``: milliseconds (non-negative), or ``auto`` (None: measured per vehicle)."""
+    if text.strip().lower() == "auto":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--lead must be milliseconds or 'auto', not {text!r}")\
+            from None
+    if not 0 <= value <= 2000:
+        raise argparse.ArgumentTypeError(f"--lead must be within 0..2000 ms, not {text}")
+    return value
+
+
 def runner_config(args: argparse.Namespace, tracks: dict[int, int] | None = None) -> RunnerConfig:
-    return RunnerConfig(rate_hz=args.rate, lead_s=args.lead / 1000.0,
+    return RunnerConfig(rate_hz=args.rate,
+                        lead_s=None if args.lead is None else args.lead / 1000.0,
                         preflight_timeout_s=args.preflight_timeout,
                         excluded=frozenset(args.exclude), tracks=tracks,
                         thresholds=Thresholds(min_battery_pct=args.min_battery))

@@ -1,9 +1,11 @@
 """Setpoints and LED colours for the whole fleet at one instant, in each vehicle's frame.
 
-A setpoint sent at our time ``now`` reaches the vehicle a little later, so
-:meth:`SetpointStream.at` evaluates the plan ``lead_s`` ahead of the show
-clock; ``time_boot_ms`` stamps the same instant on the vehicle's clock
-(vehicle time = our time + TIMESYNC offset).  Everything is vectorised over
+A setpoint sent at our time ``now`` reaches the vehicle a little later and is
+tracked with the vehicle's own response delay, so :meth:`SetpointStream.at`
+evaluates the plan each vehicle's lead ahead of the show clock (one lead for
+all, or per vehicle from :mod:`groundctl.execute.lead`); ``time_boot_ms``
+stamps the same instant on the vehicle's clock (vehicle time = our time +
+TIMESYNC offset).  Everything is vectorised over
 the fleet: one plan evaluation, one geodetic conversion per tick.
 """
 
@@ -107,10 +109,29 @@ class SetpointStream:
         self.plan = plan
         self.targets = tuple(targets)
         self.lead_s = lead_s
+        """The lead every vehicle starts with (all of them, unless :meth:`set_leads`)."""
+        self.leads = np.full(len(self.targets), float(lead_s))
+        """(n,) lead per target, s, in the targets' order."""
         self.sysids = tuple(t.sysid for t in targets)
         self._tracks = np.array(tracks, dtype=int)
         self._origins = [t.ekf_origin for t in targets]
         self._index = {t.sysid: i for i, t in enumerate(targets)}
+
+    def set_leads(self, leads: Mapping[int, float]) -> None:
+        """Per-vehicle leads (system id -> s); vehicles not named keep theirs."""
+        for sysid, lead in leads.items():
+            if not lead >= 0:
+                raise ValueError(f"the lead of vehicle {sysid} must be non-negative, got {lead}")
+            self.leads[self._index[sysid]] = float(lead)
+
+    @property
+    def typical_lead(self) -> float:
+        """The median lead of the fleet, s (the show time the last setpoints were for)."""
+        return float(np.median(self.leads)) if len(self.leads) else self.lead_s
+
+    def lead_of(self, sysid: int) -> float:
+        """The lead ``sysid`` is streamed with, s."""
+        return float(self.leads[self._index[sysid]])
 
     def landing_slots(self) -> FloatArray:
         """(n, 3) show-frame points the targets descend from: above their landing spots."""
@@ -123,7 +144,7 @@ class SetpointStream:
            follow_trajectories: Trajectories | None = None,
            follow_clock: ShowClock | None = None,
            leaves: Mapping[int, Leave] | None = None) -> Setpoints:
-        """Setpoints at our time ``now``, for the instant ``lead_s`` later.
+        """Setpoints at our time ``now``, each for the instant its vehicle's lead later.
 
         With a running ``clock`` the plan is sampled where that clock will be then,
         velocity and acceleration scaled by its rate (``rate * p'``, ``rate**2 * p'' +
@@ -137,29 +158,34 @@ class SetpointStream:
         Leave's show time on.
         """
         duration = self.plan.duration
+        n = len(self.targets)
+        stamp_s = now + self.leads
         if clock is not None and not ended:
-            c = clock.at(now + self.lead_s)
-            t, rate, drate = min(max(c.show_time, 0.0), duration), c.rate, c.rate_change
+            t, rate, drate = clock.at_many(stamp_s)
+            t = np.clip(t, 0.0, duration)
         else:
-            t, rate, drate = min(max(show_time, 0.0), duration), 0.0, 0.0
-        if t >= duration:
-            rate = drate = 0.0  # past the end the plan holds its final state
-        state = self.plan.state_at(t)
-        pos = state.pos[self._tracks].copy()
-        vel = rate * state.vel[self._tracks]
-        acc = rate * rate * state.acc[self._tracks] + drate * state.vel[self._tracks]
+            t = np.full(n, min(max(show_time, 0.0), duration))
+            rate, drate = np.zeros(n), np.zeros(n)
+        end = t >= duration  # past the end the plan holds its final state
+        rate, drate = np.where(end, 0.0, rate), np.where(end, 0.0, drate)
+        p, v, a = self.plan.trajectories.evaluate_each(t, self._tracks)
+        pos = p.copy()
+        vel = rate[:, None] * v
+        acc = (rate * rate)[:, None] * a + drate[:, None] * v
         if leaves:
             for sysid, leave in leaves.items():
                 if sysid not in self._index:
                     raise ValueError(f"`leaves` names vehicle {sysid}, which is not streamed")
-                if t < leave.at:
-                    continue  # still flying its plan
                 i = self._index[sysid]
-                p, v, a = leave.state(t)
-                if t >= leave.until:
-                    pos[i], vel[i], acc[i] = p, 0.0, 0.0
+                ti = float(t[i])
+                if ti < leave.at:
+                    continue  # still flying its plan
+                lp, lv, la = leave.state(ti)
+                if ti >= leave.until:
+                    pos[i], vel[i], acc[i] = lp, 0.0, 0.0
                 else:
-                    pos[i], vel[i], acc[i] = p, rate * v, rate * rate * a + drate * v
+                    r, dr = float(rate[i]), float(drate[i])
+                    pos[i], vel[i], acc[i] = lp, r * lv, r * r * la + dr * lv
         if fixed:
             for sysid, point in fixed.items():
                 if sysid not in self._index:
@@ -169,17 +195,19 @@ class SetpointStream:
         if follow:
             if follow_trajectories is None or follow_clock is None:
                 raise ValueError("`follow` needs `follow_trajectories` and `follow_clock`")
-            f = follow_clock.at(now + self.lead_s)
-            tf = min(max(f.show_time, 0.0), follow_trajectories.end)
-            fr, fdr = (0.0, 0.0) if tf >= follow_trajectories.end else (f.rate, f.rate_change)
-            rows = np.array(list(follow.values()))
-            fp, fv, fa = follow_trajectories.evaluate(tf, rows)
-            for k, sysid in enumerate(follow):
-                if sysid not in self._index:
-                    raise ValueError(f"`follow` names vehicle {sysid}, which is not streamed")
-                i = self._index[sysid]
-                pos[i], vel[i], acc[i] = fp[k], fr * fv[k], fr * fr * fa[k] + fdr * fv[k]
-        stamp_s = now + self.lead_s
+            bad = [s for s in follow if s not in self._index]
+            if bad:
+                raise ValueError(f"`follow` names vehicle {bad[0]}, which is not streamed")
+            idx = np.array([self._index[s] for s in follow], dtype=np.intp)
+            tf, fr, fdr = follow_clock.at_many(stamp_s[idx])
+            tf = np.clip(tf, 0.0, follow_trajectories.end)
+            over = tf >= follow_trajectories.end
+            fr, fdr = np.where(over, 0.0, fr), np.where(over, 0.0, fdr)
+            rows = np.array(list(follow.values()), dtype=np.intp)
+            fp, fv, fa = follow_trajectories.evaluate_each(tf, rows)
+            pos[idx] = fp
+            vel[idx] = fr[:, None] * fv
+            acc[idx] = (fr * fr)[:, None] * fa + fdr[:, None] * fv
         offsets = np.array([np.nan if (o := clock_offsets.get(s)) is None else o
                             for s in self.sysids], dtype=float)
         # Unknown offset: 0 is what autopilots read as "no timestamp" (both
@@ -188,7 +216,7 @@ class SetpointStream:
         # Colours of the show clock *now*, not of the look-ahead: LED_CONTROL is applied
         # on arrival (the runner schedules changes per vehicle; this is the fallback).
         now_t = min(max(clock.show_time(now), 0.0), duration) \
-            if clock is not None and not ended else t
+            if clock is not None and not ended else float(t[0]) if n else 0.0
         return Setpoints(
             sysids=self.sysids,
             time_boot_ms=ms.astype(np.int64),

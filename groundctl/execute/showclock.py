@@ -21,6 +21,9 @@ import bisect
 import math
 from dataclasses import dataclass
 
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
 #: Shortest ramp between full speed and a stop, s.
 MIN_RAMP_S = 0.5
 
@@ -66,6 +69,16 @@ class _Segment:
         s = self.s + self.r * ramp + 0.5 * self.slope * ramp * ramp
         return ClockSample(s + self.target * (dt - ramp), self.target, 0.0)
 
+    def at_many(self, now: NDArray[np.float64]
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        dt = np.maximum(now - self.t, 0.0)
+        ramp = self.ramp_end - self.t
+        within = dt <= ramp
+        d = np.minimum(dt, ramp)
+        s = self.s + self.r * d + 0.5 * self.slope * d * d + self.target * (dt - d)
+        rate = np.where(within, self.r + self.slope * d, self.target)
+        return s, rate, np.where(within, self.slope, 0.0)
+
 
 class ShowClock:
     """Show time that runs, brakes, holds and resumes; see the module docstring.
@@ -100,6 +113,21 @@ class ShowClock:
             return ClockSample(0.0, 0.0, 0.0)
         k = bisect.bisect_right(self._times, now) - 1
         return self._segments[max(k, 0)].at(now)
+
+    def at_many(self, now: ArrayLike
+                ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """(show time, rate, rate change) at each of the instants ``now``: :meth:`at`
+        over an array (one lead per vehicle)."""
+        t = np.asarray(now, dtype=float)
+        out = (np.zeros_like(t), np.zeros_like(t), np.zeros_like(t))
+        if not self._segments:
+            return out
+        ks = np.maximum(np.searchsorted(self._times, t, side="right") - 1, 0)
+        for k in np.unique(ks):  # the few segments a lead's span reaches
+            sel = ks == k
+            for dst, src in zip(out, self._segments[int(k)].at_many(t[sel]), strict=True):
+                dst[sel] = src
+        return out
 
     def show_time(self, now: float) -> float:
         return self.at(now).show_time

@@ -10,7 +10,9 @@ would be compared 50 ms apart on average, an error of 0.2 m in their
 distance.
 
 Measured: min separation (any two vehicles heard, flying or on the ground),
-per-vehicle max and RMS tracking error against the plan at the show clock,
+per-vehicle max and RMS tracking error against the plan at the show clock
+(split, while the plan moves, into along-track (early or late) and cross-track
+parts, with how far ahead of the plan the vehicle flew in seconds),
 the worst distance to the formation slots while each formation is held, and
 (when the LEDs can be observed, as in the dry-run) how early or late each
 colour change appeared.
@@ -32,6 +34,8 @@ from groundctl.plan.plan import Plan
 
 FloatArray = NDArray[np.float64]
 
+#: The along/cross-track split counts ticks where the plan moves at least this fast, m/s.
+MOVING_MPS = 0.3
 #: Telemetry older than this is not used (the vehicle is as good as unheard), s.
 MAX_SAMPLE_AGE_S = 1.0
 #: LED change matched against plan colours within this window either side, s.
@@ -54,6 +58,16 @@ class VehicleTrack:
     """Sum of squared errors, m^2."""
     samples: int = 0
     """Ticks measured."""
+    moving_samples: int = 0
+    """Ticks measured while the plan moved faster than :data:`MOVING_MPS`."""
+    along_sq: float = 0.0
+    """Sum of squared along-track errors (along the planned velocity) while moving, m^2."""
+    cross_sq: float = 0.0
+    """Sum of squared cross-track errors while moving, m^2."""
+    ev_sum: float = 0.0
+    """Sum of error . planned velocity while moving, m^2/s (the time-offset numerator)."""
+    vv_sum: float = 0.0
+    """Sum of squared planned speeds while moving, m^2/s^2."""
     led_errors_s: list[float] = field(default_factory=list)
     """Per observed LED change: shown time minus planned time, s (negative: early)."""
     led_unmatched: int = 0
@@ -62,6 +76,22 @@ class VehicleTrack:
     @property
     def rms_error_m(self) -> float:
         return math.sqrt(self.sum_sq / self.samples) if self.samples else 0.0
+
+    @property
+    def along_rms_m(self) -> float | None:
+        """RMS along-track error while moving (lead or lag), m."""
+        return math.sqrt(self.along_sq / self.moving_samples) if self.moving_samples else None
+
+    @property
+    def cross_rms_m(self) -> float | None:
+        """RMS cross-track error while moving, m."""
+        return math.sqrt(self.cross_sq / self.moving_samples) if self.moving_samples else None
+
+    @property
+    def ahead_s(self) -> float | None:
+        """How far ahead of the plan it flew (negative: behind), least squares over the
+        moving samples: sum(e . v) / sum(|v|^2), s."""
+        return self.ev_sum / self.vv_sum if self.vv_sum > 0 else None
 
 
 @dataclass
@@ -154,8 +184,9 @@ class FlightMonitor:
         self._led_shown: dict[int, float | None] = {}
 
     def observe(self, now: float, show_time: float, in_show: Collection[int],
-                states: Mapping[int, VehicleState]) -> None:
-        """One tick: ``in_show`` are the vehicles flying the plan (tracking error counts)."""
+                states: Mapping[int, VehicleState], rate: float = 1.0) -> None:
+        """One tick: ``in_show`` are the vehicles flying the plan (tracking error counts);
+        ``rate`` is the show clock's (the planned velocity is ``rate * p'``)."""
         self.ticks += 1
         ids, pos = telemetry_positions(self.plan, states, now)
         self.last_positions = (now, ids, pos)
@@ -167,14 +198,26 @@ class FlightMonitor:
             return
         tracks = np.array([self.tracks[ids[k]] for k in rows])
         here = pos[rows]
-        planned = self.plan.trajectories.evaluate(show_time, tracks)[0]
-        err = np.linalg.norm(here - planned, axis=1)
-        for k, e in zip(rows, err, strict=True):
+        planned, pvel, _ = self.plan.trajectories.evaluate(show_time, tracks)
+        pvel = rate * pvel
+        diff = here - planned
+        err = np.linalg.norm(diff, axis=1)
+        speed = np.linalg.norm(pvel, axis=1)
+        ev = np.einsum("ij,ij->i", diff, pvel)
+        along = ev / np.maximum(speed, 1e-12)
+        cross_sq = np.maximum(err * err - along * along, 0.0)
+        for j, (k, e) in enumerate(zip(rows, err, strict=True)):
             v = self.vehicles[ids[k]]
             if e > v.max_error_m:
                 v.max_error_m, v.max_error_at_s = float(e), show_time
             v.sum_sq += float(e) ** 2
             v.samples += 1
+            if speed[j] >= MOVING_MPS:
+                v.moving_samples += 1
+                v.along_sq += float(along[j]) ** 2
+                v.cross_sq += float(cross_sq[j])
+                v.ev_sum += float(ev[j])
+                v.vv_sum += float(speed[j]) ** 2
         for w, f in zip(self.plan.formations, self.formations, strict=True):
             if w.arrive <= show_time <= w.end:
                 d = np.linalg.norm(here - w.goals[tracks], axis=1)
@@ -238,6 +281,18 @@ class FlightMonitor:
     def rms_tracking_error(self) -> float:
         n = sum(v.samples for v in self.vehicles.values())
         return math.sqrt(sum(v.sum_sq for v in self.vehicles.values()) / n) if n else 0.0
+
+    def tracking_split(self) -> dict[str, float | None]:
+        """Fleet-wide along-track RMS, cross-track RMS (while moving, m) and how far ahead
+        of the plan the fleet flew (s, negative: behind)."""
+        tracks = list(self.vehicles.values())
+        n = sum(v.moving_samples for v in tracks)
+        vv = sum(v.vv_sum for v in tracks)
+        return {
+            "along_rms_m": math.sqrt(sum(v.along_sq for v in tracks) / n) if n else None,
+            "cross_rms_m": math.sqrt(sum(v.cross_sq for v in tracks) / n) if n else None,
+            "ahead_s": sum(v.ev_sum for v in tracks) / vv if vv > 0 else None,
+        }
 
     def led_errors(self) -> list[float]:
         return [e for v in self.vehicles.values() for e in v.led_errors_s]

@@ -29,6 +29,10 @@ def _r(x: float | None, nd: int = 3) -> float | None:
     return None if x is None or not math.isfinite(x) else round(float(x), nd)
 
 
+def _ms(seconds: float | None) -> float | None:
+    return None if seconds is None else _r(seconds * 1000.0, 1)
+
+
 def _formation(f: FormationError) -> dict[str, Any]:
     # No sample means no formation: 0.0 would read as a perfect one.
     flown = f.samples > 0
@@ -68,6 +72,12 @@ def flight_report(runner: ShowRunner, error: str | None = None,
             "commands_refused": rec.commands_refused if rec is not None else 0,
             "last_refusal": rec.last_refusal if rec is not None else None,
             "late": rec.late if rec is not None else False,
+            "late_count": rec.late_count if rec is not None else 0,
+            "lead_ms": _ms(runner.lead_of(sysid)),
+            "response_ms": _ms(runner.response_of(sysid)),
+            "along_track_rms_m": _r(track.along_rms_m) if track else None,
+            "cross_track_rms_m": _r(track.cross_rms_m) if track else None,
+            "ahead_ms": _ms(track.ahead_s) if track else None,
             "loss_ratio": _r(state.loss_ratio, 4) if state is not None else None,
             "rtt_ms": _r(state.rtt_s * 1000, 1) if state and state.rtt_s is not None else None,
             "bad_packets": state.bad_packets if state is not None else 0,
@@ -106,6 +116,9 @@ def flight_report(runner: ShowRunner, error: str | None = None,
         "separation_limit_m": limit,
         "max_tracking_error_m": _r(mon.max_tracking_error()) if mon is not None else None,
         "rms_tracking_error_m": _r(mon.rms_tracking_error()) if mon is not None else None,
+        "tracking_split": _split(mon.tracking_split()) if mon is not None else None,
+        "lead": {"adaptive": runner.leads is not None,
+                 "initial_ms": _ms(runner.config.initial_lead_s)},
         "pattern_error_m": [_formation(f) for f in (mon.formations if mon is not None else [])],
         "led_timing_error_s": {
             "changes": len(led),
@@ -127,6 +140,11 @@ def flight_report(runner: ShowRunner, error: str | None = None,
     return report
 
 
+def _split(split: dict[str, float | None]) -> dict[str, float | None]:
+    return {"along_rms_m": _r(split["along_rms_m"]), "cross_rms_m": _r(split["cross_rms_m"]),
+            "ahead_ms": _ms(split["ahead_s"])}
+
+
 def render_report(report: dict[str, Any]) -> str:
     """The report as a few lines and a per-vehicle table for the terminal."""
     lines = [f"show {report['show']}: {'SAFE' if report['safe'] else 'NOT SAFE'}"]
@@ -141,6 +159,17 @@ def render_report(report: dict[str, Any]) -> str:
                     if report.get("true_min_separation_m") is not None else ""))
     lines.append(f"tracking error max {report['max_tracking_error_m']} m, "
                  f"RMS {report['rms_tracking_error_m']} m")
+    split = report.get("tracking_split")
+    if split and split["along_rms_m"] is not None:
+        ahead = split["ahead_ms"]
+        lines.append(f"  while moving: along-track RMS {split['along_rms_m']} m, cross-track RMS "
+                     f"{split['cross_rms_m']} m; flown "
+                     + (f"{abs(ahead):.0f} ms {'ahead of' if ahead >= 0 else 'behind'}"
+                        if ahead is not None else "on") + " the show clock")
+    leads = [v["lead_ms"] for v in report["vehicles"] if v.get("lead_ms") is not None]
+    if leads:
+        how = "measured per vehicle" if report.get("lead", {}).get("adaptive") else "fixed"
+        lines.append(f"setpoint lead ({how}): {min(leads):.0f}-{max(leads):.0f} ms")
     for f in report["pattern_error_m"]:
         if f.get("flown", True):
             lines.append(f"  formation {f['index']} {f['formation']}: pattern error max "
@@ -164,13 +193,15 @@ def render_report(report: dict[str, Any]) -> str:
     lines.append(f"link: {link['packets']} packets in, {link['sent']} out, {link['bad_packets']} "
                  f"bad, {link['unknown_system_packets']} from unknown systems")
     lines.append(f"{'sysid':>5} {'track':>5} {'phase':<9} {'max err':>7} {'rms':>6} "
-                 f"{'loss':>6} {'rtt ms':>6} {'refused':>7}  note")
+                 f"{'loss':>6} {'rtt ms':>6} {'lead ms':>7} {'refused':>7}  note")
     for v in report["vehicles"]:
         def f(x: Any, fmt: str) -> str:
             return "-" if x is None else format(x, fmt)
-        note = v["reason"] or ("late" if v["late"] else "")
+        note = v["reason"] or ("late" if v["late"] else
+                               f"was late {v['late_count']}x" if v.get("late_count") else "")
         lines.append(f"{v['system_id']:>5} {f(v['track'], 'd'):>5} {v['phase']:<9} "
                      f"{f(v['max_tracking_error_m'], '.2f'):>7} "
                      f"{f(v['rms_tracking_error_m'], '.2f'):>6} {f(v['loss_ratio'], '.1%'):>6} "
-                     f"{f(v['rtt_ms'], '.0f'):>6} {v['commands_refused']:>7}  {note}")
+                     f"{f(v['rtt_ms'], '.0f'):>6} {f(v.get('lead_ms'), '.0f'):>7} "
+                     f"{v['commands_refused']:>7}  {note}")
     return "\n".join(lines)

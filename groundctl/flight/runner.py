@@ -53,6 +53,7 @@ from groundctl.execute.guard import (
     TakeOut,
     TickFacts,
 )
+from groundctl.execute.lead import LeadConfig, LeadEstimator, late_vehicles
 from groundctl.execute.leds import LedSchedule
 from groundctl.execute.mapping import Assignment, auto_assign, explicit_assign
 from groundctl.execute.preflight import (
@@ -80,7 +81,6 @@ from groundctl.execute.sequence import (
     VehiclePhase,
 )
 from groundctl.execute.setpoints import (
-    DEFAULT_LEAD_S,
     LedTracker,
     Setpoints,
     SetpointStream,
@@ -141,8 +141,12 @@ class RunnerConfig:
 
     rate_hz: float = 10.0
     """Setpoint rate per vehicle (and the loop rate)."""
-    lead_s: float = DEFAULT_LEAD_S
-    """Setpoints are taken this far ahead of the show clock to cover the link latency."""
+    lead_s: float | None = None
+    """Setpoints are taken this far ahead of the show clock, to cover the link delay and
+    the vehicle's response.  None: per vehicle, measured in flight from its own tracking
+    (:mod:`groundctl.execute.lead`), starting from ``lead.initial_s``."""
+    lead: LeadConfig = field(default_factory=LeadConfig)
+    """The per-vehicle lead estimate's tuning (when ``lead_s`` is None)."""
     led_refresh_s: float = 1.0
     """An unchanged LED colour is re-sent this often (LED_CONTROL is never acknowledged)."""
     connect_timeout_s: float = 30.0
@@ -178,8 +182,13 @@ class RunnerConfig:
     def __post_init__(self) -> None:
         if not self.rate_hz >= 1.0:
             raise ValueError(f"`rate_hz` must be at least 1, got {self.rate_hz}")
-        if self.lead_s < 0:
+        if self.lead_s is not None and self.lead_s < 0:
             raise ValueError(f"`lead_s` must be non-negative, got {self.lead_s}")
+
+    @property
+    def initial_lead_s(self) -> float:
+        """The lead every vehicle starts with."""
+        return self.lead.initial_s if self.lead_s is None else self.lead_s
 
 
 @dataclass
@@ -191,7 +200,9 @@ class VehicleRecord:
     last_refusal: str | None = None
     """The last refusal's reason."""
     late: bool = False
-    """Flagged: its round trip is longer than twice the setpoint lead."""
+    """Flagged now: its recent one-way link delay exceeds the lead it is streamed with."""
+    late_count: int = 0
+    """Times it was flagged late during the flight."""
 
 
 class ShowRunner:
@@ -236,6 +247,9 @@ class ShowRunner:
         self._last_show_time: float | None = None
         self._finished = False
         self._request: tuple[float, StreamRequest] | None = None
+        self.leads: LeadEstimator | None = None
+        """Per-vehicle leads measured in flight (None: a fixed lead, ``config.lead_s``)."""
+        self._lead_at: float | None = None
 
     # -- reporting -------------------------------------------------------------------
     def _say(self, text: str, event: str = "notice", **fields: Any) -> None:
@@ -247,6 +261,18 @@ class ShowRunner:
     def _notify(self, text: str) -> None:
         if self.notify is not None:
             self.notify(text)
+
+    def lead_of(self, sysid: int) -> float | None:
+        """The lead ``sysid`` is streamed with now, s (None: not streamed)."""
+        if self._stream is None or sysid not in self._stream.sysids:
+            return None
+        return self._stream.lead_of(sysid)
+
+    def response_of(self, sysid: int) -> float | None:
+        """``sysid``'s measured response delay, s (None: fixed lead, or not known yet)."""
+        if self.leads is None or sysid not in self.leads.sysids:
+            return None
+        return self.leads.estimate(sysid).response_s
 
     def _record(self, sysid: int) -> VehicleRecord:
         return self.records.setdefault(sysid, VehicleRecord())
@@ -406,7 +432,9 @@ class ShowRunner:
             flavours[sysid] = state.flavour
             targets.append(StreamTarget(sysid, track, state.ekf_origin))
             self._record(sysid)
-        self._stream = SetpointStream(self.plan, targets, self.config.lead_s)
+        self._stream = SetpointStream(self.plan, targets, self.config.initial_lead_s)
+        self.leads = LeadEstimator([t.sysid for t in targets], self.config.lead) \
+            if self.config.lead_s is None else None
         self._led_schedule = LedSchedule.from_targets(self.plan, targets)
         self.monitor = FlightMonitor(self.plan, tracks)
         self.sequence = ShowSequence(self.plan, tracks, flavours, self.config.sequence,
@@ -460,7 +488,7 @@ class ShowRunner:
                 self._start_planning(seq)
                 if now >= next_check:
                     next_check = now + 1.0
-                    self._flag_late(seq)
+                    self._flag_late(seq, now)
                 if now >= next_progress:
                     next_progress = now + cfg.progress_every_s
                     self._say(self.status_line(), "progress")
@@ -549,7 +577,7 @@ class ShowRunner:
                 if action.show_time is not None and in_show:
                     # Where along the plan are the drones, after flying on stale setpoints
                     # (between the last setpoints' show time and where the clock is now)?
-                    lead = self._stream.lead_s if self._stream is not None else 0.0
+                    lead = self._stream.typical_lead if self._stream is not None else 0.0
                     vel = {sid: ned_vel_to_show(self.plan.origin,
                                                 np.array(st.velocity_ned))
                            for sid, st in self.link.vehicles.items()
@@ -717,13 +745,56 @@ class ShowRunner:
                      sp.vel_ned[i].tolist(), sp.acc_ned[i].tolist())
             # The tick's last setpoint has left: how late against its scheduled instant.
             self.lateness_s.append(self.clock.now() - scheduled)
-            self._last_show_time = (min(req.clock.show_time(now + self._stream.lead_s),
+            self._last_show_time = (min(req.clock.show_time(now + self._stream.typical_lead),
                                         self.plan.duration)
                                     if req.clock is not None and not req.ended else None)
             self._leds_tick(seq, now, sp, rows)
         in_show = [s for s, v in seq.vehicles.items() if v.phase is VehiclePhase.SHOW] \
             if seq.started_at is not None and not seq.ended else []
-        self.monitor.observe(now, req.show_time, in_show, self.link.vehicles)
+        rate = req.clock.at(now).rate if req.clock is not None and not req.ended else 0.0
+        self.monitor.observe(now, req.show_time, in_show, self.link.vehicles, rate)
+        self._lead_tick(seq, req, now, in_show)
+
+    def _link_delays(self, now: float) -> dict[int, float | None]:
+        """Recent one-way link delay per vehicle (half the recent median round trip)."""
+        out: dict[int, float | None] = {}
+        for sysid, state in self.link.vehicles.items():
+            rtt = state.timesync.recent_rtt_s(now)
+            out[sysid] = None if rtt is None else rtt / 2.0
+        return out
+
+    def _lead_tick(self, seq: ShowSequence, req: StreamRequest, now: float,
+                   in_show: list[int]) -> None:
+        """Feed the lead estimate with the vehicles flying their plan on a steady clock,
+        and stream each with its lead."""
+        if self.leads is None or self._stream is None or self.monitor is None:
+            return
+        dt = 0.0 if self._lead_at is None else max(now - self._lead_at, 0.0)
+        self._lead_at = now
+        steady = req.clock is not None and not req.ended and not seq.holds \
+            and req.clock.at(now).rate == 1.0 \
+            and req.clock.at(now - 2 * self.config.lead.max_s).rate == 1.0
+        sysids: list[int] = []
+        rows: list[int] = []
+        last = self.monitor.last_positions
+        if steady and last is not None and last[0] == now:
+            _, ids, _ = last
+            special = set(req.fixed) | set(req.follow) | set(req.leaves)
+            for k, sysid in enumerate(ids):
+                v = seq.vehicles.get(sysid)
+                if sysid in in_show and sysid not in special and v is not None \
+                        and v.hold_point is None:
+                    sysids.append(sysid)
+                    rows.append(k)
+        if sysids:
+            assert last is not None
+            tracks = np.array([seq.vehicles[s].track for s in sysids])
+            planned, pvel, _ = self.plan.trajectories.evaluate(req.show_time, tracks)
+            self.leads.observe(now, sysids, last[2][rows] - planned, pvel)
+        else:
+            self.leads.observe(now, [], np.zeros((0, 3)), np.zeros((0, 3)))
+        self.leads.update(dt, self._link_delays(now))
+        self._stream.set_leads(self.leads.as_dict())
 
     def _leds_tick(self, seq: ShowSequence, now: float, sp: Setpoints, rows: list[int]) -> None:
         """LED colours on the show clock *at the vehicle*: each change is sent its own
@@ -787,24 +858,37 @@ class ShowRunner:
         self._led_handles.clear()
         self._led_window_end = -math.inf
 
-    def _flag_late(self, seq: ShowSequence) -> None:
-        if seq.holds & FLEET_HOLDS:
+    def _flag_late(self, seq: ShowSequence, now: float) -> None:
+        """Late: a vehicle's recent one-way link delay exceeds the lead it is streamed with
+        (its setpoints arrive after the instant they are for).  Judged on recent TIMESYNC
+        answers, so one answer queued behind a freeze of ours flags nobody for good; the
+        flag clears when the delay is back within the lead."""
+        if seq.holds & FLEET_HOLDS or self._stream is None:
             return  # our own trouble: its round trips say nothing about the vehicles
-        for sysid, v in seq.vehicles.items():
-            if v.phase not in (VehiclePhase.READY, VehiclePhase.SHOW):
-                continue
+        delays = self._link_delays(now)
+        leads = {s: self._stream.lead_of(s) for s, v in seq.vehicles.items()
+                 if v.phase in (VehiclePhase.READY, VehiclePhase.SHOW)
+                 and s in self._stream.sysids
+                 and len(self.link.vehicles[s].timesync.samples) >= 3}
+        late = {s for s, r in self.records.items() if r.late}
+        newly, cleared = late_vehicles(leads, delays, late)
+        for sysid in sorted(newly):
             rec = self._record(sysid)
-            state = self.link.vehicles[sysid]
-            rtt = state.median_rtt_s  # one stall of ours (a late answer) does not move it
-            if rec.late or rtt is None or len(state.timesync.samples) < 5 \
-                    or rtt / 2 <= self.config.lead_s:
-                continue
-            rec.late = True
-            self._say(f"vehicle {sysid} is late: one-way delay ~{rtt * 500:.0f} ms (median "
-                      f"round trip) exceeds the setpoint lead of "
-                      f"{self.config.lead_s * 1000:.0f} ms", "vehicle_late", system_id=sysid,
-                      rtt_ms=round(rtt * 1000, 1), kind="late",
+            rec.late, rec.late_count = True, rec.late_count + 1
+            delay, lead = delays[sysid] or 0.0, leads[sysid]
+            self._say(f"vehicle {sysid} is late: one-way delay ~{delay * 1000:.0f} ms (recent "
+                      f"round trips) exceeds its setpoint lead of {lead * 1000:.0f} ms",
+                      "vehicle_late", system_id=sysid, delay_ms=round(delay * 1000, 1),
+                      lead_ms=round(lead * 1000, 1), kind="late",
                       summary="late: one-way delay exceeds the setpoint lead")
+        for sysid in sorted(cleared):
+            self._record(sysid).late = False
+            delay = delays[sysid] or 0.0
+            self._say(f"vehicle {sysid} is no longer late: one-way delay ~{delay * 1000:.0f} "
+                      f"ms, within its setpoint lead of {leads[sysid] * 1000:.0f} ms",
+                      "vehicle_late_cleared", system_id=sysid,
+                      delay_ms=round(delay * 1000, 1), lead_ms=round(leads[sysid] * 1000, 1),
+                      kind="late_cleared", summary="no longer late")
 
     def _perform(self, actions: list[Action]) -> None:
         for a in actions:

@@ -80,6 +80,12 @@ class TimesyncEstimator:
         rtts = sorted(x.rtt_ns for x in self.samples)
         return rtts[len(rtts) // 2] / NS
 
+    def recent_rtt_s(self, now: float, window_s: float = 10.0) -> float | None:
+        """Median round trip of the samples answered in the last ``window_s`` seconds (None
+        if there are none): what the link does now, not what it did before a freeze."""
+        rtts = sorted(x.rtt_ns for x in self.samples if x.at >= now - window_s)
+        return rtts[len(rtts) // 2] / NS if rtts else None
+
     @property
     def offset_s(self) -> float | None:
         """Vehicle time minus our time in seconds, or None before the first answer."""

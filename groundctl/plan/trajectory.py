@@ -87,6 +87,28 @@ class Trajectories:
             return pos[:, 0], vel[:, 0], acc[:, 0]
         return pos, vel, acc
 
+    def evaluate_each(self, t: FloatArray, drones: NDArray[np.intp]
+                      ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Position, velocity, acceleration (m, 3) of ``drones[k]`` at its own time ``t[k]``
+        (clamped to the knots, like :meth:`evaluate`)."""
+        tt = np.asarray(t, dtype=float)
+        rows = np.asarray(drones, dtype=np.intp)
+        if tt.shape != rows.shape or tt.ndim != 1:
+            raise ValueError("`t` and `drones` must be 1-D arrays of the same length")
+        seg, s, h = self._coefficients(tt)
+        p0, p1 = self.pos[rows, seg], self.pos[rows, seg + 1]
+        hh = h[:, None]
+        m0, m1 = self.vel[rows, seg] * hh, self.vel[rows, seg + 1] * hh
+        s = s[:, None]
+        s2, s3 = s * s, s * s * s
+        pos = (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * m0 + (-2 * s3 + 3 * s2) * p1 \
+            + (s3 - s2) * m1
+        vel = ((6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * m0 + (-6 * s2 + 6 * s) * p1
+               + (3 * s2 - 2 * s) * m1) / hh
+        acc = ((12 * s - 6) * p0 + (6 * s - 4) * m0 + (-12 * s + 6) * p1
+               + (6 * s - 2) * m1) / (hh * hh)
+        return pos, vel, acc
+
     def dense_times(self, per_segment: int) -> FloatArray:
         """Knot times with ``per_segment - 1`` evenly spaced times between each pair."""
         frac = np.arange(per_segment) / per_segment
