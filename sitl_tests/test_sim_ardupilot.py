@@ -98,9 +98,19 @@ def test_arming_is_refused_until_the_position_estimate_is_ready() -> None:
         assert decode_mode(AP, hb.base_mode, hb.custom_mode) == "GUIDED"
 
 
-def test_guided_mode_needs_a_position() -> None:
-    with manual_fleet(1, ekf_origin_delay_s=2.0) as (fleet, peer):
+def test_guided_mode_needs_a_position_only_when_armed() -> None:
+    # Copter::set_mode: "allow switching to any mode if disarmed. We rely on the arming
+    # check": disarmed, GUIDED is accepted before the EKF has a position.
+    with manual_fleet(1, ekf_origin_delay_s=2.0, ready_delay_s=2.0) as (fleet, peer):
+        assert peer.set_mode(1, AP, "GUIDED").result == 0
+        assert peer.set_mode(1, AP, "STABILIZE").result == 0
+        # Forced arming in STABILIZE (a mode without GPS) skips the position check...
+        ack = peer.command_long(1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, 21196)
+        assert ack.result == 0
+        # ...and armed, GUIDED needs the position estimate.
         assert peer.set_mode(1, AP, "GUIDED").result == mavlink.MAV_RESULT_FAILED
+        text = peer.wait("STATUSTEXT", 1, lambda m: "Mode change" in m.text, steps=5)
+        assert text.text == "Mode change failed: GUIDED requires position"
         fleet.run_until(2.1)
         assert peer.set_mode(1, AP, "GUIDED").result == 0
         assert peer.set_mode(1, AP, "LAND").result == 0

@@ -57,10 +57,19 @@ class SimFleet:
 
     Sockets are bound on construction, so :attr:`ports` is known before
     :meth:`start`.  All public methods are thread-safe.
+
+    ``boot_text``: each vehicle first sends its autopilot's boot text as raw
+    datagrams (ArduPilot SITL prints "Init ArduCopter ..." on its MAVLink port
+    before MAVLink starts; PX4 has none), which a ground station must count as
+    bad packets and ignore.
     """
 
-    def __init__(self, config: SimConfig, clock: Clock | None = None) -> None:
+    def __init__(self, config: SimConfig, clock: Clock | None = None, *,
+                 boot_text: bool = False) -> None:
         self.config = config
+        self.boot_text = boot_text
+        """Whether the vehicles send their boot text before MAVLink."""
+        self._boot_text_due = boot_text
         self.clock: Clock = clock if clock is not None else ScaledClock(1.0)
         self.dt = 1.0 / config.physics_rate_hz
         seeds = np.random.SeedSequence(config.seed).spawn(2)
@@ -352,6 +361,11 @@ class SimFleet:
 
     def _tick(self) -> None:
         now = self.t
+        if self._boot_text_due:
+            self._boot_text_due = False
+            for i, v in enumerate(self.vehicles):
+                for line in v.boot_lines():
+                    self._queue(i, line, now)
         self._receive(now)
         while self._timers and self._timers[0][0] <= now:
             heapq.heappop(self._timers)[2]()
@@ -404,16 +418,18 @@ class SimFleet:
 
     def _send(self, i: int, msgs: list[mavlink.MAVLink_message], now: float) -> None:
         codec = self.codecs[i]
-        link = self._links[i]
-        rel = now - self.boot_time
         for msg in msgs:
-            data = codec.encode(msg)
-            for delay in link.deliveries(rel, self._link_rng):
-                if delay == 0:
-                    self._sendto(i, data)
-                else:
-                    self._seq += 1
-                    heapq.heappush(self._outbox, (now + delay, self._seq, i, data))
+            self._queue(i, codec.encode(msg), now)
+
+    def _queue(self, i: int, data: bytes, now: float) -> None:
+        """Send one datagram of vehicle ``i`` through its link faults."""
+        rel = now - self.boot_time
+        for delay in self._links[i].deliveries(rel, self._link_rng):
+            if delay == 0:
+                self._sendto(i, data)
+            else:
+                self._seq += 1
+                heapq.heappush(self._outbox, (now + delay, self._seq, i, data))
 
     def _flush_outbox(self, now: float) -> None:
         while self._outbox and self._outbox[0][0] <= now:

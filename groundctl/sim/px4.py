@@ -14,6 +14,14 @@ Quirks reproduced on purpose (PX4 docs "Offboard Mode", "Safety", commander):
   only in OFFBOARD;
 * NAV_TAKEOFF param7 is an AMSL altitude; NaN means MIS_TAKEOFF_ALT above home;
   the vehicle switches to AUTO.LOITER when it gets there;
+* offboard yaw: the setpoint's yaw / yaw rate (NaN when type_mask ignores them,
+  mavlink_receiver.cpp) is flown; with both ignored the heading is held; the
+  attitude controller turns at MC_YAW_P x MC_YAW_WEIGHT of the heading error, at
+  most MC_YAWRATE_MAX;
+* STATUSTEXT: every message gets the next id of the link, texts over 50 bytes
+  are sent in 50-byte chunks (streams/STATUSTEXT.hpp), at most 126 bytes (the
+  mavlink_log text);
+* SYS_STATUS has no geofence bits (the health report has no geofence component);
 * refusals answer TEMPORARILY_REJECTED; manual modes need RC, which a
   simulated vehicle does not have; parameters are encoded bytewise;
 * LED_CONTROL is an ArduPilot message: PX4 ignores it.
@@ -31,6 +39,7 @@ from groundctl.sim import physics as P
 from groundctl.sim.vehicle import (
     ACCEPTED,
     FORCE_MAGIC,
+    STATUSTEXT_LEN,
     TEMP_REJECTED,
     Setpoint,
     Vehicle,
@@ -53,6 +62,9 @@ _DEFAULT_STREAMS: dict[int, float] = {
     mavlink.MAVLINK_MSG_ID_VFR_HUD: 4.0,
     mavlink.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
 }
+
+#: Longest text a PX4 log message carries (mavlink_log.text is char[127]).
+_TEXT_MAX = 126
 
 #: Modes that need RC input, refused by a vehicle without RC.
 _MANUAL = frozenset({"MANUAL", "ALTCTL", "POSCTL", "ACRO", "STABILIZED"})
@@ -92,6 +104,25 @@ class PX4Vehicle(Vehicle):
     def _on_origin_set(self, now: float) -> None:
         self.statustext(mavlink.MAV_SEVERITY_INFO, "[ekf2] EKF origin set, GNSS fusion started")
 
+    def statustext_chunks(self, text: bytes) -> list[tuple[int, int, bytes]]:
+        """MavlinkStreamStatustext: id = the link's counter (incremented for every text,
+        starting at 0), then 50-byte chunks; a text of a multiple of 50 bytes ends on a full
+        chunk (no empty terminator, unlike ArduPilot)."""
+        text = text[:_TEXT_MAX]
+        chunk_id = self._statustext_id
+        self._next_statustext_id(skip_zero=False)
+        chunks = []
+        seq = 0
+        while text:
+            chunks.append((chunk_id, seq, text[:STATUSTEXT_LEN]))
+            text = text[STATUSTEXT_LEN:]
+            seq += 1
+        return chunks
+
+    def yaw_control(self) -> tuple[float, float]:
+        return (math.radians(self.params["MC_YAWRATE_MAX"]),
+                float(self.params["MC_YAW_P"] * self.params["MC_YAW_WEIGHT"]))
+
     # -- commands -----------------------------------------------------------------------------
 
     def _refuse_mode(self, name: str) -> int:
@@ -111,6 +142,7 @@ class PX4Vehicle(Vehicle):
         self.mode = name
         self._failsafe_action_at = None
         self.failsafe = False
+        self.heading.hold()
         if name == "OFFBOARD":
             if self._offboard_sp is not None and self.armed:
                 self._fly_offboard(self._offboard_sp)
@@ -164,6 +196,7 @@ class PX4Vehicle(Vehicle):
         if math.isfinite(alt_amsl):
             height = max(alt_amsl - self.home_lla[2], height)
         self.mode = "AUTO.TAKEOFF"
+        self.heading.hold()
         self.start_takeoff(height)
         self._took_off = True
         return ACCEPTED
@@ -189,6 +222,8 @@ class PX4Vehicle(Vehicle):
             self._took_off = True
         self.apply_setpoint(sp, 0.0)
         self.ph.mode[i] = P.CTRL_TRACK
+        # trajectory_setpoint.yaw / yawspeed; NaN for both: the heading is held.
+        self.heading.command(sp.yaw, sp.yaw_rate)
 
     # -- timers -------------------------------------------------------------------------------
 
@@ -227,6 +262,7 @@ class PX4Vehicle(Vehicle):
         # Hold first (COM_FAIL_ACT_T), then the configured action.
         self.mode = "AUTO.LOITER"
         self.hold()
+        self.heading.hold()
         self._failsafe_action_at = now + self.params["COM_FAIL_ACT_T"]
 
     def _run_failsafe_action(self, action: int, now: float) -> None:

@@ -3,6 +3,9 @@
 Positions reported are the autopilot's *estimate* (truth + GPS error), as a
 real EKF reports; LOCAL_POSITION_NED is relative to the vehicle's own EKF
 origin, GLOBAL_POSITION_INT is absolute (AMSL) with ``relative_alt`` above home.
+The heading (the vehicle's :class:`~groundctl.sim.vehicle.Heading`) is where both
+autopilots put it: ATTITUDE.yaw (rad, [-pi, pi)), GLOBAL_POSITION_INT.hdg (cdeg,
+0..35999) and VFR_HUD.heading (deg, 0..359); LOCAL_POSITION_NED has no yaw.
 """
 
 from __future__ import annotations
@@ -61,13 +64,22 @@ def heartbeat(v: Vehicle, now: float) -> Msg:
 
 
 def sys_status(v: Vehicle, now: float) -> Msg:
-    """SYS_STATUS: sensors (GPS and AHRS healthy once the EKF has an origin), battery."""
+    """SYS_STATUS: sensors (GPS and AHRS healthy once the EKF has an origin), geofence,
+    battery."""
+    present = enabled = _SENSORS
     healthy = _SENSORS if v.origin_set(now) else _SENSORS & ~_NEEDS_POSITION
     if not v.ready_to_arm(now):
         healthy &= ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
+    fence_present, fence_enabled, fence_healthy = v.fence_bits(now)
+    fence = mavlink.MAV_SYS_STATUS_GEOFENCE
+    # ArduPilot (GCS_MAVLINK::update_sensor_status_flags) sets each bit on its own: a
+    # fence that is off is present but not enabled, and healthy unless breached.
+    present |= fence if fence_present else 0
+    enabled |= fence if fence_enabled else 0
+    healthy |= fence if fence_healthy else 0
     volt, current, pct = v.battery_readings()
     return mavlink.MAVLink_sys_status_message(
-        _SENSORS, _SENSORS, healthy, 250, volt, current, pct, 0, 0, 0, 0, 0, 0)
+        present, enabled, healthy, 250, volt, current, pct, 0, 0, 0, 0, 0, 0)
 
 
 def battery_status(v: Vehicle, now: float) -> Msg:
@@ -98,15 +110,22 @@ def _geodetic(v: Vehicle) -> np.ndarray:
     return cache[1][v.i]
 
 
+def _heading_deg(v: Vehicle) -> float:
+    """The heading in degrees, [0, 360)."""
+    return math.degrees(v.heading.yaw) % 360.0
+
+
 def global_position_int(v: Vehicle, now: float) -> Msg:
-    """GLOBAL_POSITION_INT: absolute position (AMSL mm), height above home, NED cm/s."""
+    """GLOBAL_POSITION_INT: absolute position (AMSL mm), height above home, NED cm/s,
+    heading (cdeg)."""
     pos, vel = _est(v)
     lat, lon, alt = _geodetic(v)
     vned = v.frames.vec_enu_to_ned(v.i, vel)
+    hdg = round(_heading_deg(v) * 100) % 36000
     return mavlink.MAVLink_global_position_int_message(
         _ms(v, now), round(lat * 1e7), round(lon * 1e7), round(alt * 1000),
         round((pos[2] - v.home_enu[2]) * 1000), round(vned[0] * 100), round(vned[1] * 100),
-        round(vned[2] * 100), 0)
+        round(vned[2] * 100), hdg)
 
 
 def local_position_ned(v: Vehicle, now: float) -> Msg:
@@ -120,13 +139,19 @@ def local_position_ned(v: Vehicle, now: float) -> Msg:
 
 
 def attitude(v: Vehicle, now: float) -> Msg:
-    """ATTITUDE: the tilt a multirotor needs for its horizontal acceleration, nose north."""
+    """ATTITUDE: the heading, and the tilt a multirotor needs for its horizontal
+    acceleration (in the body frame: forward acceleration pitches the nose down)."""
     a = v.ph.acc[v.i]
     an = v.frames.vec_enu_to_ned(v.i, a)
+    yaw = v.heading.yaw
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    forward = an[0] * cy + an[1] * sy
+    right = -an[0] * sy + an[1] * cy
     lift = GRAVITY - an[2]
-    roll = math.atan2(an[1], lift)
-    pitch = -math.atan2(an[0], lift)
-    return mavlink.MAVLink_attitude_message(_ms(v, now), roll, pitch, 0.0, 0.0, 0.0, 0.0)
+    roll = math.atan2(right, lift)
+    pitch = -math.atan2(forward, lift)
+    return mavlink.MAVLink_attitude_message(_ms(v, now), roll, pitch, yaw, 0.0, 0.0,
+                                            v.heading.rate)
 
 
 def vfr_hud(v: Vehicle, now: float) -> Msg:
@@ -135,7 +160,9 @@ def vfr_hud(v: Vehicle, now: float) -> Msg:
     ground = float(np.hypot(vel[0], vel[1]))
     alt = float(_geodetic(v)[2])
     throttle = 50 if v.flying else 0
-    return mavlink.MAVLink_vfr_hud_message(ground, ground, 0, throttle, alt, float(vel[2]))
+    heading = int(_heading_deg(v)) % 360
+    return mavlink.MAVLink_vfr_hud_message(ground, ground, heading, throttle, alt,
+                                           float(vel[2]))
 
 
 def gps_raw_int(v: Vehicle, now: float) -> Msg:

@@ -6,9 +6,10 @@ returns the messages to send back; :meth:`Vehicle.tick` runs the timers
 The vehicle steers its row ``i`` of the shared :class:`FleetPhysics`.
 
 What both autopilots share lives here (streams, parameters, TIMESYNC,
-setpoint decoding, arming bookkeeping, landing and RTL sequencing); the
-flavour subclasses (:mod:`~groundctl.sim.ardupilot`, :mod:`~groundctl.sim.px4`)
-decide what is allowed and how each mode behaves.
+setpoint decoding, arming bookkeeping, landing and RTL sequencing, the
+heading, STATUSTEXT chunking); the flavour subclasses
+(:mod:`~groundctl.sim.ardupilot`, :mod:`~groundctl.sim.px4`) decide what is
+allowed and how each mode behaves.
 """
 
 from __future__ import annotations
@@ -41,6 +42,10 @@ TEMP_REJECTED = mavlink.MAV_RESULT_TEMPORARILY_REJECTED
 MASK_POS = 0x007
 MASK_VEL = 0x038
 MASK_ACC = 0x1C0
+MASK_YAW = mavlink.POSITION_TARGET_TYPEMASK_YAW_IGNORE
+MASK_YAW_RATE = mavlink.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
+#: Bytes of text one STATUSTEXT carries.
+STATUSTEXT_LEN = 50
 #: Both autopilots send their own TIMESYNC request about every 10 s.
 TIMESYNC_PERIOD = 10.0
 
@@ -60,8 +65,72 @@ class Setpoint:
     """A decoded setpoint in the show frame (None: that part is ignored by type_mask)."""
 
     pos: np.ndarray | None
+    """Position, show-frame ENU m."""
     vel: np.ndarray | None
+    """Velocity (feed-forward with a position), ENU m/s."""
     acc: np.ndarray | None
+    """Acceleration (feed-forward), ENU m/s²."""
+    yaw: float | None = None
+    """Heading, rad clockwise from north (the vehicle's NED frame)."""
+    yaw_rate: float | None = None
+    """Yaw rate, rad/s (clockwise seen from above)."""
+
+
+def wrap_pi(angle: float) -> float:
+    """``angle`` in [-pi, pi)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@dataclass
+class Heading:
+    """A vehicle's yaw and what its yaw controller is asked to do.
+
+    Kept here rather than in :mod:`~groundctl.sim.physics`: nothing in the
+    point-mass model depends on where the nose points, only the telemetry does.
+    The model is the attitude controller's outer loop: a P controller on the
+    heading error plus the commanded rate, limited to the autopilot's yaw-rate
+    limit (ArduCopter ATC_SLEW_YAW, PX4 MC_YAWRATE_MAX).
+    """
+
+    yaw: float = 0.0
+    """Heading, rad clockwise from north, in [-pi, pi)."""
+    rate: float = 0.0
+    """Yaw rate the vehicle turns at now, rad/s."""
+    target: float | None = None
+    """Heading to turn to (None: no heading target)."""
+    target_rate: float = 0.0
+    """Commanded yaw rate: the rate the target heading moves at, or (no target) the rate
+    to turn at, rad/s."""
+    face_travel: bool = False
+    """Turn to face the direction of horizontal travel (ArduCopter's auto yaw in GUIDED),
+    holding the heading while slower than the autopilot's threshold."""
+
+    def hold(self) -> None:
+        """Keep the current heading (yaw ignored)."""
+        self.target, self.target_rate, self.face_travel = None, 0.0, False
+
+    def command(self, yaw: float | None, yaw_rate: float | None) -> None:
+        """Turn to ``yaw`` (moving on at ``yaw_rate`` if given), or at ``yaw_rate``."""
+        self.face_travel = False
+        self.target = None if yaw is None else wrap_pi(yaw)
+        self.target_rate = 0.0 if yaw_rate is None else yaw_rate
+
+    def step(self, dt: float, flying: bool, max_rate: float, gain: float,
+             travel: float | None = None) -> None:
+        """Advance ``dt`` s; ``travel`` is the direction of travel when fast enough to face it."""
+        if not flying:
+            self.rate = 0.0  # on the ground the motors do not turn the airframe
+            return
+        if self.target is not None:
+            self.target = wrap_pi(self.target + self.target_rate * dt)
+        target = travel if self.face_travel else self.target
+        if target is not None:
+            rate = gain * wrap_pi(target - self.yaw) + (0.0 if self.face_travel
+                                                          else self.target_rate)
+        else:
+            rate = 0.0 if self.face_travel else self.target_rate
+        self.rate = max(-max_rate, min(max_rate, rate))
+        self.yaw = wrap_pi(self.yaw + self.rate * dt)
 
 
 class Vehicle:
@@ -80,6 +149,9 @@ class Vehicle:
     #: Modes MAV_CMD_NAV_LAND and MAV_CMD_NAV_RETURN_TO_LAUNCH switch to.
     land_mode: ClassVar[str]
     rtl_mode: ClassVar[str]
+    #: Raw text lines the autopilot prints on its MAVLink port at boot, before MAVLink
+    #: starts (ArduPilot SITL's console is its first serial port); none by default.
+    boot_text: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, index: int, sysid: int, config: SimConfig, physics: P.FleetPhysics,
                  frames: FleetFrames, boot_time: float, unix_at_boot: float) -> None:
@@ -90,7 +162,7 @@ class Vehicle:
         self.frames = frames
         self.boot_time = boot_time
         self.unix_at_boot = unix_at_boot
-        self.params = ParamStore(self.flavour, sysid, config.params)
+        self.params = ParamStore(self.flavour, sysid, config.params, physics.dyn)
         self.home_enu = physics.pos[index].copy()
         self.home_lla = tuple(float(x) for x in frames.geodetic(self.home_enu))
         self.mode = self.boot_mode
@@ -109,6 +181,10 @@ class Vehicle:
         self.takeoff_alt: float | None = None  # ENU z the current takeoff climbs to
         self.rtl_phase: str | None = None
         self.rtl_alt = 0.0
+        self.heading = Heading()
+        """Where the nose points and what the yaw controller was asked."""
+        self._last_tick: float | None = None
+        self._statustext_id = 0
         self._out: list[Msg] = []
         self._next_heartbeat = boot_time
         self._next_timesync = boot_time + TIMESYNC_PERIOD
@@ -194,8 +270,16 @@ class Vehicle:
             self.statustext(mavlink.MAV_SEVERITY_EMERGENCY, "Crash: Disarming")
             self.disarm(now)
         self._flight_logic(now)
+        dt = 0.0 if self._last_tick is None else max(0.0, now - self._last_tick)
+        self._last_tick = now
+        max_rate, gain = self.yaw_control()
+        self.heading.step(dt, self.flying, max_rate, gain, self.travel_heading())
         self._send_streams(now)
         return self._flush()
+
+    def boot_lines(self) -> list[bytes]:
+        """The boot text as raw datagrams (one line each), sent before any MAVLink."""
+        return [b"\n" + line.encode("ascii", "replace") + b"\n" for line in self.boot_text]
 
     # -- helpers for subclasses ----------------------------------------------------------------
 
@@ -207,8 +291,24 @@ class Vehicle:
         return int(self.time_since_boot(now) * 1e9)
 
     def statustext(self, severity: int, text: str) -> None:
-        """Queue a STATUSTEXT (truncated to the 50 bytes the message holds)."""
-        self._out.append(mavlink.MAVLink_statustext_message(severity, text.encode()[:50]))
+        """Queue a STATUSTEXT; a text longer than one message is sent in chunks."""
+        for chunk_id, seq, part in self.statustext_chunks(text.encode("utf-8", "replace")):
+            self._out.append(mavlink.MAVLink_statustext_message(severity, part, chunk_id, seq))
+
+    def statustext_chunks(self, text: bytes) -> list[tuple[int, int, bytes]]:
+        """``(id, chunk_seq, text)`` of the STATUSTEXT messages carrying ``text``.
+
+        The flavour decides (ArduPilot and PX4 chunk differently); this default
+        cuts the text to one message, as MAVLink 1 autopilots did.
+        """
+        return [(0, 0, text[:STATUSTEXT_LEN])]
+
+    def _next_statustext_id(self, skip_zero: bool) -> int:
+        """The next chunk-group id (uint16); ``skip_zero`` when 0 means "not chunked"."""
+        self._statustext_id = (self._statustext_id + 1) & 0xFFFF
+        if skip_zero and self._statustext_id == 0:
+            self._statustext_id = 1
+        return self._statustext_id
 
     def ack(self, msg: Msg, result: int) -> None:
         """Queue a COMMAND_ACK for ``msg`` addressed to its sender."""
@@ -250,6 +350,7 @@ class Vehicle:
         self.ph.mode[self.i] = P.CTRL_OFF
         self.takeoff_alt = None
         self.rtl_phase = None
+        self.heading.hold()
 
     def start_takeoff(self, height: float) -> None:
         """Spool up and climb ``height`` m above the current position, at takeoff speed."""
@@ -346,7 +447,7 @@ class Vehicle:
             else:
                 pos = base + self.frames.vec_ned_to_show(self.i, ned)
         vel, acc = self._feed_forward(msg, mask)
-        return _finite(Setpoint(pos, vel, acc))
+        return _finite(Setpoint(pos, vel, acc, *_yaw_fields(msg, mask)))
 
     def _feed_forward(self, msg: Msg, mask: int) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Velocity and acceleration of a position target (NED) in the show frame."""
@@ -375,7 +476,7 @@ class Vehicle:
             pos = self.frames.from_geodetic(msg.lat_int / 1e7, msg.lon_int / 1e7,
                                             alt_base + msg.alt)
         vel, acc = self._feed_forward(msg, mask)
-        return _finite(Setpoint(pos, vel, acc))
+        return _finite(Setpoint(pos, vel, acc, *_yaw_fields(msg, mask)))
 
     # -- message handlers ---------------------------------------------------------------------
 
@@ -421,7 +522,8 @@ class Vehicle:
             return self.request_mode(p[1], p[2], now)
         if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
             if p[0] == 1 and not self.armed and as_int(p[1]) != FORCE_MAGIC \
-                    and self.arm_refusals:  # an arming-time check failing (a fault)
+                    and self.arm_refusals and self.prearm_checks_enabled():
+                # An arming-time check failing (a fault).
                 self.statustext(mavlink.MAV_SEVERITY_CRITICAL, self.arm_refusals.pop(0))
                 return self.arm_refused_result
             return self._arm_disarm(p, now)
@@ -519,7 +621,7 @@ class Vehicle:
     def _param_value(self, name: str) -> None:
         value, ptype = self.params.wire(name)
         self._out.append(mavlink.MAVLink_param_value_message(
-            name.encode(), value, ptype, len(self.params.specs), self.params.index(name)))
+            name.encode(), value, ptype, len(self.params), self.params.index(name)))
 
     def _on_timesync(self, msg: Msg, now: float) -> None:
         if msg.tc1 == 0:
@@ -586,6 +688,22 @@ class Vehicle:
 
     # -- flavour hooks ------------------------------------------------------------------------
 
+    def prearm_checks_enabled(self) -> bool:
+        """Whether the (non-mandatory) pre-arm checks run (ArduPilot: ARMING_CHECK != 0)."""
+        return True
+
+    def yaw_control(self) -> tuple[float, float]:
+        """(yaw-rate limit rad/s, heading-error gain 1/s) of the yaw controller."""
+        return math.radians(60.0), 1.0
+
+    def travel_heading(self) -> float | None:
+        """The heading to face while ``heading.face_travel`` (None: too slow, hold)."""
+        return None
+
+    def fence_bits(self, now: float) -> tuple[bool, bool, bool]:
+        """SYS_STATUS MAV_SYS_STATUS_GEOFENCE (present, enabled, healthy)."""
+        return False, False, False
+
     def _boot_messages(self, now: float) -> None:
         """STATUSTEXTs and default streams at boot."""
 
@@ -599,6 +717,14 @@ class Vehicle:
 def as_int(x: float) -> int:
     """A command parameter as an integer; unused parameters arrive as NaN and count as 0."""
     return int(x) if math.isfinite(x) else 0
+
+
+def _yaw_fields(msg: Msg, mask: int) -> tuple[float | None, float | None]:
+    """(yaw, yaw_rate) of a SET_POSITION_TARGET message; None where ignored or not finite."""
+    yaw = None if mask & MASK_YAW or not math.isfinite(msg.yaw) else float(msg.yaw)
+    rate = (None if mask & MASK_YAW_RATE or not math.isfinite(msg.yaw_rate)
+            else float(msg.yaw_rate))
+    return yaw, rate
 
 
 def _finite(sp: Setpoint) -> Setpoint | None:
