@@ -12,7 +12,9 @@ from sim_fixtures import GcsPeer
 from groundctl.cli import main
 
 
-def test_cli_fleet_is_seen_by_a_ground_station_and_stops_on_ctrl_c() -> None:
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_cli_fleet_is_seen_by_a_ground_station_and_stops_on_ctrl_c(stop: int) -> None:
+    """Ctrl-C, or SIGTERM from a service manager: the fleet stops cleanly, exit 0."""
     peer = GcsPeer()
     host, port = peer.address
     proc = subprocess.Popen(
@@ -26,13 +28,14 @@ def test_cli_fleet_is_seen_by_a_ground_station_and_stops_on_ctrl_c() -> None:
             assert hb.autopilot == 12  # MAV_AUTOPILOT_PX4
         peer.poll(1.5)
     finally:
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(stop)
         out, err = proc.communicate(timeout=10)
         peer.close()
     assert proc.returncode == 0, err
     lines = out.splitlines()
     assert lines[0].startswith("groundctl sim: 3 px4 vehicles")
     assert any(line.startswith("t=") and "vehicles=3" in line for line in lines[1:])
+    assert "groundctl sim: stopping" in err
 
 
 @pytest.mark.parametrize(("args", "message"), [

@@ -1,17 +1,76 @@
-"""``groundctl sim``: run a simulated fleet until Ctrl-C, one status line per second."""
+"""``groundctl sim``: run a simulated fleet until Ctrl-C, one status line per second.
+
+With ``--show SHOW`` the fleet stands on that show's takeoff slots, one
+vehicle per slot, so that ``groundctl fly SHOW`` against it passes the
+pre-flight slot check.  The slots come from where ``fly`` gets them: a plan's
+``home`` is the show's ``[takeoff]`` layout copied unchanged by the planner
+(and saved as is in a ``.npz`` plan), in the show frame of its ``[origin]``
+(heading included), so the show file is read but never planned.
+"""
 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
 
 from groundctl.clock import ScaledClock
 from groundctl.commands.options import signing_key
 from groundctl.errors import EXIT_OK, SimulatorError
+from groundctl.execute.frames import show_to_enu
 from groundctl.link.flavours import Flavour
+from groundctl.show.model import GeoOrigin
 from groundctl.sim import LinkFaults, SimConfig, SimFleet, grid_layout
+
+#: Grid spacing of the homes when neither ``--layout`` nor ``--show`` places them, m.
+DEFAULT_SPACING = 3.0
+
+
+@dataclass(frozen=True)
+class TakeoffSlots:
+    """Where a show's fleet stands before takeoff: what ``groundctl fly`` assigns vehicles to."""
+
+    name: str
+    """The show's name."""
+    source: Path
+    """The show file (TOML) or plan file (``.npz``) they were read from."""
+    origin: GeoOrigin
+    """The show frame's geodetic anchor and heading."""
+    home: NDArray[np.float64]
+    """(drones, 3) takeoff slots, show-frame metres (``Plan.home``)."""
+
+    @property
+    def drones(self) -> int:
+        """One vehicle per slot."""
+        return len(self.home)
+
+    def homes_enu(self) -> NDArray[np.float64]:
+        """The slots as ENU metres from :attr:`origin`, as :class:`SimConfig` takes homes."""
+        return show_to_enu(self.origin, self.home)
+
+
+def takeoff_slots(path: Path) -> TakeoffSlots:
+    """The takeoff slots ``groundctl fly PATH`` checks vehicles against, without planning.
+
+    A ``.npz`` plan file gives its saved ``home`` (PlanFileError if it is not
+    one); anything else is read and validated as a show file (ShowFileError),
+    whose ``home`` the planner copies to the plan unchanged.
+    """
+    if path.suffix == ".npz":  # the same rule as `fly` (commands.flying.load_or_plan)
+        from groundctl.plan.plan import Plan
+        plan = Plan.load(path)
+        return TakeoffSlots(plan.show_name, path, plan.origin,
+                            np.asarray(plan.home, dtype=float))
+    from groundctl.show.loader import load_show
+    show = load_show(path)
+    return TakeoffSlots(show.name, path, show.origin, np.asarray(show.home, dtype=float))
 
 
 def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
@@ -61,15 +120,22 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "sim", help="simulate a fleet of MAVLink vehicles on UDP",
         description="Simulate N ArduCopter- or PX4-like vehicles, each on its own UDP socket, "
                     "sending to the ground station. Runs until Ctrl-C.")
-    p.add_argument("--count", type=int, default=1, help="number of vehicles (default 1)")
+    p.add_argument("--show", type=Path, default=None, metavar="SHOW",
+                   help="stand on this show's takeoff slots (show file or .npz plan): its "
+                        "origin, heading, layout and drone count, ready for 'groundctl fly "
+                        "SHOW'")
+    p.add_argument("--count", type=int, default=None,
+                   help="number of vehicles (default 1, or the show's drone count)")
     p.add_argument("--autopilot", choices=[f.value for f in Flavour], default="ardupilot",
                    help="autopilot flavour (default ardupilot)")
     p.add_argument("--gcs", type=_endpoint, default=("127.0.0.1", 14550),
                    help="ground station HOST:PORT (default 127.0.0.1:14550)")
     p.add_argument("--origin", type=_origin, default=None,
-                   help="show origin LAT,LON,ALT (default ArduPilot SITL's home)")
-    p.add_argument("--layout", type=_layout, default=3.0, metavar="grid:SPACING",
-                   help="homes on a grid with this spacing in metres (default grid:3)")
+                   help="show origin LAT,LON,ALT (default ArduPilot SITL's home; not with "
+                        "--show)")
+    p.add_argument("--layout", type=_layout, default=None, metavar="grid:SPACING",
+                   help="homes on a grid with this spacing in metres (default grid:3; not "
+                        "with --show)")
     p.add_argument("--sysid-base", type=int, default=1, help="first system id (default 1)")
     p.add_argument("--bind", default="127.0.0.1", help="address vehicles bind to")
     p.add_argument("--base-port", type=int, default=0,
@@ -97,8 +163,39 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     return p
 
 
-def build_config(args: argparse.Namespace) -> SimConfig:
-    """The SimConfig the parsed arguments describe."""
+def _placement(args: argparse.Namespace, slots: TakeoffSlots | None
+               ) -> tuple[int, dict[str, object]]:
+    """The vehicle count and the SimConfig fields that place the homes."""
+    if slots is None:
+        count = 1 if args.count is None else args.count
+        spacing = DEFAULT_SPACING if args.layout is None else args.layout
+        place: dict[str, object] = {
+            "positions": grid_layout(count, spacing) if count > 0 else None}
+        if args.origin is not None:
+            place["origin"] = args.origin
+        return count, place
+    shown = f"--show {slots.source}"
+    if args.count is not None and args.count != slots.drones:
+        raise SimulatorError(f"--count {args.count} conflicts with {shown}: the show has "
+                             f"{slots.drones} drones, one per takeoff slot; leave --count out")
+    if args.origin is not None:
+        raise SimulatorError(f"--origin conflicts with {shown}: the fleet stands at the "
+                             f"show's own origin; leave --origin out")
+    if args.layout is not None:
+        raise SimulatorError(f"--layout conflicts with {shown}: the fleet stands on the "
+                             f"show's takeoff slots; leave --layout out")
+    o = slots.origin
+    return slots.drones, {"origin": (o.lat, o.lon, o.alt), "positions": slots.homes_enu()}
+
+
+def build_config(args: argparse.Namespace, slots: TakeoffSlots | None = None) -> SimConfig:
+    """The SimConfig the parsed arguments describe.
+
+    ``slots`` are the takeoff slots of ``args.show``, read here if not given.
+    """
+    if slots is None and args.show is not None:
+        slots = takeoff_slots(args.show)
+    count, place = _placement(args, slots)
     params: dict[str, float] = {}
     for item in args.param:
         name, sep, value = item.partition("=")
@@ -109,19 +206,15 @@ def build_config(args: argparse.Namespace) -> SimConfig:
         if not sep:
             raise SimulatorError(f"--param {item!r}: expected NAME=NUMBER")
     try:
-        ids = [args.sysid_base + i for i in range(args.count)] if args.count > 0 else None
-        kwargs: dict[str, object] = {}
-        if args.origin is not None:
-            kwargs["origin"] = args.origin
+        ids = [args.sysid_base + i for i in range(count)] if count > 0 else None
         return SimConfig(
-            count=args.count, flavour=Flavour(args.autopilot), gcs=args.gcs,
-            positions=grid_layout(args.count, args.layout) if args.count > 0 else None,
+            count=count, flavour=Flavour(args.autopilot), gcs=args.gcs,
             system_ids=ids, bind_host=args.bind, base_port=args.base_port,
             physics_rate_hz=args.rate, ekf_origin_delay_s=args.ekf_delay,
             ready_delay_s=args.ready_delay, wind=args.wind, gust_std=args.gust,
             gps_noise_m=args.gps_noise, seed=args.seed, signing_key=args.signing_key,
             link_faults=LinkFaults(args.loss, args.latency, args.jitter, args.duplicate),
-            params=params, **kwargs)  # type: ignore[arg-type]
+            params=params, **place)  # type: ignore[arg-type]
     except ValueError as exc:
         raise SimulatorError(str(exc)) from exc
 
@@ -144,15 +237,20 @@ def run(args: argparse.Namespace) -> int:
     """Run the fleet until Ctrl-C."""
     if args.speed <= 0:
         raise SimulatorError("--speed must be positive")
-    config = build_config(args)
+    slots = takeoff_slots(args.show) if args.show is not None else None
+    config = build_config(args, slots)
     fleet = SimFleet(config, ScaledClock(args.speed))
     ports = fleet.ports
     port_text = ",".join(map(str, ports)) if len(ports) <= 8 else \
         f"{ports[0]},{ports[1]},...,{ports[-1]}"
-    print(f"groundctl sim: {config.count} {config.flavour.value} vehicles, sysid "
+    where = "" if slots is None else \
+        f" on the takeoff slots of show {slots.name!r} ({slots.source})"
+    print(f"groundctl sim: {config.count} {config.flavour.value} vehicles{where}, sysid "
           f"{config.sysids()[0]}..{config.sysids()[-1]}, sending to "
           f"{config.gcs[0]}:{config.gcs[1]}, ports {port_text}, "
           f"speed x{args.speed:g}", flush=True)
+    # A service manager stops us with SIGTERM: the same clean stop as Ctrl-C.
+    previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         fleet.start()
         while True:
@@ -162,4 +260,9 @@ def run(args: argparse.Namespace) -> int:
         print("groundctl sim: stopping", file=sys.stderr)
     finally:
         fleet.stop()
+        signal.signal(signal.SIGTERM, previous)
     return EXIT_OK
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
