@@ -102,6 +102,48 @@ def test_statustext_and_acks_are_kept() -> None:
     assert s.acks[-1].result == 4
 
 
+def _chunks(v: Vehicle, text: str, cid: int, empty_end: bool = True
+            ) -> list[mavlink.MAVLink_message]:
+    raw = text.encode()
+    parts = [raw[i:i + 50] for i in range(0, len(raw), 50)]
+    if empty_end and len(raw) % 50 == 0:
+        parts.append(b"")  # ArduPilot ends a text that fills its chunks with an empty one
+    return [v(v.mav.statustext_encode(4, p, cid, k)) for k, p in enumerate(parts)]
+
+
+def test_chunked_statustext_is_reassembled_into_one_line() -> None:
+    v = Vehicle()
+    s = VehicleState(3)
+    long = "PreArm: Check fence: " + "x" * 60 + " and then some more words."
+    lines = []
+    for m in _chunks(v, long, cid=7):
+        lines += [c.fields["text"] for c in apply(s, m, 1.0) if c.event == "statustext"]
+    assert lines == [long]
+    exact = "y" * 100  # fills two chunks: ended by an empty third
+    lines = [c.fields["text"] for m in _chunks(v, exact, cid=8) for c in apply(s, m, 2.0)
+             if c.event == "statustext"]
+    assert lines == [exact] and s.last_statustext is not None
+    assert s.last_statustext.text == exact and s.text_chunks == {}
+
+
+def test_chunked_statustext_with_a_lost_chunk_or_no_end_is_still_reported() -> None:
+    v = Vehicle()
+    s = VehicleState(3)
+    first, _, third = _chunks(v, "a" * 50 + "b" * 50 + "the end", cid=3)
+    apply(s, first, 1.0)
+    changes = apply(s, third, 1.1)  # the middle chunk was lost on the way
+    assert [c.fields["text"] for c in changes] == ["a" * 50 + " [...] the end"]
+    # PX4 sends no empty chunk after a text that fills its chunks: the next text ends it.
+    px4 = _chunks(v, "z" * 50, cid=4, empty_end=False)
+    apply(s, px4[0], 2.0)
+    changes = apply(s, v(v.mav.statustext_encode(6, b"next", 5, 0)), 2.1)
+    assert [c.fields["text"] for c in changes] == ["z" * 50, "next"]
+    # Or, when nothing follows, a second later.
+    apply(s, _chunks(v, "w" * 50, cid=9, empty_end=False)[0], 3.0)
+    changes = apply(s, v(v.mav.statustext_encode(6, b"plain")), 4.5)
+    assert [c.fields["text"] for c in changes] == ["w" * 50 + " [...]", "plain"]
+
+
 def test_sequence_gaps_give_loss_ratio() -> None:
     t = SequenceTracker()
     rng = np.random.default_rng(7)

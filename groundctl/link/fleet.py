@@ -294,7 +294,8 @@ class FleetLink:
             self._emit("vehicle_found", system_id=sysid,
                        silent_for_s=round(state.silent_for(now), 3))
         self.last_packet_at = now
-        for change in apply(state, msg, now):
+        changes = apply(state, msg, now)
+        for change in changes:
             self._emit(change.event, system_id=sysid, **change.fields)
         self._heard.set()
 
@@ -304,11 +305,11 @@ class FleetLink:
             if reply is not None:
                 self._send(sysid, messages.timesync(*reply))
         elif kind == "STATUSTEXT":
-            text = state.statustexts[-1].text
-            for (target, _), (exchange, wake) in self._exchanges.items():
-                if target == sysid:
-                    exchange.note_statustext(text, now)
-                    wake.set()
+            for text in (c.fields["text"] for c in changes if c.event == "statustext"):
+                for (target, _), (exchange, wake) in self._exchanges.items():
+                    if target == sysid:
+                        exchange.note_statustext(text, now)
+                        wake.set()
         elif kind == "COMMAND_ACK":
             entry = self._exchanges.get((sysid, msg.command))
             if entry is not None and entry[0].matches(msg, self.system_id):

@@ -137,7 +137,9 @@ class VehicleState:
     timesync: TimesyncEstimator = field(default_factory=TimesyncEstimator)
     """Clock offset and RTT from TIMESYNC."""
     statustexts: deque[StatusText] = field(default_factory=lambda: deque(maxlen=20))
-    """The most recent STATUSTEXTs, oldest first."""
+    """The most recent STATUSTEXTs, oldest first (chunked ones reassembled)."""
+    text_chunks: dict[int, _Chunks] = field(default_factory=dict)
+    """Chunked STATUSTEXTs being reassembled, by MAVLink 2 ``id``."""
     acks: deque[mavlink.MAVLink_command_ack_message] = field(
         default_factory=lambda: deque(maxlen=20)
     )
@@ -297,10 +299,67 @@ def _home(state: VehicleState, msg: Any, now: float, changes: list[StateChange])
                                             "alt": home.alt_m}))
 
 
+#: STATUSTEXT's text field, bytes: a chunk this long may be followed by more.
+STATUSTEXT_CHUNK = 50
+#: A chunked STATUSTEXT still incomplete after this long is taken as it stands, s.
+STATUSTEXT_CHUNK_TIMEOUT_S = 1.0
+
+
+@dataclass
+class _Chunks:
+    """A chunked STATUSTEXT being reassembled (MAVLink 2 ``id`` / ``chunk_seq``)."""
+
+    severity: int
+    parts: list[str]
+    next_seq: int
+    started: float
+    gap: bool = False
+
+
+def _text_line(state: VehicleState, text: str, severity: int, now: float,
+               changes: list[StateChange]) -> None:
+    state.statustexts.append(StatusText(text, severity, now))
+    changes.append(StateChange("statustext", {"text": text, "severity": severity}))
+
+
+def _flush_chunks(state: VehicleState, now: float, changes: list[StateChange],
+                  older_than: float | None = None) -> None:
+    """Emit the chunked texts given up on (all, or those started before ``older_than``)."""
+    for cid in [c for c, ch in state.text_chunks.items()
+                if older_than is None or ch.started < older_than]:
+        ch = state.text_chunks.pop(cid)
+        _text_line(state, "".join(ch.parts) + " [...]", ch.severity, now, changes)
+
+
 def _statustext(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
-    text = msg.text.decode("utf-8", "replace") if isinstance(msg.text, bytes) else str(msg.text)
-    state.statustexts.append(StatusText(text, int(msg.severity), now))
-    changes.append(StateChange("statustext", {"text": text, "severity": int(msg.severity)}))
+    raw = msg.text
+    text = raw.decode("utf-8", "replace") if isinstance(raw, bytes) else str(raw)
+    text = text.split("\0", 1)[0]
+    severity = int(msg.severity)
+    cid, seq = int(getattr(msg, "id", 0) or 0), int(getattr(msg, "chunk_seq", 0) or 0)
+    _flush_chunks(state, now, changes, older_than=now - STATUSTEXT_CHUNK_TIMEOUT_S)
+    if cid == 0:  # not chunked: the whole text
+        _text_line(state, text, severity, now, changes)
+        return
+    ch = state.text_chunks.get(cid)
+    if ch is None:
+        ch = state.text_chunks[cid] = _Chunks(severity, [], 0, now)
+        for other in [c for c in state.text_chunks if c != cid]:
+            # A new text began: the older one will not be completed (PX4 sends no empty
+            # final chunk after a text filling its chunks exactly).
+            done = state.text_chunks.pop(other)
+            _text_line(state, "".join(done.parts) + (" [...]" if done.gap else ""),
+                       done.severity, now, changes)
+    if seq != ch.next_seq:
+        ch.gap = True  # a chunk was lost (or came twice): say so where it was
+        if seq < ch.next_seq:
+            return
+        ch.parts.append(" [...] ")
+    ch.parts.append(text)
+    ch.next_seq = seq + 1
+    if len(text.encode("utf-8")) < STATUSTEXT_CHUNK:  # a short (or empty) chunk ends it
+        del state.text_chunks[cid]
+        _text_line(state, "".join(ch.parts), ch.severity, now, changes)
 
 
 def _ack(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
