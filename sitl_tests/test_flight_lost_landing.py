@@ -24,9 +24,7 @@ from groundctl.sim.process import SimProcess
 SILENT = 5
 
 
-@pytest.mark.parametrize("flavour", [Flavour.ARDUPILOT, Flavour.PX4], ids=str)
-def test_a_vehicle_silent_while_landing_is_counted_landed(flavour: Flavour,
-                                                          tmp_path: Path) -> None:
+def test_a_vehicle_silent_while_landing_is_counted_landed(tmp_path: Path) -> None:
     async def cut_while_landing(runner: ShowRunner, sim: SimProcess) -> None:
         def landing() -> bool:
             seq = runner.sequence
@@ -34,7 +32,7 @@ def test_a_vehicle_silent_while_landing_is_counted_landed(flavour: Flavour,
         await until(runner, landing, timeout_s=300.0)
         sim.call("cut_link", SILENT, None, float(sim.get("time")) + 8.0)
 
-    result = dry_run(tmp_path, flavour=flavour, during=cut_while_landing)
+    result = dry_run(tmp_path, during=cut_while_landing)
     report = result.report
     assert result.error is None, result.error
     events = list(read_events(tmp_path / "events.jsonl"))
