@@ -512,7 +512,8 @@ def test_land_all_mid_show_hovers_until_a_return_plan_is_given_then_follows_it()
     begin = max(t0 + 3.0, rest)  # the return starts once planned and the fleet has stopped
     req = seq.stream_request(begin + 1.0)
     assert req.follow == {1: 1, 2: 0} and req.follow_trajectories is back
-    assert req.follow_time == pytest.approx(1.0)
+    assert req.return_clock is not None
+    assert req.return_clock.show_time(begin + 1.0) == pytest.approx(1.0)
     req = seq.stream_request(begin + 4.5)  # the return is over: hold over the landing points
     assert not req.follow and set(req.fixed) == {1, 2}
 

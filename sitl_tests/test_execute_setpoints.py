@@ -8,6 +8,7 @@ from test_execute_support import ORIGIN, geo_offset, make_plan
 
 from groundctl.execute.frames import show_to_ned, show_vel_to_ned
 from groundctl.execute.leaving import Leave
+from groundctl.execute.paths import Path, PathKind
 from groundctl.execute.setpoints import LedTracker, SetpointStream, StreamTarget, quantise_rgb
 from groundctl.execute.showclock import ShowClock
 from groundctl.plan.trajectory import Trajectories
@@ -46,10 +47,19 @@ def test_setpoints_lead_the_show_clock_and_use_each_vehicles_frame() -> None:
     assert sp.time_boot_ms.tolist() == [150_150, 80_150]
 
 
+def _point(track: int, point: np.ndarray) -> Path:
+    return Path(PathKind.LANDING_POINT, "test", track,
+                point=tuple(float(x) for x in point))  # type: ignore[arg-type]
+
+
+def _out(leave: Leave, track: int = 2) -> Path:
+    return Path(PathKind.WAY_OUT, "test", track, leave=leave)
+
+
 def test_same_show_point_differs_by_the_origin_offset_between_vehicles() -> None:
     plan = make_plan()
     stream = SetpointStream(plan, [StreamTarget(1, 0, A), StreamTarget(2, 1, B)], lead_s=0.0)
-    sp = stream.at(0.0, {}, fixed={2: plan.home[0] + [0.0, 0.0, 3.0]})
+    sp = stream.at(0.0, {}, paths={2: _point(1, plan.home[0] + [0.0, 0.0, 3.0])})
     np.testing.assert_allclose(sp.pos_ned[0] - sp.pos_ned[1], [24.0, 18.0, 0.0], atol=1e-3)
     assert sp.time_boot_ms.tolist() == [0, 0]  # offsets unknown
 
@@ -89,15 +99,15 @@ def test_a_braking_clock_brakes_every_drone_along_its_own_path() -> None:
     assert clock.show_time(12.5) == pytest.approx(3.0)  # half the ramp at the full rate
 
 
-def test_fixed_points_override_the_plan_and_past_the_end_there_is_no_feed_forward() -> None:
+def test_a_point_path_overrides_the_plan_and_past_the_end_there_is_no_feed_forward() -> None:
     stream = _stream()
     slots = stream.landing_slots()
     np.testing.assert_allclose(slots, [[6.0, 0.0, 3.0], [0.0, 0.0, 3.0]])
-    sp = stream.at(0.0, {}, clock=_running(9.95), fixed={12: slots[1]})
+    sp = stream.at(0.0, {}, clock=_running(9.95), paths={12: _point(0, slots[1])})
     np.testing.assert_allclose(sp.pos_ned[1], show_to_ned(ORIGIN, B, slots[1]), atol=1e-6)
     assert not sp.vel_ned.any() and not sp.acc_ned.any()
-    with pytest.raises(ValueError, match="`fixed` names vehicle 5, which is not streamed"):
-        stream.at(0.0, {}, clock=_running(1.0), fixed={5: slots[0]})
+    with pytest.raises(ValueError, match="`paths` names vehicle 5, which is not streamed"):
+        stream.at(0.0, {}, clock=_running(1.0), paths={5: _point(0, slots[0])})
 
 
 def test_colours_are_quantised_to_bytes_and_iterated_per_vehicle() -> None:
@@ -140,22 +150,22 @@ def test_a_vehicle_on_its_way_out_flies_it_from_its_show_time_on() -> None:
     pos = np.stack([start, end])[None]
     vel = np.zeros_like(pos)  # rest to rest: a cubic with zero end velocities
     leave = Leave(5.0, Trajectories(np.array([0.0, 4.0]), pos, vel))
-    before = stream.at(0.0, {}, clock=_running(4.0), leaves={11: leave})
+    before = stream.at(0.0, {}, clock=_running(4.0), paths={11: _out(leave)})
     # its plan until then
     assert np.allclose(before.pos_ned, stream.at(0.0, {}, clock=_running(4.0)).pos_ned)
-    during = stream.at(0.0, {}, clock=_running(6.85), leaves={11: leave})  # 2.0 s, lead
+    during = stream.at(0.0, {}, clock=_running(6.85), paths={11: _out(leave)})  # 2.0 s, lead
     p, v, _ = leave.state(7.0)
     np.testing.assert_allclose(during.pos_ned[0], show_to_ned(ORIGIN, A, p), atol=1e-6)
     np.testing.assert_allclose(during.vel_ned[0], show_vel_to_ned(ORIGIN, v[None])[0], atol=1e-9)
     assert np.abs(during.vel_ned[0]).max() > 0.1
     clock = _running(6.85)
     clock.stop_at(0.0, 6.85, "operator")
-    held = stream.at(0.0, {}, clock=clock, leaves={11: leave})  # show clock held
+    held = stream.at(0.0, {}, clock=clock, paths={11: _out(leave)})  # show clock held
     np.testing.assert_allclose(held.pos_ned[0], show_to_ned(ORIGIN, A, leave.state(6.85)[0]),
                                atol=1e-6)
     assert not held.vel_ned[0].any()
-    after = stream.at(0.0, {}, clock=_running(9.95), leaves={11: leave})  # over its spot
+    after = stream.at(0.0, {}, clock=_running(9.95), paths={11: _out(leave)})  # over its spot
     np.testing.assert_allclose(after.pos_ned[0], show_to_ned(ORIGIN, A, end), atol=1e-6)
     assert not after.vel_ned[0].any()
-    with pytest.raises(ValueError, match="`leaves` names vehicle 5, which is not streamed"):
-        stream.at(0.0, {}, clock=_running(1.0), leaves={5: leave})
+    with pytest.raises(ValueError, match="`paths` names vehicle 5, which is not streamed"):
+        stream.at(0.0, {}, clock=_running(1.0), paths={5: _out(leave)})

@@ -9,8 +9,9 @@ Written once without I/O, h11 style.  A thin async driver, every tick::
         call seq.command_failed(a, reason, now)
     guard: seq.hold_for / stop_for / release (the driver's own lag, a fleet-wide
         silence, safety responses), seq.take_out, seq.land_all
-    req = seq.stream_request(now)                 # whom to send setpoints, on which clock
-    send SetpointStream.at(now, offsets, clock=req.clock, fixed=req.fixed, ...)
+    req = seq.stream_request(now)                 # whom to send setpoints, and the
+                                                  # one path each follows (req.paths)
+    send SetpointStream.at(now, offsets, paths=req.paths, clocks=req.clocks(plan))
         rows for req.sysids, and LED colours
 
 The show clock (:attr:`ShowSequence.clock`, :mod:`groundctl.execute.showclock`)
@@ -20,7 +21,12 @@ is left.  A LOST vehicle is never done: silence is not "down".
 
 Streaming is not an action: :meth:`ShowSequence.stream_request` is the one
 source of truth for who gets setpoints each tick, so a start/stop event can
-never be missed or applied twice.
+never be missed or applied twice.  What each streamed vehicle follows is one
+:class:`~groundctl.execute.paths.Path` (its plan, a hold point, its way out,
+the land-all return, its landing point), decided in one place,
+:meth:`ShowSequence.path`, from where the vehicle is in the sequence: every
+operator command and safety response changes where a vehicle is, and with it
+its path; the stream, the guard, the return planner and the MPC only read it.
 
 Operator commands (:meth:`ShowSequence.hold`, ``resume``, ``land_all`` (every
 vehicle to its landing slot, then down), ``land_one`` (one vehicle to its
@@ -75,6 +81,13 @@ from groundctl.execute.leaving import (
     landing_candidates,
     leave_duration,
     leave_time,
+)
+from groundctl.execute.paths import (
+    Path,
+    PathClocks,
+    PathKind,
+    position_on_show_clock,
+    sample_paths,
 )
 from groundctl.execute.preflight import remaining_plan_conflicts
 from groundctl.execute.showclock import ShowClock, brake_ramp
@@ -328,7 +341,7 @@ class VehicleRun:
 
 @dataclass(frozen=True)
 class StreamRequest:
-    """What the driver streams this tick."""
+    """What the driver streams this tick: who, and the one path each follows."""
 
     show_time: float
     """Plan time now (for the monitor), s."""
@@ -337,21 +350,48 @@ class StreamRequest:
     sysids: frozenset[int]
     """Vehicles to send setpoints to."""
     clock: ShowClock | None = None
-    """The show clock: the stream samples it ``lead`` ahead (braking included)."""
+    """The show clock: the stream samples it each vehicle's lead ahead (braking included)."""
     ended: bool = False
     """The show is over: the plan is sampled at ``show_time`` without feed-forward."""
-    fixed: dict[int, tuple[float, float, float]] = field(default_factory=dict)
-    """Vehicles held at a show-frame point (landing slots) instead of the plan."""
-    follow: dict[int, int] = field(default_factory=dict)
-    """Vehicles flying the return trajectories instead: system id -> row."""
-    follow_trajectories: Trajectories | None = None
-    """The return trajectories (after a land-all), or None."""
-    follow_time: float = 0.0
-    """Time along them now, s."""
-    follow_clock: ShowClock | None = None
+    paths: dict[int, Path] = field(default_factory=dict)
+    """The path each streamed vehicle follows (system id -> Path)."""
+    returns: Trajectories | None = None
+    """The land-all return's trajectories while one is flown, or None."""
+    return_clock: ShowClock | None = None
     """The return's own clock (held with the show's)."""
-    leaves: dict[int, Leave] = field(default_factory=dict)
-    """Vehicles with a way out of the show: system id -> Leave (flown from its show time)."""
+
+    def clocks(self, plan: Plan) -> PathClocks:
+        """What :func:`~groundctl.execute.paths.sample_paths` samples these paths on."""
+        return PathClocks(plan, self.clock, self.show_time, self.ended, self.returns,
+                          self.return_clock)
+
+    # Views of the paths by kind (for the monitor, the guard and tests).
+    @property
+    def fixed(self) -> dict[int, tuple[float, float, float]]:
+        """Vehicles holding a show-frame point now (a hold, a landing point)."""
+        out = {}
+        for s, p in self.paths.items():
+            point = p.fixed_at(self.show_time) if p.kind is not PathKind.RETURN else None
+            if point is not None:
+                out[s] = point
+        return out
+
+    @property
+    def follow(self) -> dict[int, int]:
+        """Vehicles flying the return: system id -> row."""
+        return {s: p.row for s, p in self.paths.items()
+                if p.kind is PathKind.RETURN and p.row is not None}
+
+    @property
+    def leaves(self) -> dict[int, Leave]:
+        """Vehicles with a way out they fly (not holding before it): system id -> Leave."""
+        fixed = self.fixed
+        return {s: p.leave for s, p in self.paths.items()
+                if p.kind is PathKind.WAY_OUT and p.leave is not None and s not in fixed}
+
+    @property
+    def follow_trajectories(self) -> Trajectories | None:
+        return self.returns if self.follow else None
 
 
 class ShowSequence:
@@ -478,19 +518,9 @@ class ShowSequence:
         return resumed
 
     def commanded(self, sysid: int, now: float) -> np.ndarray | None:
-        """Where vehicle ``sysid`` is being told to be now (show frame), if it is streamed
-        the show plan, a way out or a hold point; None otherwise."""
-        v = self.vehicles.get(sysid)
-        if v is None or self.streamed_as(v) not in _STREAMED:
-            return None
-        t = self.show_time(now)
-        if v.hold_point is not None and (v.leave is None or t < v.leave.at):
-            return np.asarray(v.hold_point)
-        if v.leave is not None and t >= v.leave.at:
-            return v.leave.state(t)[0]
-        if self.streamed_as(v) is VehiclePhase.RETURNING:
-            return None
-        return self.plan.state_at(t).pos[v.track]
+        """Where vehicle ``sysid``'s path puts it now (show frame), if it is streamed."""
+        state = self.path_state(sysid, now)
+        return None if state is None else state[0]
 
     @property
     def phase(self) -> ShowPhase:
@@ -652,44 +682,70 @@ class ShowSequence:
         return []
 
     def stream_request(self, now: float) -> StreamRequest:
-        """Whom to send setpoints to this tick, and for which show time."""
+        """Whom to send setpoints to this tick, and the path each follows."""
         sysids = frozenset(v.sysid for v in self.vehicles.values()
                            if self.streamed_as(v) in _STREAMED
                            or (v.phase is VehiclePhase.TAKEOFF and v.stream_since is not None))
-        returning = [v.sysid for v in self.vehicles.values()
-                     if self.streamed_as(v) is VehiclePhase.RETURNING]
-        follow: dict[int, int] = {}
-        traj, t_ret = None, 0.0
-        if self._return is not None and self._return_clock is not None:
-            traj, rows = self._return
-            t_ret = self._return_clock.show_time(now)
-            if t_ret < traj.end:
-                follow = {s: rows[s] for s in returning if s in rows}
-        elif self._return_wanted:
-            # Waiting for the return plan: braking along (then hovering on) the plan.
-            returning = [s for s in returning
-                         if self.vehicles[s].landing_point is not None]
-        fixed = {s: tuple(map(float, self._landing_point(self.vehicles[s])))
-                 for s in returning if s not in follow}
-        show_t = self.show_time(now)
-        for v in self.vehicles.values():
-            # Heard again off its plan: it hovers there until its way out begins.
-            if v.hold_point is not None and v.sysid in sysids and v.sysid not in follow \
-                    and v.sysid not in fixed and (v.leave is None or show_t < v.leave.at):
-                fixed[v.sysid] = v.hold_point
+        paths: dict[int, Path] = {}
+        for sysid in sysids:
+            path = self.path(sysid, now)
+            if path is not None:
+                paths[sysid] = path
+        flying_return = any(p.kind is PathKind.RETURN for p in paths.values())
         moving = self.started_at is not None and not self._ended and self.clock.at(now).moving
-        leaves = {v.sysid: v.leave for v in self.vehicles.values()
-                  if v.leave is not None and v.sysid in sysids and v.sysid not in follow
-                  and v.sysid not in fixed}
         # After land-all the show clock is still braking: keep sampling it (with its
         # feed-forward) until it is at rest.
         braking = self._ended and self.started_at is not None and self.clock.at(now).rate > 0 \
             and self.clock.show_time(now) < self.plan.duration
-        return StreamRequest(show_t, moving, sysids,
+        return StreamRequest(self.show_time(now), moving, sysids,
                              self.clock if self.started_at is not None else None,
                              self.started_at is None or (self._ended and not braking),
-                             fixed, follow, traj if follow else None,  # type: ignore[arg-type]
-                             t_ret, self._return_clock if follow else None, leaves)
+                             paths, self._return[0] if flying_return and self._return else None,
+                             self._return_clock if flying_return else None)
+
+    def path(self, sysid: int, now: float) -> Path | None:
+        """The one path vehicle ``sysid`` follows now (None: it is not streamed).
+
+        The only place that decides it, from where the vehicle is in the sequence:
+        returning, it flies the land-all return while there is one (else it holds over
+        its landing point, or, while a return is awaited, brakes on what it flew); held
+        off its plan, its point (then its way out); leaving, its way out; else its plan.
+        """
+        v = self.vehicles.get(sysid)
+        if v is None:
+            return None
+        phase = self.streamed_as(v)
+        if phase not in _STREAMED and not (v.phase is VehiclePhase.TAKEOFF
+                                           and v.stream_since is not None):
+            return None
+        if phase is VehiclePhase.RETURNING:
+            if self._return is not None and self._return_clock is not None:
+                traj, rows = self._return
+                if sysid in rows and self._return_clock.show_time(now) < traj.end:
+                    return Path(PathKind.RETURN, "the land-all return", v.track,
+                                row=rows[sysid])
+            if not (self._return_wanted and self._return is None and v.landing_point is None):
+                point = tuple(float(x) for x in self._landing_point(v))
+                return Path(PathKind.LANDING_POINT, "over its landing spot", v.track,
+                            point=point)  # type: ignore[arg-type]
+        if v.leave is not None:
+            return Path(PathKind.WAY_OUT, "its way out of the show", v.track,
+                        point=v.hold_point, leave=v.leave)
+        if v.hold_point is not None:
+            return Path(PathKind.HOLD, "holding off its plan until its way out", v.track,
+                        point=v.hold_point)
+        return Path(PathKind.PLAN, "the show plan", v.track)
+
+    def path_state(self, sysid: int, now: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """Position, velocity, acceleration (show frame) of ``sysid``'s path at our time
+        ``now`` (no lead), or None if it is not streamed."""
+        req = self.stream_request(now)
+        path = req.paths.get(sysid)
+        if path is None:
+            return None
+        p, v, a = sample_paths([path], np.array([now]), req.clocks(self.plan))
+        return p[0], v[0], a[0]
 
     # -- land-all return ---------------------------------------------------------------
     @property
@@ -707,20 +763,17 @@ class ShowSequence:
                 if self.streamed_as(v) is VehiclePhase.RETURNING]
 
     def return_start(self, sysid: int, now: float) -> np.ndarray:
-        """Where vehicle ``sysid`` starts its return from (show frame): where the braking
-        show clock stops it on its plan, its way out, or the point it holds."""
+        """Where vehicle ``sysid`` starts its return from (show frame): where its path is
+        when the braking show clock stops (its plan, its way out, the point it holds)."""
         v = self.vehicles[sysid]
-        if self._after_return:
+        path = self.path(sysid, now)
+        if self._after_return or path is None or not path.on_show_clock:
             return np.asarray(self._landing_point(v), dtype=float)  # hovering over it
         t = min(self.clock.stop_time(now) if self.started_at is not None else 0.0,
                 self.plan.duration)
         if self._stopped_at is not None:
             t = min(t, self._stopped_at)
-        if v.leave is not None and t >= v.leave.at:
-            return v.leave.state(t)[0]
-        if v.hold_point is not None:
-            return np.asarray(v.hold_point, dtype=float)
-        return self.plan.state_at(t).pos[v.track]
+        return position_on_show_clock(path, self.plan, t)
 
     def set_return(self, trajectories: Trajectories, sysids: list[int], now: float,
                    goals: np.ndarray | None = None) -> list[Action]:

@@ -18,11 +18,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from groundctl.execute.frames import show_to_ned, show_vel_to_ned
-from groundctl.execute.leaving import Leave
+from groundctl.execute.paths import Path, PathClocks, PathKind, sample_paths
 from groundctl.execute.showclock import ShowClock
 from groundctl.link.state import GeoPoint, Vec3
 from groundctl.plan.plan import Plan
-from groundctl.plan.trajectory import Trajectories
 
 FloatArray = NDArray[np.float64]
 
@@ -139,75 +138,30 @@ class SetpointStream:
 
     def at(self, now: float, clock_offsets: Mapping[int, float | None], *,
            clock: ShowClock | None = None, show_time: float = 0.0, ended: bool = False,
-           fixed: Mapping[int, ArrayLike] | None = None,
-           follow: Mapping[int, int] | None = None,
-           follow_trajectories: Trajectories | None = None,
-           follow_clock: ShowClock | None = None,
-           leaves: Mapping[int, Leave] | None = None) -> Setpoints:
+           paths: Mapping[int, Path] | None = None, clocks: PathClocks | None = None
+           ) -> Setpoints:
         """Setpoints at our time ``now``, each for the instant its vehicle's lead later.
 
-        With a running ``clock`` the plan is sampled where that clock will be then,
-        velocity and acceleration scaled by its rate (``rate * p'``, ``rate**2 * p'' +
-        rate' * p'``), so a braking clock brakes every drone along its own path.
-        Without one (before the start, after the end) the plan at ``show_time`` is
-        held with no feed-forward.  ``fixed`` holds vehicles (system id -> show-frame
-        point) at a point instead, with zero feed-forward, e.g. over their landing
-        slots.  ``follow`` has vehicles (system id -> row) fly
-        ``follow_trajectories`` on ``follow_clock`` instead (a return).  ``leaves``
-        (system id -> Leave) fly their way out of the show instead of the plan from the
-        Leave's show time on.
+        Each vehicle is sampled on its path (``paths``, system id -> Path, on ``clocks``;
+        a vehicle without one, on its plan track): velocity and acceleration scaled by
+        the clock's rate (``rate * p'``, ``rate**2 * p'' + rate' * p'``), so a braking
+        clock brakes every drone along its own path.  Without a running ``clock``
+        (before the start, after the end) the plan at ``show_time`` is held with no
+        feed-forward.
         """
         duration = self.plan.duration
-        n = len(self.targets)
         stamp_s = now + self.leads
-        if clock is not None and not ended:
-            t, rate, drate = clock.at_many(stamp_s)
-            t = np.clip(t, 0.0, duration)
-        else:
-            t = np.full(n, min(max(show_time, 0.0), duration))
-            rate, drate = np.zeros(n), np.zeros(n)
-        end = t >= duration  # past the end the plan holds its final state
-        rate, drate = np.where(end, 0.0, rate), np.where(end, 0.0, drate)
-        p, v, a = self.plan.trajectories.evaluate_each(t, self._tracks)
-        pos = p.copy()
-        vel = rate[:, None] * v
-        acc = (rate * rate)[:, None] * a + drate[:, None] * v
-        if leaves:
-            for sysid, leave in leaves.items():
-                if sysid not in self._index:
-                    raise ValueError(f"`leaves` names vehicle {sysid}, which is not streamed")
-                i = self._index[sysid]
-                ti = float(t[i])
-                if ti < leave.at:
-                    continue  # still flying its plan
-                lp, lv, la = leave.state(ti)
-                if ti >= leave.until:
-                    pos[i], vel[i], acc[i] = lp, 0.0, 0.0
-                else:
-                    r, dr = float(rate[i]), float(drate[i])
-                    pos[i], vel[i], acc[i] = lp, r * lv, r * r * la + dr * lv
-        if fixed:
-            for sysid, point in fixed.items():
-                if sysid not in self._index:
-                    raise ValueError(f"`fixed` names vehicle {sysid}, which is not streamed")
-                i = self._index[sysid]
-                pos[i], vel[i], acc[i] = np.asarray(point, dtype=float), 0.0, 0.0
-        if follow:
-            if follow_trajectories is None or follow_clock is None:
-                raise ValueError("`follow` needs `follow_trajectories` and `follow_clock`")
-            bad = [s for s in follow if s not in self._index]
-            if bad:
-                raise ValueError(f"`follow` names vehicle {bad[0]}, which is not streamed")
-            idx = np.array([self._index[s] for s in follow], dtype=np.intp)
-            tf, fr, fdr = follow_clock.at_many(stamp_s[idx])
-            tf = np.clip(tf, 0.0, follow_trajectories.end)
-            over = tf >= follow_trajectories.end
-            fr, fdr = np.where(over, 0.0, fr), np.where(over, 0.0, fdr)
-            rows = np.array(list(follow.values()), dtype=np.intp)
-            fp, fv, fa = follow_trajectories.evaluate_each(tf, rows)
-            pos[idx] = fp
-            vel[idx] = fr[:, None] * fv
-            acc[idx] = (fr * fr)[:, None] * fa + fdr[:, None] * fv
+        if clocks is None:
+            clocks = PathClocks(self.plan, clock, show_time, ended)
+        paths = paths or {}
+        bad = [s for s in paths if s not in self._index]
+        if bad:
+            raise ValueError(f"`paths` names vehicle {bad[0]}, which is not streamed")
+        rows = [paths.get(t.sysid) or Path(PathKind.PLAN, "the show plan", t.track)
+                for t in self.targets]
+        pos, vel, acc = sample_paths(rows, stamp_s, clocks)
+        clock, ended, show_time = clocks.show, clocks.ended, clocks.show_time
+        t0 = min(max(show_time, 0.0), duration)
         offsets = np.array([np.nan if (o := clock_offsets.get(s)) is None else o
                             for s in self.sysids], dtype=float)
         # Unknown offset: 0 is what autopilots read as "no timestamp" (both
@@ -216,7 +170,7 @@ class SetpointStream:
         # Colours of the show clock *now*, not of the look-ahead: LED_CONTROL is applied
         # on arrival (the runner schedules changes per vehicle; this is the fallback).
         now_t = min(max(clock.show_time(now), 0.0), duration) \
-            if clock is not None and not ended else float(t[0]) if n else 0.0
+            if clock is not None and not ended else t0
         return Setpoints(
             sysids=self.sysids,
             time_boot_ms=ms.astype(np.int64),

@@ -56,6 +56,7 @@ from groundctl.execute.guard import (
 from groundctl.execute.lead import LeadConfig, LeadEstimator, late_vehicles
 from groundctl.execute.leds import LedSchedule
 from groundctl.execute.mapping import Assignment, auto_assign, explicit_assign
+from groundctl.execute.paths import PathKind
 from groundctl.execute.preflight import (
     PreflightReport,
     Thresholds,
@@ -710,13 +711,16 @@ class ShowRunner:
             absent.append(track)
             columns.append(column(self.plan.home[track]))
         positions = show_positions(self.plan.origin, self.link.vehicles)
+        now = self.clock.now()
         for sysid, v in seq.vehicles.items():
             phase = seq.streamed_as(v)  # a lost one is still streamed what it was
             if sysid == leaving:
                 continue
-            if phase is VehiclePhase.LEAVING and v.hold_point is not None and v.leave is None:
+            path = seq.path(sysid, now)
+            if path is not None and path.kind is PathKind.HOLD:
+                assert path.point is not None
                 absent.append(v.track)  # hovering where it was heard again, not on its plan
-                columns.append(np.array([v.hold_point]))
+                columns.append(np.array([path.point]))
             elif phase not in (VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
                                VehiclePhase.RETURNING):
                 absent.append(v.track)  # down, descending, killed, or never airborne
@@ -734,10 +738,7 @@ class ShowRunner:
             self.lateness_s.append(self.clock.now() - scheduled)
         else:
             offsets = {s: self.link.vehicles[s].clock_offset_s for s in req.sysids}
-            sp = self._stream.at(now, offsets, clock=req.clock, show_time=req.show_time,
-                                 ended=req.ended, fixed=req.fixed, follow=req.follow,
-                                 follow_trajectories=req.follow_trajectories,
-                                 follow_clock=req.follow_clock, leaves=req.leaves)
+            sp = self._stream.at(now, offsets, paths=req.paths, clocks=req.clocks(self.plan))
             send = self.link.send_position_target_local_ned
             rows = [i for i, s in enumerate(sp.sysids) if s in req.sysids]
             for i in rows:
@@ -779,11 +780,9 @@ class ShowRunner:
         last = self.monitor.last_positions
         if steady and last is not None and last[0] == now:
             _, ids, _ = last
-            special = set(req.fixed) | set(req.follow) | set(req.leaves)
             for k, sysid in enumerate(ids):
-                v = seq.vehicles.get(sysid)
-                if sysid in in_show and sysid not in special and v is not None \
-                        and v.hold_point is None:
+                path = req.paths.get(sysid)
+                if sysid in in_show and path is not None and path.kind is PathKind.PLAN:
                     sysids.append(sysid)
                     rows.append(k)
         if sysids:
