@@ -87,6 +87,7 @@ def test_planned_show_is_safe_and_round_trips_through_a_file(tmp_path: Path) -> 
     again = Plan.load(path)
     assert np.array_equal(again.trajectories.pos, plan.trajectories.pos)
     assert again.formations[0].name == "f1" and again.limits == plan.limits
+    assert again.mpc == plan.mpc  # the show's [mpc] settings fly with the plan
     mid = plan.duration / 2
     assert np.allclose(again.state_at(mid).pos, plan.state_at(mid).pos)
 

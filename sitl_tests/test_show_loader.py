@@ -419,3 +419,19 @@ def test_model_and_takeoff_errors():
 def test_planner_tolerance_above_what_keeps_the_scp_safe_is_refused():
     err = error(base(planner={"tolerance": 0.2}))
     assert str(err) == f"{PATH}: [planner]: 'tolerance' must be at most 0.09, got 0.2"
+
+
+def test_the_mpc_table_is_read_and_checked(tmp_path: Path) -> None:
+    from groundctl.show.model import MpcSettings
+
+    assert parse_show(base(), PATH).mpc == MpcSettings()
+    show = parse_show(base(mpc={"enabled": False, "horizon": 2.5, "trigger_error": 0.8,
+                                "release_error": 0.3, "release_after": 1}), PATH)
+    assert show.mpc == MpcSettings(False, 2.5, 0.8, 0.3, 1.0)
+    assert str(error(base(mpc={"trigger_eror": 1}))) == (
+        "shows/test.toml: [mpc]: unknown key 'trigger_eror'; did you mean 'trigger_error'?")
+    assert error(base(mpc={"trigger_error": 0.2, "release_error": 0.3})).message == (
+        "'release_error' 0.3 m must be below 'trigger_error' 0.2 m")
+    assert error(base(mpc={"enabled": "yes"})).message == (
+        "'enabled' must be true or false, got string 'yes'")
+    assert error(base(mpc={"horizon": 30})).message == "'horizon' must be at most 10, got 30"

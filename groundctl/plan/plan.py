@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import zipfile
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from groundctl.errors import PlanFileError
 from groundctl.plan.trajectory import Trajectories
-from groundctl.show.model import GeoOrigin, Limits
+from groundctl.show.model import GeoOrigin, Limits, MpcSettings
 
 FloatArray = NDArray[np.float64]
 
@@ -83,6 +83,8 @@ class Plan:
     """(n, F, 3) colours at the keyframes; linear in between."""
     formations: tuple[FormationWindow, ...]
     """The formation timeline."""
+    mpc: MpcSettings = field(default_factory=MpcSettings)
+    """The show's MPC replanning settings (flown with the plan)."""
 
     @property
     def drones(self) -> int:
@@ -132,6 +134,7 @@ class Plan:
             "show_name": self.show_name,
             "origin": asdict(self.origin),
             "limits": asdict(self.limits),
+            "mpc": asdict(self.mpc),
             "model": self.model,
             "takeoff_altitude": self.takeoff_altitude,
             "formations": [{"index": f.index, "name": f.name, "start": f.start,
@@ -180,7 +183,8 @@ class Plan:
                                               np.asarray(data["vel"], dtype=float)),
                     color_times=np.asarray(data["color_times"], dtype=float),
                     colors=np.asarray(data["colors"], dtype=float),
-                    formations=formations)
+                    formations=formations,
+                    mpc=MpcSettings(**meta["mpc"]) if "mpc" in meta else MpcSettings())
         except PlanFileError:
             raise
         except FileNotFoundError as exc:

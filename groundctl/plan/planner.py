@@ -127,7 +127,7 @@ def plan_show(show: Show, workers: int | None = None,
         show_name=show.name, origin=show.origin, limits=show.limits, model=show.model.kind,
         home=np.asarray(show.home, dtype=float), takeoff_altitude=show.takeoff_altitude,
         trajectories=concatenate(parts), color_times=np.asarray(key_t),
-        colors=np.stack(key_c, axis=1), formations=tuple(windows))
+        colors=np.stack(key_c, axis=1), formations=tuple(windows), mpc=show.mpc)
     verification = verify(plan)
     return PlanResult(plan=plan, transitions=tuple(results), verification=verification,
                       seconds=time.perf_counter() - t0)

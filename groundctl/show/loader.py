@@ -22,6 +22,8 @@ optional)::
     [[formation]] shape, transition, name, center, plane, rotation, hold,
                 color | gradient (+ gradient_axis) | colors, shape keys
     [landing]   transition, hold = 0, color = "#000000"
+    [mpc]       enabled = true, horizon = 3, trigger_error = 0.4, release_error = 0.15,
+                release_after = 2
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ from groundctl.show.model import (
     GeoOrigin,
     Limits,
     Model,
+    MpcSettings,
     PlannerSettings,
     QuadrotorModel,
     Show,
@@ -53,7 +56,8 @@ from groundctl.show.model import (
 from groundctl.show.reader import Table, closest, describe, fmt
 from groundctl.show.takeoff import read_headings, read_home
 
-TOP_LEVEL = ("show", "origin", "limits", "model", "planner", "takeoff", "formation", "landing")
+TOP_LEVEL = ("show", "origin", "limits", "model", "planner", "takeoff", "formation", "landing",
+             "mpc")
 MODEL_KINDS = ("quadrotor", "unicycle")
 _UNICYCLE_KEYS = ("speed", "r_min", "max_turn_rate")
 #: Show-file key -> Limits field.
@@ -175,6 +179,24 @@ def _read_planner(t: Table) -> PlannerSettings:
     )
 
 
+def _read_mpc(t: Table) -> MpcSettings:
+    t.check_keys(("enabled", "horizon", "trigger_error", "release_error", "release_after"))
+    d = MpcSettings()
+    enabled = t.get("enabled", d.enabled)
+    if not isinstance(enabled, bool):
+        raise t.error(f"'enabled' must be true or false, got {describe(enabled)}")
+    trigger = t.number("trigger_error", d.trigger_error_m, positive=True)
+    release = t.number("release_error", min(d.release_error_m, trigger / 2), positive=True)
+    if release >= trigger:
+        raise t.error(f"'release_error' {fmt(release)} m must be below 'trigger_error' "
+                      f"{fmt(trigger)} m")
+    return MpcSettings(enabled=enabled,
+                       horizon_s=t.number("horizon", d.horizon_s, minimum=0.5, maximum=10.0),
+                       trigger_error_m=trigger, release_error_m=release,
+                       release_after_s=t.number("release_after", d.release_after_s,
+                                                minimum=0.0))
+
+
 def _landing(t: Table, home: np.ndarray, takeoff_altitude: float, index: int,
              unicycle: bool) -> Formation:
     t.check_keys(("transition", "hold", "color"))
@@ -261,9 +283,10 @@ def parse_show(data: dict[str, Any], path: str, base_dir: str | Path = ".") -> S
         formations.append(_landing(lt, home, takeoff_altitude, len(formations) + 1,
                                    unicycle))
 
+    mpc = _read_mpc(_table(data, "mpc", path))
     show = Show(name=name, drones=drones, origin=origin, limits=limits, model=model, home=home,
                 takeoff_altitude=takeoff_altitude, formations=tuple(formations),
-                planner=planner, start_headings=headings, source=path)
+                planner=planner, start_headings=headings, mpc=mpc, source=path)
     _check_transitions(show, path)
     return show
 

@@ -86,6 +86,31 @@ Model = QuadrotorModel | UnicycleModel
 
 
 @dataclass(frozen=True)
+class MpcSettings:
+    """When the executor replans a drone with MPC (``[mpc]`` in the show file)."""
+
+    enabled: bool = True
+    """MPC replanning on (``--no-mpc`` turns it off for one flight)."""
+    horizon_s: float = 3.0
+    """How far ahead each MPC solve plans, s."""
+    trigger_error_m: float = 0.4
+    """A drone farther than this from its path is replanned, m: about 3x the calm-air
+    RMS tracking error of real ArduCopter (0.109 m with a fixed 150 ms lead)."""
+    release_error_m: float = 0.15
+    """It is handed back to its path once within this, m ..."""
+    release_after_s: float = 2.0
+    """... for this long, s."""
+
+    def __post_init__(self) -> None:
+        if not 0.5 <= self.horizon_s <= 10.0:
+            raise ValueError("`horizon_s` must be within 0.5..10 s")
+        if not 0 < self.release_error_m < self.trigger_error_m:
+            raise ValueError("`release_error_m` must be positive and below `trigger_error_m`")
+        if self.release_after_s < 0:
+            raise ValueError("`release_after_s` must be non-negative")
+
+
+@dataclass(frozen=True)
 class PlannerSettings:
     """Knobs of the SCP planner (all optional in the show file)."""
 
@@ -158,6 +183,8 @@ class Show:
     """SCP settings."""
     start_headings: FloatArray | None = None
     """(drones,) initial headings in radians for the unicycle model (None: face +y)."""
+    mpc: MpcSettings = field(default_factory=MpcSettings)
+    """MPC replanning in flight."""
     source: str = ""
     """Path of the show file it came from ("" if built in code)."""
 
