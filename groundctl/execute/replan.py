@@ -1,0 +1,134 @@
+"""When a vehicle is replanned with MPC, and when it is handed back to its path (pure).
+
+A vehicle follows its path (:mod:`groundctl.execute.paths`) until one of two
+things says that streaming the path would make its autopilot dash for a
+setpoint metres away, or fly it into a neighbour:
+
+* its tracking error (telemetry against its path now) exceeds
+  ``trigger_error_m`` on ``confirm_ticks`` consecutive ticks (one late sample is
+  not a deviation);
+* a loss of separation is predicted within the horizon: every flying vehicle
+  is predicted on its path shifted by its current error (the same prediction
+  the MPC uses for its neighbours), and a pair closer than the separation
+  limit puts both under MPC.
+
+It is handed back once its error has stayed below ``release_error_m`` for
+``release_after_s`` and no conflict is predicted for it.  No activation in a
+calm flight: the default trigger is about three times the calm-air RMS
+tracking error of real ArduCopter.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from groundctl.show.model import MpcSettings
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Activation:
+    """A vehicle put under MPC."""
+
+    sysid: int
+    """MAVLink system id."""
+    why: str
+    """What triggered it (for the operator and the event log)."""
+    error_m: float
+    """Its tracking error then, m."""
+
+
+@dataclass(frozen=True)
+class Release:
+    """A vehicle handed back to its path."""
+
+    sysid: int
+    """MAVLink system id."""
+    after_s: float
+    """How long it was under MPC, s."""
+
+
+def predicted_conflicts(ids: Sequence[int], path_pos: FloatArray, errors: FloatArray,
+                        limit_m: float) -> dict[int, tuple[int, float]]:
+    """Vehicles whose predicted positions (path at the horizon's instants, ``path_pos``
+    (n, K, 3), shifted by each one's current error ``errors`` (n, 3)) come closer than
+    ``limit_m`` to another's: system id -> (the other's id, the closest distance)."""
+    n = len(ids)
+    if n < 2:
+        return {}
+    pred = np.asarray(path_pos, dtype=float) + np.asarray(errors, dtype=float)[:, None, :]
+    out: dict[int, tuple[int, float]] = {}
+    for k in range(pred.shape[1]):
+        tree = cKDTree(pred[:, k])
+        for i, j in tree.query_pairs(limit_m):
+            d = float(np.linalg.norm(pred[i, k] - pred[j, k]))
+            for a, b in ((i, j), (j, i)):
+                if ids[a] not in out or d < out[ids[a]][1]:
+                    out[ids[a]] = (ids[b], d)
+    return out
+
+
+class ReplanSupervisor:
+    """Decides each tick who is under MPC; see the module docstring."""
+
+    def __init__(self, settings: MpcSettings, confirm_ticks: int = 2) -> None:
+        if confirm_ticks < 1:
+            raise ValueError("`confirm_ticks` must be at least 1")
+        self.settings = settings
+        self.confirm_ticks = confirm_ticks
+        self.active: dict[int, float] = {}
+        """System id -> our time it was put under MPC."""
+        self.activations = 0
+        """Activations so far."""
+        self.vehicles: set[int] = set()
+        """Every vehicle that was ever under MPC."""
+        self._over: dict[int, int] = {}
+        self._calm_since: dict[int, float] = {}
+
+    def tick(self, now: float, errors: Mapping[int, float],
+             conflicts: Mapping[int, tuple[int, float]] | None = None,
+             eligible: Collection[int] | None = None) -> tuple[list[Activation], list[Release]]:
+        """One tick: ``errors`` (system id -> tracking error, m) of the vehicles flying a
+        path, ``conflicts`` from :func:`predicted_conflicts`; ``eligible`` (default: those
+        with an error) may be replanned.  Returns who starts and who ends."""
+        cfg = self.settings
+        conflicts = conflicts or {}
+        eligible = set(errors if eligible is None else eligible)
+        started: list[Activation] = []
+        ended: list[Release] = []
+        for sysid in sorted(self.active):
+            if sysid not in eligible:  # landed, lost, taken out: no longer ours to replan
+                ended.append(Release(sysid, now - self.active.pop(sysid)))
+                self._calm_since.pop(sysid, None)
+        for sysid in sorted(eligible):
+            e = errors.get(sysid)
+            if e is None:
+                continue
+            self._over[sysid] = self._over.get(sysid, 0) + 1 if e > cfg.trigger_error_m else 0
+            if sysid in self.active:
+                if e <= cfg.release_error_m and sysid not in conflicts:
+                    since = self._calm_since.setdefault(sysid, now)
+                    if now - since >= cfg.release_after_s:
+                        ended.append(Release(sysid, now - self.active.pop(sysid)))
+                        del self._calm_since[sysid]
+                else:
+                    self._calm_since.pop(sysid, None)
+                continue
+            why = None
+            if self._over[sysid] >= self.confirm_ticks:
+                why = f"{e:.2f} m off its path (trigger {cfg.trigger_error_m:.2f} m)"
+            elif sysid in conflicts:
+                other, d = conflicts[sysid]
+                why = f"predicted within {d:.2f} m of vehicle {other}"
+            if why is not None:
+                self.active[sysid] = now
+                self.activations += 1
+                self.vehicles.add(sysid)
+                started.append(Activation(sysid, why, e))
+        return started, ended
