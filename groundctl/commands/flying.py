@@ -41,6 +41,9 @@ def add_runner_options(p: argparse.ArgumentParser) -> None:
                    help="setpoints are taken this far ahead of the show clock, to cover the "
                         "link delay and the vehicle's response; 'auto' (the default) "
                         "measures each vehicle's own in flight")
+    p.add_argument("--mpc", action=argparse.BooleanOptionalAction, default=None,
+                   help="replan a drone pushed off its path with MPC (default: on, or as the "
+                        "show's [mpc] table says)")
     p.add_argument("--min-battery", type=float, default=Thresholds.min_battery_pct,
                    metavar="PCT", help="pre-flight battery minimum (default %(default)s %%)")
     p.add_argument("--preflight-timeout", type=positive, default=120.0, metavar="S",
@@ -68,6 +71,7 @@ def lead_ms(text: str) -> float | None:
 def runner_config(args: argparse.Namespace, tracks: dict[int, int] | None = None) -> RunnerConfig:
     return RunnerConfig(rate_hz=args.rate,
                         lead_s=None if args.lead is None else args.lead / 1000.0,
+                        mpc=args.mpc,
                         preflight_timeout_s=args.preflight_timeout,
                         excluded=frozenset(args.exclude), tracks=tracks,
                         thresholds=Thresholds(min_battery_pct=args.min_battery))

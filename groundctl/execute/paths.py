@@ -154,8 +154,9 @@ def sample_paths(paths: Sequence[Path], at: FloatArray, clocks: PathClocks
         pos[idx] = p
         vel[idx] = rate[idx, None] * v
         acc[idx] = (rate[idx] ** 2)[:, None] * a + drate[idx, None] * v
-    for i, path in enumerate(paths):
-        fixed = path.fixed_at(float(t[i])) if path.kind is not PathKind.RETURN else None
+    for i in np.flatnonzero((kinds != PathKind.PLAN.value) & (kinds != PathKind.RETURN.value)):
+        path = paths[int(i)]
+        fixed = path.fixed_at(float(t[i]))
         if fixed is not None:
             pos[i], vel[i], acc[i] = fixed, 0.0, 0.0
         elif path.kind is PathKind.WAY_OUT:

@@ -8,9 +8,10 @@ setpoint metres away, or fly it into a neighbour:
   ``trigger_error_m`` on ``confirm_ticks`` consecutive ticks (one late sample is
   not a deviation);
 * a loss of separation is predicted within the horizon: every flying vehicle
-  is predicted on its path shifted by its current error (the same prediction
-  the MPC uses for its neighbours), and a pair closer than the separation
-  limit puts both under MPC.
+  is predicted on its path shifted by its current error, plus that error's
+  rate of change damped over about a second (a drone being pushed keeps
+  drifting for a moment; :func:`error_forecast`), and a pair closer than the
+  separation limit puts both under MPC.
 
 It is handed back once its error has stayed below ``release_error_m`` for
 ``release_after_s`` and no conflict is predicted for it.  No activation in a
@@ -54,15 +55,28 @@ class Release:
     """How long it was under MPC, s."""
 
 
+def error_forecast(error: FloatArray, error_rate: FloatArray, horizon: FloatArray,
+                   settle_s: float = 1.0) -> FloatArray:
+    """(n, K, 3) each vehicle's error over the horizon offsets ``horizon`` (K,): the error
+    now plus its rate of change, damped as the autopilot takes it back within about
+    ``settle_s`` (a drone being pushed keeps drifting a little; one on its path stays)."""
+    tau = np.asarray(horizon, dtype=float)
+    gain = settle_s * (1.0 - np.exp(-tau / settle_s))
+    return np.asarray(error)[:, None, :] + np.asarray(error_rate)[:, None, :] * gain[None, :,
+                                                                                      None]
+
+
 def predicted_conflicts(ids: Sequence[int], path_pos: FloatArray, errors: FloatArray,
                         limit_m: float) -> dict[int, tuple[int, float]]:
     """Vehicles whose predicted positions (path at the horizon's instants, ``path_pos``
-    (n, K, 3), shifted by each one's current error ``errors`` (n, 3)) come closer than
-    ``limit_m`` to another's: system id -> (the other's id, the closest distance)."""
+    (n, K, 3), shifted by each one's error ``errors``: (n, 3) now, or (n, K, 3) as it is
+    expected to evolve) come closer than ``limit_m`` to another's: system id -> (the
+    other's id, the closest distance)."""
     n = len(ids)
     if n < 2:
         return {}
-    pred = np.asarray(path_pos, dtype=float) + np.asarray(errors, dtype=float)[:, None, :]
+    err = np.asarray(errors, dtype=float)
+    pred = np.asarray(path_pos, dtype=float) + (err[:, None, :] if err.ndim == 2 else err)
     out: dict[int, tuple[int, float]] = {}
     for k in range(pred.shape[1]):
         tree = cKDTree(pred[:, k])

@@ -138,7 +138,8 @@ class SetpointStream:
 
     def at(self, now: float, clock_offsets: Mapping[int, float | None], *,
            clock: ShowClock | None = None, show_time: float = 0.0, ended: bool = False,
-           paths: Mapping[int, Path] | None = None, clocks: PathClocks | None = None
+           paths: Mapping[int, Path] | None = None, clocks: PathClocks | None = None,
+           replanned: Mapping[int, tuple[ArrayLike, ArrayLike, ArrayLike]] | None = None
            ) -> Setpoints:
         """Setpoints at our time ``now``, each for the instant its vehicle's lead later.
 
@@ -147,7 +148,9 @@ class SetpointStream:
         the clock's rate (``rate * p'``, ``rate**2 * p'' + rate' * p'``), so a braking
         clock brakes every drone along its own path.  Without a running ``clock``
         (before the start, after the end) the plan at ``show_time`` is held with no
-        feed-forward.
+        feed-forward.  ``replanned`` (system id -> show-frame position, velocity,
+        acceleration, already evaluated at that vehicle's instant ``now + lead``) replaces
+        the path of a vehicle under MPC.
         """
         duration = self.plan.duration
         stamp_s = now + self.leads
@@ -160,6 +163,11 @@ class SetpointStream:
         rows = [paths.get(t.sysid) or Path(PathKind.PLAN, "the show plan", t.track)
                 for t in self.targets]
         pos, vel, acc = sample_paths(rows, stamp_s, clocks)
+        for sysid, (p, v, a) in (replanned or {}).items():
+            i = self._index.get(sysid)
+            if i is None:
+                raise ValueError(f"`replanned` names vehicle {sysid}, which is not streamed")
+            pos[i], vel[i], acc[i] = p, v, a
         clock, ended, show_time = clocks.show, clocks.ended, clocks.show_time
         t0 = min(max(show_time, 0.0), duration)
         offsets = np.array([np.nan if (o := clock_offsets.get(s)) is None else o

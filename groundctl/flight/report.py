@@ -136,6 +136,10 @@ def flight_report(runner: ShowRunner, error: str | None = None,
             "overruns": runner.overruns,
         },
         "link": {k: int(v) for k, v in vars(stats).items()},
+        "mpc": runner.replanner.report() if runner.replanner is not None else {
+            "enabled": False, "activations": 0, "vehicles": [],
+            "solve_ms": {"p50": None, "p95": None, "p99": None, "max": None, "solves": 0},
+            "fallbacks": 0, "unsafe": 0, "late": 0, "failed": 0},
     }
     return report
 
@@ -189,6 +193,15 @@ def render_report(report: dict[str, Any]) -> str:
                  + (f", timed out {report['commands_timed_out']}"
                     if report.get("commands_timed_out") else "")
                  + " (pre-flight requests asked again until the vehicles can answer included)")
+    mpc = report.get("mpc")
+    if mpc and mpc["enabled"]:
+        ms = mpc["solve_ms"]
+        lines.append(f"MPC: {mpc['activations']} activation(s) on vehicle(s) "
+                     f"{mpc['vehicles'] or '-'}; solve p50 {ms['p50']} ms, p95 {ms['p95']} ms, "
+                     f"max {ms['max']} ms over {ms['solves']}; fallbacks {mpc['fallbacks']}, "
+                     f"late {mpc['late']}")
+    elif mpc:
+        lines.append("MPC: off")
     link = report["link"]
     lines.append(f"link: {link['packets']} packets in, {link['sent']} out, {link['bad_packets']} "
                  f"bad, {link['unknown_system_packets']} from unknown systems")

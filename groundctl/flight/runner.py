@@ -88,6 +88,7 @@ from groundctl.execute.setpoints import (
     StreamTarget,
 )
 from groundctl.flight.monitor import FlightMonitor, nearest_pair, telemetry_positions
+from groundctl.flight.replanning import Replanner
 from groundctl.flight.returning import assign_landing, column
 from groundctl.flight.workers import PlannerPool
 from groundctl.link.flavours import Flavour
@@ -179,6 +180,11 @@ class RunnerConfig:
     """Attempts at a return before flying straight to the landing points."""
     progress_every_s: float = 15.0
     """A progress line this often during the flight."""
+    mpc: bool | None = None
+    """Replan a vehicle off its path with MPC (None: as the plan's ``[mpc]`` says)."""
+    mpc_deadline_s: float = 0.2
+    """An MPC batch not back within this many wall seconds is discarded (the vehicles
+    keep flying their last trajectory, then their path)."""
 
     def __post_init__(self) -> None:
         if not self.rate_hz >= 1.0:
@@ -249,6 +255,8 @@ class ShowRunner:
         self._finished = False
         self._request: tuple[float, StreamRequest] | None = None
         self.leads: LeadEstimator | None = None
+        self.replanner: Replanner | None = None
+        """MPC replanning (None: off)."""
         """Per-vehicle leads measured in flight (None: a fixed lead, ``config.lead_s``)."""
         self._lead_at: float | None = None
 
@@ -450,6 +458,11 @@ class ShowRunner:
         if self._pool is None and self.plan.model == "quadrotor":
             self._pool = PlannerPool(self.plan)
             self._pool.start()  # loads in its own process while the fleet arms
+        mpc_on = self.plan.mpc.enabled if cfg.mpc is None else cfg.mpc
+        if mpc_on and self.replanner is None and self.plan.model == "quadrotor":
+            self.replanner = Replanner(self.plan, self.plan.mpc, cfg.rate_hz,
+                                       cfg.mpc_deadline_s)
+            self.replanner.start()  # its worker loads while the fleet arms
         now = self.clock.now()
         self._say(f"arming {len(seq.vehicles)} vehicle(s)", "sequence_started")
         self._perform(seq.start(now))
@@ -547,7 +560,7 @@ class ShowRunner:
                 if v.phase not in (VehiclePhase.SHOW, VehiclePhase.LEAVING) \
                         or sysid not in ids_pos:
                     continue
-                want = seq.commanded(sysid, now)
+                want = self._commanded(seq, sysid, now)
                 if want is not None:
                     errors[sysid] = float(np.linalg.norm(ids_pos[sysid] - want))
             # Everything in the air counts, a drone descending through the show included.
@@ -561,7 +574,7 @@ class ShowRunner:
                 closing = _range_rate(ids_pos[pair[0]], ids_pos[pair[1]],
                                       self.link.vehicles[pair[0]],
                                       self.link.vehicles[pair[1]], self.plan)
-                a, b = seq.commanded(pair[0], now), seq.commanded(pair[1], now)
+                a, b = self._commanded(seq, pair[0], now), self._commanded(seq, pair[1], now)
                 if a is not None and b is not None:
                     planned = float(np.linalg.norm(a - b))
         # The link judges a fleet-wide silence over the drones in the air only.
@@ -738,7 +751,10 @@ class ShowRunner:
             self.lateness_s.append(self.clock.now() - scheduled)
         else:
             offsets = {s: self.link.vehicles[s].clock_offset_s for s in req.sysids}
-            sp = self._stream.at(now, offsets, paths=req.paths, clocks=req.clocks(self.plan))
+            replanned = self.replanner.overrides(now, self._stream.lead_of) \
+                if self.replanner is not None else None
+            sp = self._stream.at(now, offsets, paths=req.paths, clocks=req.clocks(self.plan),
+                                 replanned=replanned)
             send = self.link.send_position_target_local_ned
             rows = [i for i, s in enumerate(sp.sysids) if s in req.sysids]
             for i in rows:
@@ -754,7 +770,41 @@ class ShowRunner:
             if seq.started_at is not None and not seq.ended else []
         rate = req.clock.at(now).rate if req.clock is not None and not req.ended else 0.0
         self.monitor.observe(now, req.show_time, in_show, self.link.vehicles, rate)
+        self._replan_tick(seq, req, now)
         self._lead_tick(seq, req, now, in_show)
+
+    def _replan_tick(self, seq: ShowSequence, req: StreamRequest, now: float) -> None:
+        """MPC: who is replanned this tick, and their next batch (see flight.replanning)."""
+        if self.replanner is None or self.monitor is None or seq.started_at is None:
+            return
+        last = self.monitor.last_positions
+        if last is None or last[0] != now:
+            return
+        _, ids, pos = last
+        positions = dict(zip(ids, pos, strict=True))
+        eligible = {s: p for s, p in req.paths.items()
+                    if seq.vehicles[s].phase in (VehiclePhase.SHOW, VehiclePhase.LEAVING,
+                                                 VehiclePhase.RETURNING)
+                    and s in positions}
+        velocities = {}
+        for sysid in eligible:
+            vel = self.link.vehicles[sysid].velocity_ned
+            if vel is not None:
+                velocities[sysid] = ned_vel_to_show(self.plan.origin, np.array(vel))
+        obstacles = {s: p for s, p in positions.items() if s not in eligible
+                     and s in seq.vehicles and p[2] > AIRBORNE_M}
+        for event, text, fields in self.replanner.tick(now, eligible, req.clocks(self.plan),
+                                                       positions, velocities, obstacles):
+            self._say(text, event, **fields)
+
+    def _commanded(self, seq: ShowSequence, sysid: int, now: float) -> np.ndarray | None:
+        """Where ``sysid`` is told to be now: its MPC trajectory if it flies one, else its
+        path."""
+        if self.replanner is not None:
+            mpc = self.replanner.commanded(sysid, now)
+            if mpc is not None:
+                return mpc
+        return seq.commanded(sysid, now)
 
     def _link_delays(self, now: float) -> dict[int, float | None]:
         """Recent one-way link delay per vehicle (half the recent median round trip)."""
@@ -780,9 +830,11 @@ class ShowRunner:
         last = self.monitor.last_positions
         if steady and last is not None and last[0] == now:
             _, ids, _ = last
+            replanned = self.replanner.active if self.replanner is not None else set()
             for k, sysid in enumerate(ids):
                 path = req.paths.get(sysid)
-                if sysid in in_show and path is not None and path.kind is PathKind.PLAN:
+                if sysid in in_show and path is not None and path.kind is PathKind.PLAN \
+                        and sysid not in replanned:
                     sysids.append(sysid)
                     rows.append(k)
         if sysids:
@@ -983,6 +1035,8 @@ class ShowRunner:
             if self._pool is not None:
                 self._pool.close()
                 self._pool = None
+            if self.replanner is not None:
+                self.replanner.close()
 
     # -- operator ---------------------------------------------------------------------
     def _operator(self, name: str, call: Callable[[float], list[Action]]) -> None:

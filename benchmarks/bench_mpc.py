@@ -1,0 +1,218 @@
+"""MPC benchmarks: one vehicle's solve time (``solve``), and flight scenarios (``flight``).
+
+    .venv/bin/python benchmarks/bench_mpc.py solve                  # N = 30, 8 neighbours
+    .venv/bin/python benchmarks/bench_mpc.py solve --ticks 400 --neighbours 0 4 8
+    .venv/bin/python benchmarks/bench_mpc.py solve --kick 0          # noise only, no rejoins
+
+``solve``: a vehicle on a gently curving 3 m/s path inside a 3 x 3 block of
+neighbours 4 m apart flying the same path (8 in its QP), starting 3 m off its
+path diagonally between two of them, and knocked 3 m off again every
+``--kick-every`` ticks (a rejoin each time).  Each tick the controller is fed its
+own previous result carried one step on, plus seeded noise on position and
+velocity (what telemetry carried to the solve instant looks like).  Pure solve
+time: no processes, no I/O.  Prints p50/p95/p99/max per neighbour count, the
+first (cold) tick apart, OSQP iterations and the statuses.
+
+``flight``: the same seeded scenarios flown by the dry-run with ``--no-mpc``
+and with MPC side by side, for each autopilot flavour::
+
+    .venv/bin/python benchmarks/bench_mpc.py flight                 # quick show, x4
+    .venv/bin/python benchmarks/bench_mpc.py flight --show demo --speed 2 \
+        --scenarios calm push
+
+Scenarios: ``calm``; ``wind`` (6 m/s gusting 4 m/s); ``weak`` (three vehicles at
+0.6 of their speed and acceleration); ``push`` (one vehicle pushed 3 m into the
+formation mid-show).  Per run: safe, max / RMS tracking error, min separation
+(telemetry and simulator truth), worst pattern error, MPC activations, solve
+time p50 / p95 / p99 / max, fallbacks and late batches.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from groundctl.execute.mpc import MpcConfig, MpcController, MpcRequest
+from groundctl.show.model import Limits
+
+#: The 8 grid neighbours around the vehicle, offsets from its path (x along the path).
+GRID = np.array([(0.0, dy, dz) for dy in (-4.0, 0.0, 4.0) for dz in (-4.0, 0.0, 4.0)
+                 if (dy, dz) != (0.0, 0.0)])
+#: The rejoin offset: 3 m, between the neighbours above and beside.
+KICK = np.array([0.0, 2.0, np.sqrt(5.0)]) / 3.0
+
+
+def path(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Position, velocity, acceleration of the vehicle's path at times ``t`` (T,)."""
+    t = np.asarray(t, dtype=float)
+    pos = np.stack([3.0 * t, 2.0 * np.sin(0.3 * t), 10.0 + np.sin(0.2 * t)], axis=-1)
+    vel = np.stack([np.full_like(t, 3.0), 0.6 * np.cos(0.3 * t), 0.2 * np.cos(0.2 * t)],
+                   axis=-1)
+    acc = np.stack([np.zeros_like(t), -0.18 * np.sin(0.3 * t), -0.04 * np.sin(0.2 * t)],
+                   axis=-1)
+    return pos, vel, acc
+
+
+@dataclass
+class SolveRun:
+    """What one ``solve`` run measured."""
+
+    neighbours: int
+    ms: np.ndarray
+    iterations: np.ndarray
+    passes: np.ndarray
+    statuses: dict[str, int]
+    final_offset_m: float
+
+
+def run_solve(neighbours: int, ticks: int, kick_m: float, kick_every: int, noise: float,
+              seed: int, config: MpcConfig) -> SolveRun:
+    rng = np.random.default_rng(seed)
+    limits = Limits()
+    ctrl = MpcController(1, config)
+    n, dt = config.steps, config.dt
+    offsets = GRID[:neighbours]
+    ids = np.arange(2, 2 + neighbours)
+    t = 0.0
+    p, v, _ = path(np.array(0.0))
+    p = p + kick_m * KICK
+    ms, its, passes = [], [], []
+    statuses: dict[str, int] = {}
+    for tick in range(ticks):
+        times = t + dt * np.arange(n + 1)
+        rp, rv, ra = path(times)
+        req = MpcRequest(1, t, p, v, rp, rv, ra, limits, rp[None] + offsets[:, None], ids)
+        r = ctrl.solve(req)
+        ms.append(r.solve_ms)
+        its.append(r.iterations)
+        passes.append(r.passes)
+        statuses[r.status] = statuses.get(r.status, 0) + 1
+        t += dt
+        p, v, _ = r.sample(t)
+        p = p + rng.normal(0.0, noise, 3)
+        v = v + rng.normal(0.0, noise, 3)
+        if kick_m and kick_every and (tick + 1) % kick_every == 0 and tick + 1 < ticks:
+            p = p + kick_m * KICK * (1 if (tick + 1) // kick_every % 2 else -1)
+    offset = float(np.linalg.norm(p - path(np.array(t))[0]))
+    return SolveRun(neighbours, np.array(ms), np.array(its), np.array(passes), statuses,
+                    offset)
+
+
+def cmd_solve(args: argparse.Namespace) -> None:
+    config = MpcConfig(steps=args.steps)
+    print(f"MPC solve time per vehicle: N = {config.steps}, dt = {config.dt} s, "
+          f"{args.ticks} ticks, rejoin from {args.kick} m every {args.kick_every} ticks, "
+          f"noise {args.noise} m, m/s")
+    head = (f"{'nbrs':>4} {'p50 ms':>7} {'p95 ms':>7} {'p99 ms':>7} {'max ms':>7} "
+            f"{'cold ms':>7} {'it p50':>6} {'it max':>6} {'passes':>6}  statuses")
+    print(head)
+    print("-" * len(head))
+    for m in args.neighbours:
+        if m > len(GRID):
+            raise SystemExit(f"--neighbours: at most {len(GRID)}, got {m}")
+        # One untimed run first: imports, caches and the CPU's clocks settle.
+        run_solve(m, 5, args.kick, args.kick_every, args.noise, args.seed, config)
+        res = run_solve(m, args.ticks, args.kick, args.kick_every, args.noise, args.seed,
+                        config)
+        p50, p95, p99 = np.percentile(res.ms, [50, 95, 99])
+        st = ", ".join(f"{k} {v}" for k, v in sorted(res.statuses.items()))
+        print(f"{m:>4} {p50:7.2f} {p95:7.2f} {p99:7.2f} {res.ms.max():7.2f} {res.ms[0]:7.2f} "
+              f"{int(np.median(res.iterations)):>6} {int(res.iterations.max()):>6} "
+              f"{int(res.passes.max()):>6}  {st}")
+    print(f"(last run ends {res.final_offset_m:.2f} m from its path; times are "
+          f"time.perf_counter around MpcController.solve)")
+
+
+def _scenario(name: str, plan_drones: int, duration: float) -> dict[str, object]:
+    """DryRunOptions keywords of one scenario (seeded, the same with and without MPC)."""
+    from groundctl.flight.dryrun import Push
+
+    middle = plan_drones // 2 + 1
+    if name == "calm":
+        return {}
+    if name == "wind":
+        return {"wind": (6.0, 0.0, 0.0), "gust_std": 4.0, "seed": 3}
+    if name == "weak":
+        ids = sorted({1, middle, plan_drones})
+        return {"weak": tuple((s, 0.6) for s in ids)}
+    if name == "push":
+        # Into the formation: towards the fleet's middle, at 40 % of the show.
+        return {"pushes": (Push(1, 0.4 * duration, (3.0, 3.0, 0.0)),)}
+    raise SystemExit(f"unknown scenario {name!r}")
+
+
+def cmd_flight(args: argparse.Namespace) -> None:
+    import asyncio
+    from pathlib import Path
+
+    from groundctl.commands.flying import load_or_plan
+    from groundctl.flight.dryrun import DryRunOptions, fly_dry_run
+    from groundctl.flight.runner import RunnerConfig
+    from groundctl.link.flavours import Flavour
+
+    root = Path(__file__).resolve().parent.parent
+    plan = load_or_plan(root / "shows" / f"{args.show}.toml", quiet=True)
+    flavours = list(Flavour) if args.autopilot == "both" else [Flavour(args.autopilot)]
+    print(f"MPC flight scenarios: {args.show} ({plan.drones} drones, {plan.duration:.0f} s), "
+          f"dry-run at x{args.speed:g}")
+    print(f"{'scenario':<8} {'autopilot':<9} {'mpc':<4} {'safe':<5} {'max m':>6} {'RMS m':>6} "
+          f"{'sep m':>6} {'true m':>6} {'pattern':>7} {'act':>4} {'p50':>5} {'p95':>5} "
+          f"{'p99':>5} {'max':>5} {'fb':>3} {'late':>4}")
+    for scenario in args.scenarios:
+        extra = _scenario(scenario, plan.drones, plan.duration)
+        for flavour in flavours:
+            for mpc in (False, True):
+                options = DryRunOptions(flavour=flavour, speed=args.speed,
+                                        ekf_origin_delay_s=2.0, ready_delay_s=4.0,
+                                        runner=RunnerConfig(mpc=mpc),
+                                        **extra)  # type: ignore[arg-type]
+                r = asyncio.run(fly_dry_run(plan, options)).report
+                m = r["mpc"]
+                ms = m["solve_ms"]
+                pattern = max((f["max_m"] or 0.0) for f in r["pattern_error_m"])
+
+                def f(x: object) -> str:
+                    return "-" if x is None else f"{x:.1f}" if isinstance(x, float) else str(x)
+                print(f"{scenario:<8} {flavour!s:<9} {'on' if mpc else 'off':<4} "
+                      f"{r['safe']!s:<5} {r['max_tracking_error_m']:>6.3f} "
+                      f"{r['rms_tracking_error_m']:>6.3f} {r['min_separation_m']:>6.2f} "
+                      f"{r['true_min_separation_m']:>6.2f} {pattern:>7.2f} "
+                      f"{m['activations']:>4} {f(ms['p50']):>5} {f(ms['p95']):>5} "
+                      f"{f(ms['p99']):>5} {f(ms['max']):>5} {m['fallbacks']:>3} "
+                      f"{m['late']:>4}", flush=True)
+                if r["unsafe_reasons"]:
+                    print("   ", "; ".join(r["unsafe_reasons"]))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    solve = sub.add_parser("solve", help="pure solve time of one vehicle's MPC")
+    solve.add_argument("--ticks", type=int, default=200, help="MPC ticks per run (10 Hz)")
+    solve.add_argument("--neighbours", type=int, nargs="+", default=[8],
+                       help="neighbour counts to run (0-8)")
+    solve.add_argument("--steps", type=int, default=30, help="horizon steps N")
+    solve.add_argument("--kick", type=float, default=3.0,
+                       help="rejoin offset, m (0: none, noise only)")
+    solve.add_argument("--kick-every", type=int, default=50, help="ticks between rejoins")
+    solve.add_argument("--noise", type=float, default=0.02,
+                       help="telemetry noise per tick, m and m/s (1 sigma)")
+    solve.add_argument("--seed", type=int, default=1)
+    solve.set_defaults(func=cmd_solve)
+    flight = sub.add_parser("flight", help="dry-run scenarios with and without MPC")
+    flight.add_argument("--show", default="quick", help="bundled show name")
+    flight.add_argument("--speed", type=float, default=4.0)
+    flight.add_argument("--scenarios", nargs="+", default=["calm", "wind", "weak", "push"])
+    flight.add_argument("--autopilot", choices=["ardupilot", "px4", "both"], default="both")
+    flight.set_defaults(func=cmd_flight)
+    args = parser.parse_args()
+    started = time.perf_counter()
+    args.func(args)
+    print(f"({time.perf_counter() - started:.1f} s)")
+
+
+if __name__ == "__main__":
+    main()

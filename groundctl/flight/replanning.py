@@ -1,0 +1,271 @@
+"""The executor's MPC replanning: who is replanned, their requests, their trajectories.
+
+Every tick, after the monitor has carried telemetry to the tick's instant,
+:meth:`Replanner.tick`:
+
+1. takes the worker's last batch if it came back within its deadline;
+2. measures each flying vehicle's error against its path, predicts every
+   flying vehicle on its path shifted by that error over the horizon, and lets
+   the :class:`~groundctl.execute.replan.ReplanSupervisor` decide who is under
+   MPC (a confirmed deviation, or a predicted loss of separation);
+3. for those, builds one :class:`~groundctl.execute.mpc.MpcRequest` each (its
+   measured state carried to the tick grid, its path over the horizon as the
+   reference, neighbours within reach predicted by their own MPC trajectory
+   where they have one, else by their path shifted by their current error) and
+   hands the batch to the worker, if it is idle.
+
+The stream then sends a vehicle under MPC its last accepted trajectory
+(:meth:`overrides`), sampled at its own lead; the guard compares telemetry
+with the same trajectory (:meth:`commanded`).  A trajectory older than
+``STALE_S`` (the worker fell behind) is dropped and the vehicle gets its path
+again.  A ``fallback`` (the verified stop) is flown like a solution; an
+``unsafe`` result is never flown: the vehicle keeps its path, and a notice says
+so.  Nothing here blocks: solves run in :mod:`groundctl.flight.mpcworker`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from groundctl.execute.mpc import MpcConfig, MpcRequest, MpcResult
+from groundctl.execute.paths import Path, PathClocks, sample_paths
+from groundctl.execute.replan import (
+    Activation,
+    ReplanSupervisor,
+    error_forecast,
+    predicted_conflicts,
+)
+from groundctl.flight.mpcworker import MpcWorker
+from groundctl.plan.plan import Plan
+from groundctl.show.model import MpcSettings
+
+FloatArray = NDArray[np.float64]
+
+#: A trajectory older than this is not flown any more (the vehicle gets its path), s.
+STALE_S = 1.0
+#: Instants over the horizon at which conflicts are predicted (every half second).
+CONFLICT_SAMPLES = 7
+
+
+@dataclass
+class ReplanStats:
+    """What the MPC did over the flight (the report's ``mpc``)."""
+
+    solve_ms: list[float] = field(default_factory=list)
+    """Every solve's wall time, ms."""
+    fallbacks: int = 0
+    """Solves that gave the verified stop (or an unsafe result) instead of a correction."""
+    unsafe: int = 0
+    """Results not flown at all (even the stop broke a limit)."""
+    batches: int = 0
+    """Batches solved in time."""
+
+
+Event = tuple[str, str, dict[str, Any]]
+"""(event name, operator text, fields)."""
+
+
+class Replanner:
+    """MPC replanning of the fleet; see the module docstring."""
+
+    def __init__(self, plan: Plan, settings: MpcSettings, rate_hz: float,
+                 deadline_s: float) -> None:
+        self.plan = plan
+        self.settings = settings
+        steps = max(2, round(settings.horizon_s * rate_hz))
+        self.config = MpcConfig(dt=1.0 / rate_hz, steps=steps)
+        self.supervisor = ReplanSupervisor(settings)
+        self.worker = MpcWorker(self.config, deadline_s)
+        self.stats = ReplanStats()
+        self.results: dict[int, MpcResult] = {}
+        """The trajectory each vehicle under MPC flies now (accepted, or the stop)."""
+        self._status: dict[int, str] = {}
+
+    # -- life cycle -------------------------------------------------------------------
+    def start(self) -> None:
+        self.worker.start()
+
+    def close(self) -> None:
+        self.worker.close()
+
+    @property
+    def active(self) -> set[int]:
+        return set(self.supervisor.active)
+
+    # -- what is streamed -------------------------------------------------------------
+    def _fresh(self, sysid: int, now: float) -> MpcResult | None:
+        res = self.results.get(sysid)
+        if res is None or sysid not in self.supervisor.active or now - res.t0 > STALE_S:
+            return None
+        return res
+
+    def overrides(self, now: float, lead_of: Callable[[int], float]
+                  ) -> dict[int, tuple[FloatArray, FloatArray, FloatArray]]:
+        """System id -> (position, velocity, acceleration) of its MPC trajectory at its own
+        instant ``now + lead`` (show frame), for the vehicles flying one."""
+        out = {}
+        for sysid in self.supervisor.active:
+            res = self._fresh(sysid, now)
+            if res is not None:
+                p, v, a = res.sample(now + lead_of(sysid))
+                out[sysid] = (np.asarray(p), np.asarray(v), np.asarray(a))
+        return out
+
+    def commanded(self, sysid: int, now: float) -> FloatArray | None:
+        """Where its MPC trajectory puts ``sysid`` now, if it flies one."""
+        res = self._fresh(sysid, now)
+        return None if res is None else np.asarray(res.sample(now)[0])
+
+    # -- the tick ---------------------------------------------------------------------
+    def tick(self, now: float, paths: Mapping[int, Path], clocks: PathClocks,
+             positions: Mapping[int, FloatArray], velocities: Mapping[int, FloatArray],
+             obstacles: Mapping[int, FloatArray]) -> list[Event]:
+        """One tick; ``paths`` of the vehicles flying one (eligible for MPC) with telemetry
+        ``positions`` / ``velocities`` (show frame, carried to ``now``); ``obstacles`` are
+        the other vehicles in the air (descending, say), predicted where they are.
+        Returns the events to log."""
+        events: list[Event] = []
+        events += self._collect(now)
+        ids = [s for s in sorted(paths) if s in positions]
+        if not ids:
+            started, ended = self.supervisor.tick(now, {}, {}, eligible=())
+        else:
+            here = np.array([positions[s] for s in ids])
+            plist = [paths[s] for s in ids]
+            on_path, path_vel, _ = sample_paths(plist, np.full(len(ids), now), clocks)
+            err_vec = here - on_path
+            vel = np.array([velocities.get(s, path_vel[i]) for i, s in enumerate(ids)])
+            errors = {s: float(np.linalg.norm(e)) for s, e in zip(ids, err_vec, strict=True)}
+            offsets = np.linspace(0.0, self.config.horizon_s, CONFLICT_SAMPLES)
+            future = self._predict(plist, ids, now + offsets, clocks, err_vec, now)
+            drift = error_forecast(err_vec, vel - path_vel, offsets)
+            for i, sysid in enumerate(ids):
+                if self._fresh(sysid, now) is not None:
+                    drift[i] = err_vec[i]  # predicted by its MPC trajectory as it is
+            conflicts = predicted_conflicts(ids, future, drift,
+                                            self.plan.limits.min_separation) \
+                if len(ids) > 1 else {}
+            started, ended = self.supervisor.tick(now, errors, conflicts, eligible=ids)
+        for a in started:
+            events.append(self._started(a))
+        for r in ended:
+            self.results.pop(r.sysid, None)
+            self._status.pop(r.sysid, None)
+            events.append(("mpc_ended", f"vehicle {r.sysid} back on its path after "
+                                        f"{r.after_s:.1f} s of MPC",
+                           {"system_id": r.sysid, "after_s": round(r.after_s, 2)}))
+        active = [s for s in sorted(self.supervisor.active) if s in positions and s in paths]
+        if active and not self.worker.busy:
+            self.worker.submit(self._requests(now, active, ids, paths, clocks, positions,
+                                              velocities, obstacles))
+        return events
+
+    def _started(self, a: Activation) -> Event:
+        return ("mpc_started", f"vehicle {a.sysid} replanned with MPC: {a.why}",
+                {"system_id": a.sysid, "why": a.why, "error_m": round(a.error_m, 3)})
+
+    def _collect(self, now: float) -> list[Event]:
+        results = self.worker.collect()
+        if results is None:
+            return []
+        self.stats.batches += 1
+        events: list[Event] = []
+        for sysid, res in results.items():
+            self.stats.solve_ms.append(res.solve_ms)
+            if sysid not in self.supervisor.active:
+                continue
+            if res.status != "solved":
+                self.stats.fallbacks += 1
+            if res.status == "unsafe":
+                self.stats.unsafe += 1
+                self.results.pop(sysid, None)  # never flown: its path is streamed instead
+            else:
+                self.results[sysid] = res
+            if res.status != self._status.get(sysid, "solved") and res.status != "solved":
+                what = ("stopping it" if res.status == "fallback"
+                        else "keeping its path (even the stop is unsafe)")
+                events.append(("mpc_fallback", f"vehicle {sysid}: MPC {res.reason}; {what}",
+                               {"system_id": sysid, "status": res.status,
+                                "reason": res.reason}))
+            self._status[sysid] = res.status
+        return events
+
+    def _predict(self, plist: Sequence[Path], ids: Sequence[int], times: FloatArray,
+                 clocks: PathClocks, err_vec: FloatArray, now: float) -> FloatArray:
+        """(n, K, 3) each vehicle's path at ``times`` (the error is added by the caller);
+        vehicles flying an MPC trajectory are predicted by it instead (minus their error,
+        so that adding it back is neutral)."""
+        n, k = len(ids), len(times)
+        rep = [p for p in plist for _ in range(k)]
+        pos, _, _ = sample_paths(rep, np.tile(times, n), clocks)
+        pos = pos.reshape(n, k, 3)
+        for i, sysid in enumerate(ids):
+            res = self._fresh(sysid, now)
+            if res is not None:
+                pos[i] = np.asarray(res.sample(times)[0]) - err_vec[i]
+        return pos
+
+    def _requests(self, now: float, active: Sequence[int], ids: Sequence[int],
+                  paths: Mapping[int, Path], clocks: PathClocks,
+                  positions: Mapping[int, FloatArray], velocities: Mapping[int, FloatArray],
+                  obstacles: Mapping[int, FloatArray]) -> list[MpcRequest]:
+        cfg = self.config
+        dt, n_steps = cfg.dt, cfg.steps
+        t0 = round(now / dt) * dt  # on the tick grid: consecutive solves warm-start
+        times: FloatArray = t0 + dt * np.arange(n_steps + 1, dtype=float)
+        # Everyone's prediction over the horizon: path + current error, or MPC trajectory.
+        here = np.array([positions[s] for s in ids])
+        plist = [paths[s] for s in ids]
+        on_path, _, _ = sample_paths(plist, np.full(len(ids), now), clocks)
+        err = here - on_path
+        future = self._predict(plist, ids, times, clocks, err, now) + err[:, None, :]
+        row = {s: i for i, s in enumerate(ids)}
+        reach = cfg.reach_m + 2.0 * cfg.horizon_s * self.plan.limits.max_speed_h
+        requests = []
+        for sysid in active:
+            i = row[sysid]
+            p0 = np.asarray(positions[sysid], dtype=float)
+            v0 = np.asarray(velocities.get(sysid, np.zeros(3)), dtype=float)
+            p0 = p0 + v0 * (t0 - now)
+            rep = [paths[sysid]] * (n_steps + 1)
+            rp, rv, ra = sample_paths(rep, times, clocks)
+            others, other_ids = [], []
+            for j, other in enumerate(ids):
+                if other != sysid and np.linalg.norm(here[j] - here[i]) <= reach:
+                    others.append(future[j])
+                    other_ids.append(other)
+            for other, where in obstacles.items():
+                if other not in row and np.linalg.norm(where - here[i]) <= reach:
+                    others.append(np.repeat(np.asarray(where, dtype=float)[None],
+                                            n_steps + 1, 0))
+                    other_ids.append(other)
+            requests.append(MpcRequest(
+                sysid=sysid, t0=float(t0), p0=p0, v0=v0, ref_pos=rp, ref_vel=rv, ref_acc=ra,
+                limits=self.plan.limits,
+                neighbours=np.stack(others) if others else None,
+                neighbour_ids=np.array(other_ids, dtype=np.intp) if others else None))
+        return requests
+
+    def report(self) -> dict[str, Any]:
+        """The report's ``mpc`` object."""
+        ms = np.array(self.stats.solve_ms)
+
+        def pct(q: float) -> float | None:
+            return round(float(np.percentile(ms, q)), 2) if ms.size else None
+        return {
+            "enabled": True,
+            "activations": self.supervisor.activations,
+            "vehicles": sorted(self.supervisor.vehicles),
+            "solve_ms": {"p50": pct(50), "p95": pct(95), "p99": pct(99),
+                         "max": round(float(ms.max()), 2) if ms.size else None,
+                         "solves": int(ms.size)},
+            "fallbacks": self.stats.fallbacks,
+            "unsafe": self.stats.unsafe,
+            "late": self.worker.late,
+            "failed": self.worker.failed,
+        }
