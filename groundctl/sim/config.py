@@ -8,6 +8,7 @@ where the ground station is, boot delays, weather, seed, signing key, faults).
 
 from __future__ import annotations
 
+import enum
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -22,7 +23,15 @@ DEFAULT_ORIGIN = (-35.363261, 149.165230, 584.0)
 
 @dataclass(frozen=True)
 class Dynamics:
-    """Flight-dynamics tuning of one autopilot flavour (SI units, z up)."""
+    """Flight-dynamics tuning of one autopilot flavour (SI units, z up).
+
+    The controller cascade is described in :mod:`groundctl.sim.physics`;
+    ``input_shaping`` and ``advance_target`` choose between ArduCopter's
+    structure (the setpoint is a kinematic target that is advanced between
+    messages and reached along a jerk-limited path) and PX4's (each message is
+    flown as it is until the next one).  The field defaults are the ArduCopter
+    4.7-dev calibration (``ARDUPILOT_47_DYNAMICS``).
+    """
 
     max_speed_xy: float = 10.0
     """Horizontal speed limit, m/s (ArduCopter WPNAV_SPEED, PX4 MPC_XY_VEL_MAX)."""
@@ -31,64 +40,259 @@ class Dynamics:
     max_speed_down: float = 1.5
     """Descent-rate limit, m/s (WPNAV_SPEED_DN / MPC_Z_VEL_MAX_DN)."""
     max_accel_xy: float = 2.5
-    """Horizontal acceleration limit, m/s² (WPNAV_ACCEL / MPC_ACC_HOR)."""
+    """Horizontal acceleration of the path, m/s² (WPNAV_ACCEL / MPC_ACC_HOR): the input
+    shaping's limit, and the braking curve of the position loop's sqrt controller."""
     max_accel_z: float = 2.5
-    """Vertical acceleration limit, m/s² (PSC_ACCZ / MPC_ACC_UP_MAX)."""
+    """Vertical acceleration of the path, m/s² (WPNAV_ACCEL_Z / MPC_ACC_UP_MAX): the input
+    shaping's limit and the vertical sqrt controller's braking curve."""
+    thrust_accel_z: float = 2.5
+    """Vertical acceleration the thrust can add or take away around hover, m/s²: the limit
+    of the whole vertical command (path, feedback, integrator)."""
     max_jerk: float = 5.0
-    """Jerk limit on the commanded acceleration, m/s³ (PSC_JERK_XY / MPC_JERK_AUTO)."""
+    """Jerk limit, m/s³ (PSC_JERK_NE / MPC_JERK_AUTO): of the shaped path with
+    ``input_shaping`` (its gains are ``max_jerk / max_accel``, so this sets how far
+    the path lags a target without acceleration), else of the commanded acceleration."""
     max_tilt_accel: float = 5.66
     """Horizontal acceleration the airframe can produce at its lean-angle limit, m/s²
-    (g tan 30°: ArduCopter's ANGLE_MAX; PX4's MPC_TILTMAX_AIR is 45°).  Path shaping
-    keeps to ``max_accel_xy``; rejecting wind may use up to this."""
+    (g tan 30°: ArduCopter's ANGLE_MAX; PX4's MPC_TILTMAX_AIR is 45°).  The whole
+    command (path, feedback and integrator) is limited to this, nothing before it, so
+    the controller can lean into the wind as far as the airframe can."""
     pos_p: float = 1.1
-    """Position-loop gain, 1/s (PSC_POSXY_P / MPC_XY_P)."""
+    """Position-loop gain, 1/s (PSC_NE_POS_P / MPC_XY_P)."""
     pos_p_z: float = 1.0
-    """Vertical position-loop gain, 1/s (PSC_POSZ_P / MPC_Z_P)."""
+    """Vertical position-loop gain, 1/s (PSC_D_POS_P / MPC_Z_P)."""
     vel_p: float = 1.5
-    """Velocity-loop gain, 1/s (PSC_VELXY_P / MPC_XY_VEL_P_ACC)."""
+    """Velocity-loop gain, 1/s (PSC_NE_VEL_P / MPC_XY_VEL_P_ACC)."""
     vel_i: float = 0.5
-    """Velocity-loop integral gain, 1/s², which rejects steady wind."""
+    """Velocity-loop integral gain, 1/s², which rejects steady wind (PSC_NE_VEL_I /
+    MPC_XY_VEL_I_ACC)."""
+    vel_p_z: float = 1.5
+    """Vertical velocity-loop gain, 1/s (PSC_D_VEL_P / MPC_Z_VEL_P_ACC)."""
+    vel_i_z: float = 0.5
+    """Vertical velocity-loop integral gain, 1/s² (ArduCopter's throttle integrator
+    PSC_D_ACC_I / MPC_Z_VEL_I_ACC)."""
+    vel_imax: float = 10.0
+    """Limit of the horizontal velocity integrator, m/s² (PSC_NE_VEL_IMAX, 10 in 4.8;
+    the lean-angle limit binds first).  Anti-windup: while the command is limited the
+    integrator may only shrink along the limited direction, as AC_PID_2D does."""
+    vel_imax_z: float = 2.0
+    """Limit of the vertical velocity integrator, m/s²."""
     response_tau: float = 0.15
-    """First-order lag of the attitude/thrust response to a commanded acceleration, s."""
+    """First-order lag of the horizontal acceleration (the attitude) behind its command, s
+    (ArduCopter ATC_INPUT_TC is 0.15 s)."""
+    response_tau_z: float = 0.15
+    """First-order lag of the vertical acceleration (the thrust: motor speed) behind its
+    command, s."""
     takeoff_spool_s: float = 2.0
     """Time between a takeoff command and lift-off (motor spool-up, takeoff checks), s."""
     takeoff_speed: float = 1.0
-    """Climb-rate limit during takeoff, m/s."""
+    """Climb-rate limit during takeoff, m/s (ArduCopter 4.8: WPNAV_SPEED_UP)."""
     land_speed: float = 0.5
     """Final descent rate when landing, m/s (LAND_SPEED / MPC_LAND_SPEED)."""
     land_detect_s: float = 3.0
     """Time on the ground with the throttle down before the land detector trips, s."""
     drag: float = 0.25
-    """Air-relative velocity coupling of wind into acceleration, 1/s."""
+    """Linear (rotor momentum) drag: acceleration per m/s of air-relative velocity, 1/s.
+    In still air it brakes every move, which the feed-forward does not know about: the
+    vehicle lags its setpoints (the 4.7 calibration's ~150 ms)."""
+    drag_quad: float = 0.0
+    """Quadratic (body) drag: acceleration per (m/s)² of airspeed, 1/m.  Wind is a force
+    on the airframe through these terms, which the controller has to lean against; this
+    one is small at show speeds in still air and grows with the wind."""
+    input_shaping: bool = False
+    """ArduCopter AC_PosControl: the target is reached along a jerk-limited kinematic
+    path (shape_pos_vel_accel: sqrt controllers of gain ``max_jerk / max_accel_xy``)
+    whose acceleration feeds forward, and the position and velocity loops correct the
+    vehicle onto that path.  Off (PX4): the loops act on the setpoint directly."""
+    advance_target: bool = False
+    """ArduCopter GUIDED posvelaccel: between setpoint messages the position target
+    moves on with the velocity target and the velocity with the acceleration target
+    (every loop, until the next message or GUID_TIMEOUT).  PX4 flies each trajectory
+    setpoint as it is until the next one."""
+
+    def __post_init__(self) -> None:
+        positive = ("max_speed_xy", "max_speed_up", "max_speed_down", "max_accel_xy",
+                    "max_accel_z", "thrust_accel_z", "max_jerk", "max_tilt_accel", "pos_p",
+                    "pos_p_z", "vel_p", "vel_p_z", "response_tau", "response_tau_z",
+                    "takeoff_speed", "land_speed")
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ValueError(f"`{name}` must be positive, got {getattr(self, name)}")
+        non_negative = ("vel_i", "vel_i_z", "vel_imax", "vel_imax_z", "takeoff_spool_s",
+                        "land_detect_s", "drag", "drag_quad")
+        for name in non_negative:
+            if getattr(self, name) < 0:
+                raise ValueError(f"`{name}` must be non-negative, got {getattr(self, name)}")
 
 
-#: ArduCopter 4.7 in SITL, calibrated by sitl_tests/test_sim_calibration.py.
-ARDUPILOT_DYNAMICS = Dynamics()
+#: ArduCopter V4.8.0-dev in SITL, calibrated by sitl_tests/test_sim_calibration.py and
+#: sitl_tests/test_sim_wind.py.  GUIDED's target is advanced between messages and reached
+#: through AC_PosControl's input shaping, with its defaults: PSC_NE_POS_P 1, PSC_NE_VEL_P 2,
+#: PSC_NE_VEL_I 1 (IMAX 10 m/s²), PSC_D_POS_P 1, PSC_D_VEL_P 5, WPNAV_ACCEL 2.5 and
+#: WPNAV_ACCEL_Z 1 m/s², WPNAV_SPEED_UP 2.5 m/s, LAND_SPEED 0.5 m/s, ANGLE_MAX 30°.
+#: Calibrated rather than read off parameters: the shaping's jerk, 6 m/s³ where
+#: PSC_JERK_NE is 5 (at 5 the line from position + velocity setpoints lags 25 % more than
+#: SITL measured: the vehicle-side dynamics SITL adds are not modelled); the airframe's
+#: drag, quadratic only (a linear term would make the fleet lag its setpoints, which SITL's
+#: ArduCopter does not; 0.02/m: 1.3 m/s² in 8 m/s of wind, fitted to the line flown in it);
+#: spool-up before lift-off and the land detector's delay, fitted to the takeoff and LAND
+#: times.
+ARDUPILOT_DYNAMICS = Dynamics(
+    max_accel_z=1.0,
+    thrust_accel_z=5.0,
+    max_jerk=6.0,
+    pos_p=1.0,
+    vel_p=2.0,
+    vel_i=1.0,
+    vel_imax=10.0,
+    vel_p_z=5.0,
+    vel_i_z=1.0,
+    response_tau_z=0.05,
+    takeoff_spool_s=2.6,
+    takeoff_speed=2.5,
+    land_detect_s=1.7,
+    drag=0.0,
+    drag_quad=0.02,
+    input_shaping=True,
+    advance_target=True,
+)
+
+#: ArduCopter 4.7-dev in SITL, the simulator's earlier calibration (line from position +
+#: velocity setpoints RMS 0.25 / max 0.44 m, position only 1.12 / 2.19 m, takeoff to 95 %
+#: of 5 m in 7.5 s, LAND to disarm 13-15 s): no input shaping, targets held between
+#: messages, linear drag; its tracking lags the setpoints by about 150 ms.  Kept to
+#: compare against logs of that build; sitl_tests/test_sim_calibration.py still checks it.
+ARDUPILOT_47_DYNAMICS = Dynamics()
 
 #: PX4 v1.15 multicopter defaults (MPC_*); takeoff to MIS_TAKEOFF_ALT at MPC_TKO_SPEED.
+#: Trajectory setpoints are flown as they come (mc_pos_control takes each one as is, no
+#: advancing between them, no shaping in OFFBOARD); the same airframe drag as ArduPilot's.
 PX4_DYNAMICS = Dynamics(
     max_speed_xy=12.0,
     max_speed_up=3.0,
     max_speed_down=1.5,
     max_accel_xy=3.0,
     max_accel_z=4.0,
+    thrust_accel_z=4.0,
     max_tilt_accel=9.81,
     max_jerk=8.0,
     pos_p=0.95,
     pos_p_z=1.0,
     vel_p=1.8,
     vel_i=0.4,
+    vel_imax=9.81,
+    vel_p_z=4.0,
+    vel_i_z=2.0,
     response_tau=0.1,
+    response_tau_z=0.05,
     takeoff_spool_s=1.0,
     takeoff_speed=1.5,
     land_speed=0.7,
     land_detect_s=2.0,
+    drag=0.0,
+    drag_quad=0.02,
 )
+
+#: Named dynamics profiles (``dynamics_profile(name)``); the first of each flavour's is
+#: its default.
+DYNAMICS_PROFILES: dict[str, Dynamics] = {
+    "ardupilot-4.8": ARDUPILOT_DYNAMICS,
+    "ardupilot-4.7": ARDUPILOT_47_DYNAMICS,
+    "px4-1.15": PX4_DYNAMICS,
+}
+#: Names accepted by :func:`dynamics_profile`.
+PROFILE_NAMES: tuple[str, ...] = tuple(DYNAMICS_PROFILES)
+
+
+def dynamics_profile(name: str) -> Dynamics:
+    """The dynamics profile called ``name`` (one of :data:`PROFILE_NAMES`)."""
+    try:
+        return DYNAMICS_PROFILES[name]
+    except KeyError:
+        raise ValueError(f"unknown dynamics profile {name!r}: expected one of "
+                         f"{', '.join(PROFILE_NAMES)}") from None
+
+
+def profile_for(flavour: Flavour, name: str | None) -> Dynamics:
+    """The dynamics ``name`` (None: the flavour's calibrated default), which must be one
+    of ``flavour``'s profiles (their names start with the flavour's)."""
+    if name is None:
+        return default_dynamics(flavour)
+    dynamics = dynamics_profile(name)
+    if not name.startswith(flavour.value):
+        mine = [p for p in PROFILE_NAMES if p.startswith(flavour.value)]
+        raise ValueError(f"dynamics profile {name!r} is not a {flavour.value} profile: "
+                         f"expected one of {', '.join(mine)}")
+    return dynamics
 
 
 def default_dynamics(flavour: Flavour) -> Dynamics:
     """The calibrated dynamics of ``flavour``."""
     return ARDUPILOT_DYNAMICS if flavour is Flavour.ARDUPILOT else PX4_DYNAMICS
+
+
+class WindProfile(enum.Enum):
+    """How the mean wind varies with height (ArduPilot SITL's SIM_WIND_T)."""
+
+    SQRT = 0
+    """SIM_WIND_T 0, SITL's default: ``speed * sqrt(height / ref_height)`` below
+    ``ref_height`` (SIM_WIND_T_ALT, 60 m), full speed above: calm on the ground."""
+    CONSTANT = 1
+    """SIM_WIND_T 1 (NO_LIMIT): the same wind at every height."""
+    LINEAR = 2
+    """SIM_WIND_T 2 (COEF): ``speed + (height - ref_height) * coef``, never negative."""
+
+
+@dataclass(frozen=True)
+class Wind:
+    """Weather of the simulated fleet: mean wind, its height profile, turbulence.
+
+    ``SimConfig.wind`` takes either a plain ENU vector (constant wind, no
+    turbulence) or this.  Heights are above the ground under each vehicle.
+    """
+
+    mean: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Mean wind, ENU m/s (the direction the air moves to), at ``ref_height`` and above
+    for ``SQRT``, everywhere for ``CONSTANT``."""
+    turbulence: float = 0.0
+    """Turbulence like SITL's SIM_WIND_TURB, m/s: Ornstein-Uhlenbeck winds of this
+    standard deviation (split over the two horizontal axes, full vertically); only on
+    vehicles in the air."""
+    turbulence_tau: float = 0.042
+    """Correlation time of the vertical turbulence, s: SITL filters white noise with a
+    0.98 IIR at its 1200 Hz physics rate, 50 steps."""
+    turbulence_tau_xy: float = 1.0 / 2400.0
+    """Correlation time of the horizontal turbulence, s: SITL points the filtered speed
+    at a new random azimuth every physics step, so horizontally it lasts half a step."""
+    profile: WindProfile = WindProfile.CONSTANT
+    """Height profile of the mean wind."""
+    ref_height: float = 60.0
+    """Reference height of the profile, m (SIM_WIND_T_ALT)."""
+    coef: float = 0.01
+    """Speed gained per metre above ``ref_height`` with ``LINEAR``, 1/s (SIM_WIND_T_COEF)."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mean", tuple(float(c) for c in self.mean))
+        object.__setattr__(self, "profile", WindProfile(self.profile))
+        if len(self.mean) != 3:
+            raise ValueError(f"`mean` must be an ENU vector of 3, got {len(self.mean)} values")
+        if self.turbulence < 0:
+            raise ValueError(f"`turbulence` must be non-negative, got {self.turbulence}")
+        if not (self.turbulence_tau > 0 and self.turbulence_tau_xy > 0):
+            raise ValueError("`turbulence_tau` and `turbulence_tau_xy` must be positive")
+        if not self.ref_height > 0:
+            raise ValueError(f"`ref_height` must be positive, got {self.ref_height}")
+
+    @classmethod
+    def sitl(cls, speed: float, from_deg: float = 180.0, turbulence: float = 0.0,
+             wind_type: int = 0, ref_height: float = 60.0) -> Wind:
+        """The wind of SITL's parameters: SIM_WIND_SPD, SIM_WIND_DIR (where it blows from,
+        degrees from north; SITL's default 180 blows north), SIM_WIND_TURB, SIM_WIND_T,
+        SIM_WIND_T_ALT."""
+        to = np.radians(from_deg + 180.0)
+        return cls(mean=(speed * float(np.sin(to)), speed * float(np.cos(to)), 0.0),
+                   turbulence=turbulence, profile=WindProfile(wind_type),
+                   ref_height=ref_height)
 
 
 def grid_layout(count: int, spacing: float) -> np.ndarray:
@@ -139,10 +343,12 @@ class SimConfig:
     """Time from boot until the EKF origin is set and LOCAL_POSITION_NED starts (SITL: ~20 s)."""
     ready_delay_s: float = 40.0
     """Time from boot until arming is allowed (SITL: ~40 s; "Arm: Need Position Estimate")."""
-    wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    """Mean wind, ENU m/s (the direction the air moves to)."""
+    wind: tuple[float, float, float] | Wind = (0.0, 0.0, 0.0)
+    """Mean wind, ENU m/s (the direction the air moves to), constant at every height; or a
+    :class:`Wind` (height profile, SITL-like turbulence)."""
     gust_std: float = 0.0
-    """Standard deviation of the seeded random gusts, m/s per axis."""
+    """Standard deviation of the seeded random gusts, m/s per axis (slow: 2 s correlation;
+    SITL's faster turbulence is ``Wind.turbulence``)."""
     gps_noise_m: float = 0.01
     """Standard deviation of the slowly varying position-estimate error, m."""
     seed: int = 0
@@ -155,6 +361,9 @@ class SimConfig:
     """Flight dynamics; None: the flavour's calibrated default."""
     params: dict[str, float] = field(default_factory=dict)
     """Autopilot parameter overrides applied at boot (e.g. ``{"FS_GCS_ENABLE": 1}``)."""
+    boot_text: bool = False
+    """Vehicles send their autopilot's boot text as raw datagrams before MAVLink (as
+    ArduPilot SITL does on its MAVLink port): a ground station counts them as bad packets."""
 
     def __post_init__(self) -> None:
         self.flavour = Flavour(self.flavour)

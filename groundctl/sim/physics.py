@@ -2,27 +2,35 @@
 
 :meth:`FleetPhysics.step` is pure arithmetic over ``(n, 3)`` arrays (no Python
 loop over vehicles).  Axes are the show's ENU frame, z up.  Each vehicle runs
-the cascade ArduCopter's AC_PosControl and PX4's PositionControl share:
+the cascade ArduCopter's AC_PosControl and PX4's PositionControl share, with
+ArduCopter's input stage in front of it when the flavour has one:
 
-    position error --sqrt controller--> velocity demand (+ velocity feed-forward)
-    velocity error --P + I-----------> acceleration demand (+ acceleration feed-forward)
-    acceleration demand --jerk limit, first-order thrust lag--> acceleration
+    [advance_target]  the target moves on between messages: p += v dt, v += a dt
+    [input_shaping]   desired path (p_d, v_d, a_d) reaches the target jerk-limited
+                      (shape_pos_vel_accel: sqrt controllers of gain jerk/accel)
+    position error p_d - p --sqrt controller--> velocity correction (+ v_d)
+    velocity error  --P + I (anti-windup)----> acceleration correction (+ a_d)
+    whole command limited to the lean-angle limit --first-order thrust lag--> thrust
 
-with speed, acceleration and jerk limits, so position-only setpoints lag
-behind a moving target and feed-forward removes most of that lag, as on the
-real autopilots.  The controller acts on the *estimated* position (truth plus
-GPS error), so a GPS glitch moves the real vehicle, as it would.
+Without the input stage (PX4) p_d, v_d, a_d are the setpoint itself and the
+command is jerk-limited instead.  The controller acts on the *estimated*
+position (truth plus GPS error), so a GPS glitch moves the real vehicle.
+
+Wind is a force: the air-relative velocity drags the airframe (linear rotor
+momentum drag plus quadratic body drag), so holding station in wind takes a
+lean that the velocity integrator learns, up to the tilt limit.  The wind is
+the mean (optionally scaled with height, as SITL's SIM_WIND_T), fast
+turbulence like SITL's SIM_WIND_TURB, slow seeded gusts and injected gusts.
 
 Around it: ground contact, spool-up before lift-off, a land detector timer,
-wind (mean + seeded Ornstein-Uhlenbeck gusts + injected gusts), GPS error,
-motor failure (thrust gone: the vehicle falls) and battery drain.
+GPS error, motor failure (thrust gone: the vehicle falls) and battery drain.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from groundctl.sim.config import Dynamics
+from groundctl.sim.config import Dynamics, Wind, WindProfile
 
 GRAVITY = 9.80665
 
@@ -54,7 +62,7 @@ def _limit_norm(v: np.ndarray, limit: np.ndarray | float) -> np.ndarray:
 
 
 def _sqrt_controller(err: np.ndarray, p: float, accel: float) -> np.ndarray:
-    """Velocity demand for a position error: linear near zero, sqrt(2 a d) far away.
+    """Output for an error: linear near zero, sqrt(2 a d) far away (elementwise).
 
     The same shape as ArduPilot's ``sqrt_controller``: P gain inside
     ``accel / p²``, constant-deceleration braking curve outside, so that a far
@@ -66,16 +74,18 @@ def _sqrt_controller(err: np.ndarray, p: float, accel: float) -> np.ndarray:
     return np.sign(err) * np.where(dist <= linear, p * dist, far)
 
 
-#: The velocity integrator runs only while the velocity error is below this, m/s.
-INTEGRATE_BELOW_MPS = 3.0
+def _sqrt_controller_xy(err: np.ndarray, p: float, accel: float) -> np.ndarray:
+    """:func:`_sqrt_controller` on the norm of ``(n, 2)`` errors, along their direction."""
+    dist = np.linalg.norm(err, axis=1, keepdims=True)
+    return err / np.maximum(dist, 1e-12) * _sqrt_controller(dist, p, accel)
 
 
 class FleetPhysics:
     """State and dynamics of ``n`` vehicles; mutate the targets, then :meth:`step`."""
 
     def __init__(self, homes_enu: np.ndarray, dynamics: Dynamics, rng: np.random.Generator,
-                 wind: tuple[float, float, float] = (0.0, 0.0, 0.0), gust_std: float = 0.0,
-                 gps_noise_m: float = 0.0) -> None:
+                 wind: tuple[float, float, float] | Wind = (0.0, 0.0, 0.0),
+                 gust_std: float = 0.0, gps_noise_m: float = 0.0) -> None:
         n = homes_enu.shape[0]
         self.n = n
         self.dyn = dynamics
@@ -89,6 +99,12 @@ class FleetPhysics:
         """Net acceleration produced by thrust (gravity compensated), ENU (m/s²)."""
         self._acc_dem = np.zeros((n, 3))
         self._vint = np.zeros((n, 3))
+        self.des_pos = self.pos.copy()
+        """Desired path the loops follow (the shaped target with ``input_shaping``), ENU m."""
+        self.des_vel = np.zeros((n, 3))
+        """Velocity of the desired path, ENU m/s."""
+        self.des_acc = np.zeros((n, 3))
+        """Acceleration of the desired path (fed forward), ENU m/s²."""
         self.ground_z = homes_enu[:, 2].astype(float).copy()
         """Height of the ground under each vehicle (its home's)."""
         self.mode = np.full(n, CTRL_OFF, dtype=np.int8)
@@ -119,8 +135,18 @@ class FleetPhysics:
         """Thrust lost (fault)."""
         self.battery = np.ones(n)
         """Remaining battery fraction."""
-        self.wind_mean = np.asarray(wind, dtype=float)
-        """Mean wind, ENU (m/s)."""
+        self.authority = np.ones(n)
+        """Fraction of its speed and acceleration authority each vehicle has (a weak motor
+        or battery fault: it cannot keep up), in (0, 1]."""
+        weather = wind if isinstance(wind, Wind) else Wind(
+            mean=(float(wind[0]), float(wind[1]), float(wind[2])))
+        self.weather = weather
+        """Wind model: mean, height profile, turbulence."""
+        self.wind_mean = np.asarray(weather.mean, dtype=float)
+        """Mean wind, ENU (m/s), at the profile's reference height."""
+        self.turbulence = np.zeros((n, 3))
+        """Turbulence acting on each vehicle over the last step (m/s)."""
+        self._turb_state = np.zeros((n, 3))
         self.gust_std = float(gust_std)
         """Random gust standard deviation (m/s)."""
         self.gust = np.zeros((n, 3))
@@ -146,7 +172,76 @@ class FleetPhysics:
         """Height above the ground under each vehicle (m)."""
         return self.pos[:, 2] - self.ground_z
 
+    def wind_at(self) -> np.ndarray:
+        """Mean wind at each vehicle's height, ``(n, 3)`` ENU m/s (before turbulence, gusts)."""
+        w = self.weather
+        speed = float(np.linalg.norm(self.wind_mean))
+        if w.profile is WindProfile.CONSTANT or speed == 0.0:
+            return np.broadcast_to(self.wind_mean, (self.n, 3)).copy()
+        h = np.maximum(self.height, 0.0)
+        if w.profile is WindProfile.SQRT:
+            scale = np.sqrt(np.minimum(h / w.ref_height, 1.0))
+        else:
+            scale = np.maximum(speed + (h - w.ref_height) * w.coef, 0.0) / speed
+        return scale[:, None] * self.wind_mean
+
     # -- dynamics ---------------------------------------------------------------------------
+
+    def _inputs(self, landing: np.ndarray, descent: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """What each axis tracks: target position, velocity, acceleration, position used."""
+        p_in = self.tgt_pos.copy()
+        v_in = np.where(self.use_vel[:, None], self.tgt_vel, 0.0)
+        a_in = np.where(self.use_acc[:, None], self.tgt_acc, 0.0)
+        pos_on = np.repeat(self.use_pos[:, None], 3, axis=1)
+        # Landing: a descent rate, no height target (horizontally the target holds).
+        pos_on[:, 2] &= ~landing
+        v_in[:, 2] = np.where(landing, -descent, v_in[:, 2])
+        a_in[:, 2] = np.where(landing, 0.0, a_in[:, 2])
+        return p_in, v_in, a_in, pos_on
+
+    def _shape(self, p_in: np.ndarray, v_in: np.ndarray, a_in: np.ndarray,
+               pos_on: np.ndarray, dt: float) -> None:
+        """Move the desired path towards the target along a jerk-limited kinematic path.
+
+        AC_PosControl's input shaping: position error -> velocity (sqrt controller
+        of gain jerk / (2 accel) braking at half the acceleration limit), velocity
+        error -> acceleration (gain jerk / accel), the target's acceleration added,
+        and the path's acceleration slewed at the jerk limit.  Horizontal on the
+        xy norm, vertical on its own.
+        """
+        d = self.dyn
+        jerk = d.max_jerk
+        # The path first moves on with what it had (update_pos_vel_accel).
+        self.des_pos += self.des_vel * dt + 0.5 * self.des_acc * dt * dt
+        self.des_vel += self.des_acc * dt
+
+        e = np.where(pos_on, p_in - self.des_pos, 0.0)
+        a_xy, a_z = d.max_accel_xy, d.max_accel_z
+        v_t = np.empty_like(e)
+        v_t[:, :2] = _limit_norm(_sqrt_controller_xy(e[:, :2], 0.5 * jerk / a_xy, 0.5 * a_xy),
+                                 d.max_speed_xy)
+        v_t[:, 2] = np.clip(_sqrt_controller(e[:, 2], 0.5 * jerk / a_z, 0.5 * a_z),
+                            -d.max_speed_down, self.climb_limit)
+        v_t += v_in
+        v_t[:, 2] = np.clip(v_t[:, 2], -d.max_speed_down, self.climb_limit)
+        ev = v_t - self.des_vel
+        a_t = np.empty_like(ev)
+        a_t[:, :2] = _limit_norm(_sqrt_controller_xy(ev[:, :2], jerk / a_xy, jerk), a_xy)
+        a_t[:, 2] = np.clip(_sqrt_controller(ev[:, 2], jerk / a_z, jerk), -a_z, a_z)
+        a_t += a_in
+        self.des_acc[:, :2] += _limit_norm(a_t[:, :2] - self.des_acc[:, :2], jerk * dt)
+        self.des_acc[:, 2] += np.clip(a_t[:, 2] - self.des_acc[:, 2], -jerk * dt, jerk * dt)
+
+    def _advance_targets(self, dt: float) -> None:
+        """GUIDED between messages: the position target moves with the velocity target,
+        the velocity target with the acceleration target."""
+        vel = self.use_vel[:, None]
+        acc = (self.use_vel & self.use_acc)[:, None]
+        move = (self.use_pos & self.use_vel)[:, None]
+        a = np.where(acc, self.tgt_acc, 0.0)
+        self.tgt_pos += np.where(move, self.tgt_vel * dt + 0.5 * a * dt * dt, 0.0)
+        self.tgt_vel += np.where(vel, a * dt, 0.0)
 
     def step(self, dt: float) -> None:
         """Advance the whole fleet by ``dt`` seconds."""
@@ -157,51 +252,67 @@ class FleetPhysics:
         flying_mode = (self.mode >= CTRL_TRACK) & ~self.motor_failed
         self.spool = np.where(flying_mode, np.maximum(self.spool - dt, 0.0), self.spool)
         powered = flying_mode & (self.spool <= 0.0)
-
-        # Position loop (horizontal on the xy norm, vertical on its own, as both autopilots do).
-        err = np.where(self.use_pos[:, None], self.tgt_pos - self.est_pos, 0.0)
-        exy = err[:, :2]
-        dxy = np.linalg.norm(exy, axis=1, keepdims=True)
-        vxy = exy / np.maximum(dxy, 1e-12) * _sqrt_controller(dxy, d.pos_p, d.max_accel_xy)
-        vz = _sqrt_controller(err[:, 2], d.pos_p_z, d.max_accel_z)
-        v_dem = np.concatenate([vxy, vz[:, None]], axis=1)
-        v_dem += np.where(self.use_vel[:, None], self.tgt_vel, 0.0)
         landing = self.mode == CTRL_LAND
         descent = np.where(self.height > LAND_SLOW_HEIGHT, d.max_speed_down, d.land_speed)
-        v_dem[:, 2] = np.where(landing, -descent, v_dem[:, 2])
-        v_dem[:, :2] = _limit_norm(v_dem[:, :2], d.max_speed_xy)
-        v_dem[:, 2] = np.clip(v_dem[:, 2], -d.max_speed_down, self.climb_limit)
 
-        # Velocity loop with integrator (rejects steady wind) and acceleration feed-forward.
-        # The path demand (P term and feed-forward) keeps to the acceleration limit; the
-        # integrator, which carries the steady wind, may add up to the tilt authority.
-        # Conditional integration (anti-windup): only near the demanded velocity, so a
-        # long move does not wind it up and overshoot.
+        # Desired path: the shaped target (ArduCopter) or the setpoint itself (PX4).
+        p_in, v_in, a_in, pos_on = self._inputs(landing, descent)
+        if d.input_shaping:
+            self._shape(p_in, v_in, a_in, pos_on, dt)
+            # AC_PosControl keeps correcting onto the path even under a velocity
+            # target (GUIDED's default position stabilisation); a landing has no
+            # height to hold.
+            fb = np.ones((n, 3), dtype=bool)
+            fb[:, 2] = ~landing
+        else:
+            self.des_pos[:] = p_in
+            self.des_vel[:] = v_in
+            self.des_acc[:] = a_in
+            fb = pos_on
+        if d.advance_target:
+            self._advance_targets(dt)
+
+        # Position loop (horizontal on the xy norm, vertical on its own, as both autopilots do).
+        err = np.where(fb, self.des_pos - self.est_pos, 0.0)
+        v_dem = np.empty((n, 3))
+        v_dem[:, :2] = _sqrt_controller_xy(err[:, :2], d.pos_p, d.max_accel_xy)
+        v_dem[:, 2] = _sqrt_controller(err[:, 2], d.pos_p_z, d.max_accel_z)
+        v_dem += self.des_vel
+        auth = self.authority
+        v_dem[:, :2] = _limit_norm(v_dem[:, :2], d.max_speed_xy * auth)
+        v_dem[:, 2] = np.clip(v_dem[:, 2], -d.max_speed_down * auth, self.climb_limit * auth)
+
+        # Velocity loop: P + I, the path's acceleration fed forward, the whole command
+        # limited once, at the lean-angle limit (nothing is clipped before the sum, so
+        # the integrator can carry a steady wind up to the airframe's authority).
         v_err = v_dem - self.vel
-        near = np.linalg.norm(v_err[:, :2], axis=1, keepdims=True) < INTEGRATE_BELOW_MPS
-        self._vint = self._vint + np.where(near, d.vel_i * v_err * dt, 0.0)
-        self._vint[:, :2] = _limit_norm(self._vint[:, :2], d.max_tilt_accel)
-        self._vint[:, 2] = np.clip(self._vint[:, 2], -2.0, 2.0)
-        a_dem = d.vel_p * v_err
-        a_dem += np.where(self.use_acc[:, None], self.tgt_acc, 0.0)
-        a_dem[:, :2] = _limit_norm(a_dem[:, :2], d.max_accel_xy)
-        a_dem += self._vint
-        a_dem[:, :2] = _limit_norm(a_dem[:, :2], d.max_tilt_accel)
-        a_dem[:, 2] = np.clip(a_dem[:, 2], -d.max_accel_z, d.max_accel_z)
-        self._acc_dem += _limit_norm(a_dem - self._acc_dem, d.max_jerk * dt)
-        acc = self.acc + (self._acc_dem - self.acc) * min(1.0, dt / d.response_tau)
+        a_dem = self.des_acc + np.array([d.vel_p, d.vel_p, d.vel_p_z]) * v_err + self._vint
+        a_lim = a_dem.copy()
+        a_lim[:, :2] = _limit_norm(a_dem[:, :2], d.max_tilt_accel * auth)
+        a_lim[:, 2] = np.clip(a_dem[:, 2], -d.thrust_accel_z * auth, d.thrust_accel_z * auth)
+        self._integrate(v_err, a_dem, a_lim, dt)
+        if d.input_shaping:
+            self._acc_dem = a_lim  # the path is already jerk-limited
+        else:
+            self._acc_dem = self._acc_dem + _limit_norm(a_lim - self._acc_dem, d.max_jerk * dt)
+        lag = np.minimum(1.0, dt / np.array([d.response_tau, d.response_tau, d.response_tau_z]))
+        acc = self.acc + (self._acc_dem - self.acc) * lag
         # Unpowered: no thrust at all, the vehicle falls (or rests on the ground).
         acc = np.where(powered[:, None], acc, np.array([0.0, 0.0, -GRAVITY]))
         self.acc = acc
 
-        # Wind: mean + seeded OU gusts + injected gusts, coupled through drag.
+        # Wind: mean (height profile) + turbulence + slow gusts + injected gusts; a force
+        # through drag on the air-relative velocity.
+        airborne = ~self.on_ground | (acc[:, 2] > 0)
+        self._update_turbulence(dt, airborne)
         if self.gust_std > 0:
             k = dt / GUST_TAU
             self.gust += -self.gust * k + self.gust_std * np.sqrt(2 * k) * self.rng.standard_normal(
                 (n, 3))
-        wind = self.wind_mean + self.gust + self.gust_extra
-        airborne = ~self.on_ground | (acc[:, 2] > 0)
-        total = acc + np.where(airborne[:, None], d.drag * (wind - self.vel), 0.0)
+        wind = self.wind_at() + self.turbulence + self.gust + self.gust_extra
+        air = wind - self.vel
+        drag = (d.drag + d.drag_quad * np.linalg.norm(air, axis=1, keepdims=True)) * air
+        total = acc + np.where(airborne[:, None], drag, 0.0)
         self.vel = self.vel + total * dt
         self.pos = self.pos + self.vel * dt
 
@@ -214,10 +325,15 @@ class FleetPhysics:
         self.on_ground = below
         resting = below & ~(powered & (v_dem[:, 2] > 0))
         self.ground_time = np.where(resting, self.ground_time + dt, 0.0)
-        # Integrators and demands reset on the ground: no wind-up before lift-off.
-        self._vint = np.where(resting[:, None], 0.0, self._vint)
-        self._acc_dem = np.where(resting[:, None], 0.0, self._acc_dem)
-        self.acc = np.where(resting[:, None], 0.0, self.acc)
+        # On the ground the controllers start afresh (AC_PosControl's init_controller):
+        # no integrator wind-up before lift-off, the path starts where the vehicle is.
+        rest = resting[:, None]
+        self._vint = np.where(rest, 0.0, self._vint)
+        self._acc_dem = np.where(rest, 0.0, self._acc_dem)
+        self.acc = np.where(rest, 0.0, self.acc)
+        self.des_pos = np.where(rest, self.est_pos, self.des_pos)
+        self.des_vel = np.where(rest, 0.0, self.des_vel)
+        self.des_acc = np.where(rest, 0.0, self.des_acc)
 
         # Estimate error: slow OU process, as an EKF fed by a GPS wanders.
         if self.gps_noise_m > 0:
@@ -229,6 +345,64 @@ class FleetPhysics:
         draw = np.where(powered & ~self.on_ground, 1.0, np.where(self.mode > CTRL_OFF, 0.1, 0.0))
         self.battery = np.maximum(self.battery - draw * dt / HOVER_ENDURANCE_S, 0.0)
         self.t += dt
+
+    def _integrate(self, v_err: np.ndarray, a_dem: np.ndarray, a_lim: np.ndarray,
+                   dt: float) -> None:
+        """Velocity integrator with AC_PID_2D's anti-windup.
+
+        While the command is limited, the part of the integrator's growth along the
+        unlimited command (the direction it is limited in) is dropped: the
+        integrator can still shrink, or grow sideways, but never wind up against
+        the limit.  It integrates at any velocity error otherwise; a steady wind is
+        learnt even while the vehicle is being blown away.
+        """
+        d = self.dyn
+        grow = np.array([d.vel_i, d.vel_i, d.vel_i_z]) * v_err * dt
+        lim_xy = a_dem[:, :2] - a_lim[:, :2]
+        limited = np.linalg.norm(lim_xy, axis=1, keepdims=True) > 1e-9
+        u = a_dem[:, :2] / np.maximum(np.linalg.norm(a_dem[:, :2], axis=1, keepdims=True), 1e-12)
+        along = np.sum(grow[:, :2] * u, axis=1, keepdims=True)
+        drop = limited & (along > 0)
+        grow[:, :2] -= np.where(drop, along * u, 0.0)
+        lim_z = a_dem[:, 2] != a_lim[:, 2]
+        grow[:, 2] = np.where(lim_z & (grow[:, 2] * a_dem[:, 2] > 0), 0.0, grow[:, 2])
+        self._vint = self._vint + grow
+        self._vint[:, :2] = _limit_norm(self._vint[:, :2], d.vel_imax)
+        self._vint[:, 2] = np.clip(self._vint[:, 2], -d.vel_imax_z, d.vel_imax_z)
+
+    def _update_turbulence(self, dt: float, airborne: np.ndarray) -> None:
+        """SITL-like turbulence: Ornstein-Uhlenbeck winds, none on the ground.
+
+        SITL low-passes a random speed of std SIM_WIND_TURB (0.98 IIR per 1200 Hz
+        step: 42 ms) and points it horizontally at a fresh random azimuth every step,
+        so its horizontal turbulence decorrelates within a step (nearly white: it
+        hardly moves a vehicle) while the vertical keeps the 42 ms; both are
+        reproduced here, std split 1/sqrt(2) over the horizontal axes.
+
+        What acts on the vehicle during a step is the process's *average* over the
+        step, drawn jointly with its end value (both Gaussian given the start): a
+        correlation time shorter than the physics step then still delivers the
+        right impulse, and the result does not depend on the physics rate.
+        """
+        w = self.weather
+        if w.turbulence <= 0:
+            return
+        tau = np.array([w.turbulence_tau_xy, w.turbulence_tau_xy, w.turbulence_tau])
+        r = dt / tau
+        a = np.exp(-r)
+        # Per unit variance: end value, step average, their covariance (Cholesky).
+        var_end = 1.0 - a * a
+        var_avg = (2.0 * r - 3.0 + 4.0 * a - a * a) / (r * r)
+        cov = (1.0 - a) ** 2 / r
+        l11 = np.sqrt(var_end)
+        l21 = cov / l11
+        l22 = np.sqrt(np.maximum(var_avg - l21 * l21, 0.0))
+        std = w.turbulence * np.array([np.sqrt(0.5), np.sqrt(0.5), 1.0])
+        z = self.rng.standard_normal((2, self.n, 3)) * std
+        x0 = self._turb_state
+        ground = ~airborne[:, None]
+        self.turbulence = np.where(ground, 0.0, x0 * (1.0 - a) / r + l21 * z[0] + l22 * z[1])
+        self._turb_state = np.where(ground, 0.0, a * x0 + l11 * z[0])
 
     # -- commands from the autopilot logic -------------------------------------------------
 
