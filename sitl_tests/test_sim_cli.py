@@ -43,6 +43,9 @@ def test_cli_fleet_is_seen_by_a_ground_station_and_stops_on_ctrl_c(stop: int) ->
     (["--origin", "1,2"], "--origin LAT,LON,ALT"),
     (["--layout", "ring:3"], "--layout must be grid:SPACING"),
     (["--loss", "2"], "`loss` must be a probability"),
+    (["--autopilot", "px4", "--profile", "ardupilot-4.8"],
+     "dynamics profile 'ardupilot-4.8' is not a px4 profile: expected one of px4-1.15"),
+    (["--profile", "ardupilot-9"], "invalid choice: 'ardupilot-9'"),
 ])
 def test_cli_rejects_bad_arguments(args: list[str], message: str,
                                    capsys: pytest.CaptureFixture[str]) -> None:
@@ -52,3 +55,18 @@ def test_cli_rejects_bad_arguments(args: list[str], message: str,
         code = int(exc.code or 0)
     assert code == 2
     assert message in capsys.readouterr().err
+
+
+def test_profile_and_boot_text_reach_the_simulator() -> None:
+    import argparse
+
+    from groundctl.commands.sim import add_parser, build_config
+    from groundctl.sim.config import ARDUPILOT_47_DYNAMICS, ARDUPILOT_DYNAMICS
+
+    parser = argparse.ArgumentParser()
+    add_parser(parser.add_subparsers())
+    old = build_config(parser.parse_args(["sim", "--profile", "ardupilot-4.7",
+                                          "--boot-text"]))
+    assert old.dynamics == ARDUPILOT_47_DYNAMICS and old.boot_text
+    new = build_config(parser.parse_args(["sim"]))
+    assert new.dynamics == ARDUPILOT_DYNAMICS and not new.boot_text

@@ -10,6 +10,7 @@ from sim_fixtures import GcsPeer, manual_fleet
 from groundctl.errors import SimulatorError
 from groundctl.link.flavours import Flavour
 from groundctl.sim import LinkFaults, SimFleet
+from groundctl.sim.config import ARDUPILOT_DYNAMICS
 
 AP = Flavour.ARDUPILOT
 POS_ONLY = 0x0DF8
@@ -124,9 +125,40 @@ def test_gust_pushes_the_vehicle_off_and_it_recovers() -> None:
         fleet.gust((8.0, 0.0, 0.0), duration=3.0)
         fleet.step(3.0)
         off = np.linalg.norm(np.array(fleet.state(1).position) - p0)
-        assert off > 0.3
+        # A position controller with an integrator and the tilt authority to 30 degrees
+        # rides an 8 m/s step gust within a few tenths (SITL: 0.17 m of drift in 8 m/s).
+        assert 0.1 < off < 0.5
         fleet.step(10.0)
         assert np.linalg.norm(np.array(fleet.state(1).position) - p0) < 0.1
+
+
+def test_a_push_carries_the_vehicle_off_and_its_autopilot_brings_it_back() -> None:
+    with manual_fleet(1) as (fleet, peer):
+        _fly(fleet, peer)
+        p0 = np.array(fleet.state(1).position)
+        fleet.push((0.0, 3.0, 0.0), duration=1.0)
+        fleet.step(1.0)
+        off = np.array(fleet.state(1).position) - p0
+        assert 1.5 < off[1] <= 3.0 and abs(off[0]) < 0.2  # fighting it all the way
+        fleet.step(8.0)
+        assert np.linalg.norm(np.array(fleet.state(1).position) - p0) < 0.15
+
+
+def test_a_weak_vehicle_cannot_keep_up() -> None:
+    def top_speed(factor: float) -> float:
+        with manual_fleet(1) as (fleet, peer):
+            _fly(fleet, peer)
+            if factor < 1.0:
+                fleet.weaken(factor, 1)
+            fastest = 0.0
+            for _ in range(60):  # 40 m east (NED y), position only: flown at its limits
+                peer.setpoint_local(1, 0x0DF8, (0.0, 40.0, -5.0))
+                fleet.step(0.1)
+                fastest = max(fastest, float(np.linalg.norm(fleet.state(1).velocity[:2])))
+            return fastest
+    weak, strong = top_speed(0.6), top_speed(1.0)
+    assert weak < strong - 1.0
+    assert weak < 0.6 * ARDUPILOT_DYNAMICS.max_speed_xy * 1.15  # its scaled speed limit
 
 
 def test_steady_wind_and_random_gusts_are_rejected_by_the_hold() -> None:

@@ -475,7 +475,7 @@ async def test_boot_text_is_counted_as_bad_packets_and_the_vehicle_still_works()
         fleet = SimFleet(cfg, ScaledClock(4.0), boot_text=True)
         try:
             lines = fleet.vehicles[0].boot_lines()
-            assert lines[0] == b"\nInit ArduCopter V4.7.0-dev (groundctl sim)\n"
+            assert lines[0] == b"\nInit ArduCopter V4.8.0-dev (groundctl sim)\n"
             assert all(b"\xfd" not in x and b"\xfe" not in x for x in lines)  # plain text
             fleet.start()
             found = await link.wait_for_vehicles([1], timeout=5.0)

@@ -15,9 +15,10 @@ from groundctl.commands.flying import (
     runner_config,
     say,
 )
-from groundctl.commands.options import non_negative, positive, probability, wind
+from groundctl.commands.options import non_negative, positive, probability, push, weak, wind
 from groundctl.errors import GroundctlError
 from groundctl.link.flavours import Flavour
+from groundctl.sim.config import PROFILE_NAMES
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -47,13 +48,23 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--ready-delay", type=non_negative, default=40.0, metavar="S",
                    help="simulated seconds until vehicles may arm (SITL: 40); the EKF "
                         "origin comes at half of it")
+    p.add_argument("--push", type=push, action="append", default=[], metavar="SYSID@T:E,N,U",
+                   help="displace a vehicle by E,N,U metres (show frame) over one second at "
+                        "show time T (repeatable): a gust, a bird, a GPS jump")
+    p.add_argument("--weak", type=weak, action="append", default=[],
+                   metavar="SYSID[,SYSID...]:FACTOR",
+                   help="scale those vehicles' maximum speed and acceleration by FACTOR "
+                        "(repeatable): a weak motor or battery")
+    p.add_argument("--profile", choices=PROFILE_NAMES, default=None,
+                   help="the simulated vehicles' flight-dynamics calibration (default: "
+                        "ardupilot-4.8 or px4-1.15)")
     p.add_argument("--no-record", action="store_true", help="record nothing")
     add_runner_options(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from groundctl.flight.dryrun import DryRunOptions, fly_dry_run
+    from groundctl.flight.dryrun import DryRunOptions, Push, fly_dry_run
     from groundctl.record.recording import default_directory
 
     plan = load_or_plan(args.show, args.quiet)
@@ -63,7 +74,9 @@ def run(args: argparse.Namespace) -> int:
         flavour=Flavour(args.autopilot), speed=args.speed, wind=args.wind, gust_std=args.gust,
         loss=args.loss, latency_ms=args.latency, jitter_ms=args.jitter, seed=args.seed,
         signing_key=args.signing_key, ekf_origin_delay_s=args.ready_delay / 2,
-        ready_delay_s=args.ready_delay, runner=runner_config(args), record_dir=record)
+        ready_delay_s=args.ready_delay, runner=runner_config(args), record_dir=record,
+        pushes=tuple(Push(s, t, v) for s, t, v in args.push),
+        weak=tuple(w for group in args.weak for w in group), profile=args.profile)
     notify = say(args.quiet)
     interrupts = Interrupts(notify)
 

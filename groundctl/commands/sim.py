@@ -28,6 +28,7 @@ from groundctl.execute.frames import show_to_enu
 from groundctl.link.flavours import Flavour
 from groundctl.show.model import GeoOrigin
 from groundctl.sim import LinkFaults, SimConfig, SimFleet, grid_layout
+from groundctl.sim.config import PROFILE_NAMES, profile_for
 
 #: Grid spacing of the homes when neither ``--layout`` nor ``--show`` places them, m.
 DEFAULT_SPACING = 3.0
@@ -159,6 +160,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="MAVLink 2 signing key as 64 hex digits")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="autopilot parameter at boot (repeatable), e.g. FS_GCS_ENABLE=1")
+    p.add_argument("--profile", choices=PROFILE_NAMES, default=None,
+                   help="flight-dynamics calibration (default: ardupilot-4.8 or px4-1.15)")
+    p.add_argument("--boot-text", action="store_true",
+                   help="send the autopilot's boot text before MAVLink, as ArduPilot SITL does")
     p.set_defaults(func=run)
     return p
 
@@ -214,7 +219,9 @@ def build_config(args: argparse.Namespace, slots: TakeoffSlots | None = None) ->
             ready_delay_s=args.ready_delay, wind=args.wind, gust_std=args.gust,
             gps_noise_m=args.gps_noise, seed=args.seed, signing_key=args.signing_key,
             link_faults=LinkFaults(args.loss, args.latency, args.jitter, args.duplicate),
-            params=params, **place)  # type: ignore[arg-type]
+            params=params, boot_text=args.boot_text,
+            dynamics=profile_for(Flavour(args.autopilot), args.profile),
+            **place)  # type: ignore[arg-type]
     except ValueError as exc:
         raise SimulatorError(str(exc)) from exc
 

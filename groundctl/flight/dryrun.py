@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from groundctl.clock import ScaledClock
 from groundctl.errors import GroundctlError, SimulatorError
 from groundctl.execute.frames import enu_to_show, show_to_enu
@@ -33,10 +35,25 @@ from groundctl.link.fleet import FleetLink
 from groundctl.plan.plan import Plan
 from groundctl.record.recording import Recording
 from groundctl.sim import LinkFaults, SimConfig
+from groundctl.sim.config import profile_for
 from groundctl.sim.process import SimProcess
 
 #: Loopback only: the dry-run never sends a packet off this machine.
 LOOPBACK = "127.0.0.1"
+
+
+@dataclass(frozen=True)
+class Push:
+    """A vehicle displaced mid-show (a gust, a bird, a GPS jump), ``--push``."""
+
+    sysid: int
+    """The vehicle."""
+    show_time: float
+    """Show time it starts, s."""
+    offset: tuple[float, float, float]
+    """Displacement, show-frame metres (east, north, up before the show's heading)."""
+    duration: float = 1.0
+    """Over this many seconds."""
 
 
 @dataclass(frozen=True)
@@ -69,6 +86,13 @@ class DryRunOptions:
     """The executor's settings."""
     record_dir: Path | None = None
     """Where flight.tlog, events.jsonl and report.json go (None: nothing recorded)."""
+    pushes: tuple[Push, ...] = ()
+    """Vehicles displaced mid-show (``--push``)."""
+    weak: tuple[tuple[int, float], ...] = ()
+    """(system id, factor): vehicles whose speed and acceleration authority is scaled
+    from the start (``--weak``)."""
+    profile: str | None = None
+    """The simulated vehicles' dynamics profile (None: the flavour's calibrated one)."""
 
     def __post_init__(self) -> None:
         if not self.speed > 0:
@@ -77,6 +101,10 @@ class DryRunOptions:
             raise SimulatorError(f"--loss must be in [0, 1), got {self.loss}")
         if self.latency_ms < 0 or self.jitter_ms < 0:
             raise SimulatorError("--latency and --jitter must be non-negative")
+        try:
+            profile_for(self.flavour, self.profile)
+        except ValueError as exc:
+            raise SimulatorError(f"--profile: {exc}") from None
 
 
 @dataclass
@@ -103,7 +131,8 @@ def sim_config(plan: Plan, options: DryRunOptions, gcs: tuple[str, int]) -> SimC
         gcs=gcs, bind_host=LOOPBACK, ekf_origin_delay_s=options.ekf_origin_delay_s,
         ready_delay_s=options.ready_delay_s, wind=options.wind,
         gust_std=options.gust_std, seed=options.seed, signing_key=options.signing_key,
-        link_faults=LinkFaults(options.loss, options.latency_ms, options.jitter_ms, 0.0))
+        link_faults=LinkFaults(options.loss, options.latency_ms, options.jitter_ms, 0.0),
+        dynamics=profile_for(options.flavour, options.profile))
 
 
 During = Callable[[ShowRunner, SimProcess], Coroutine[Any, Any, None]]
@@ -151,8 +180,10 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
                         loss=options.loss, latency_ms=options.latency_ms, seed=options.seed,
                         wind=list(options.wind), gcs=f"{link.local_address[0]}:"
                                                      f"{link.local_address[1]}")
-        if during is not None:
-            helper = asyncio.create_task(during(runner, fleet))
+        for sysid, factor in options.weak:
+            fleet.call("weaken", factor, sysid)
+        if during is not None or options.pushes:
+            helper = asyncio.create_task(_alongside(runner, fleet, options.pushes, during))
         await runner.run()
     except GroundctlError as exc:
         error = exc
@@ -203,6 +234,37 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
             recording.finish(report)
     flown = runner is not None and runner.sequence is not None
     return DryRunResult(report, error, flown)
+
+
+async def _alongside(runner: ShowRunner, fleet: SimProcess, pushes: tuple[Push, ...],
+                     during: During | None) -> None:
+    """The caller's ``during`` and the scheduled pushes, side by side."""
+    tasks = [asyncio.create_task(_push(runner, fleet, p)) for p in pushes]
+    if during is not None:
+        tasks.append(asyncio.create_task(during(runner, fleet)))
+    try:
+        await asyncio.gather(*tasks)
+    finally:
+        for t in tasks:
+            t.cancel()
+
+
+async def _push(runner: ShowRunner, fleet: SimProcess, push: Push) -> None:
+    """Wait for the push's show time on the show clock, then push (rotated to ENU)."""
+    while True:
+        seq = runner.sequence
+        if seq is not None and seq.started_at is not None \
+                and seq.show_time(runner.clock.now()) >= push.show_time:
+            break
+        await asyncio.sleep(0.01)
+    o = runner.plan.origin
+    offset = show_to_enu(o, np.array([push.offset])) - show_to_enu(o, np.zeros((1, 3)))
+    # On the loop's thread, like the truth probe: the simulator's pipe is not shared
+    # between threads.
+    fleet.call("push", offset[0].tolist(), push.sysid, None, push.duration)
+    if runner.events is not None:
+        runner.events.emit("push", system_id=push.sysid, offset_m=list(push.offset),
+                           show_time=round(push.show_time, 2))
 
 
 def _truth_probe(runner: ShowRunner, fleet: SimProcess) -> Callable[[float, float], None]:

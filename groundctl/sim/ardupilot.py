@@ -52,7 +52,7 @@ from groundctl.sim.vehicle import (
 )
 
 #: Firmware string of the boot text and the first STATUSTEXT.
-FIRMWARE = "ArduCopter V4.7.0-dev (groundctl sim)"
+FIRMWARE = "ArduCopter V4.8.0-dev (groundctl sim)"
 
 #: Modes that need a position estimate (Mode::requires_GPS()).
 _NEEDS_POSITION = frozenset({"GUIDED", "LOITER", "RTL", "AUTO", "POSHOLD", "BRAKE", "CIRCLE",

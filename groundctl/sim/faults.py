@@ -86,6 +86,12 @@ class FaultKind(enum.StrEnum):
     """The battery drops to ``value`` (fraction of capacity) at once."""
     GUST = "gust"
     """Extra wind ``vector`` (ENU m/s) for ``duration`` s."""
+    PUSH = "push"
+    """The vehicle is displaced by ``vector`` (ENU m) over ``duration`` s (default 1): a
+    gust, a bird, a GPS jump corrected; its autopilot then fights its way back."""
+    WEAK = "weak"
+    """Its speed and acceleration authority scales by ``value`` (a weak motor or battery:
+    it cannot keep up)."""
 
 
 @dataclass(frozen=True)
@@ -112,5 +118,7 @@ class FaultEvent:
             raise ValueError("a gust needs a `duration`")
         if not 0.0 <= self.value <= 1.0:
             raise ValueError("`value` must be a fraction in [0, 1]")
+        if self.kind is FaultKind.WEAK and not self.value > 0:
+            raise ValueError("a weak vehicle needs a factor `value` in (0, 1]")
         if not all(math.isfinite(v) for v in self.vector):
             raise ValueError("`vector` must be finite")

@@ -65,8 +65,9 @@ class SimFleet:
     """
 
     def __init__(self, config: SimConfig, clock: Clock | None = None, *,
-                 boot_text: bool = False) -> None:
+                 boot_text: bool | None = None) -> None:
         self.config = config
+        boot_text = config.boot_text if boot_text is None else boot_text
         self.boot_text = boot_text
         """Whether the vehicles send their boot text before MAVLink."""
         self._boot_text_due = boot_text
@@ -240,6 +241,15 @@ class SimFleet:
         """Extra wind ``wind`` (ENU m/s) for ``duration`` s."""
         self.inject(FaultEvent(FaultKind.GUST, self._at(at), sysid, _v3(wind), duration))
 
+    def push(self, offset: Sequence[float], sysid: int | None = None, at: float | None = None,
+             duration: float = 1.0) -> None:
+        """Displace the vehicle by ``offset`` (ENU m) over ``duration`` s."""
+        self.inject(FaultEvent(FaultKind.PUSH, self._at(at), sysid, _v3(offset), duration))
+
+    def weaken(self, factor: float, sysid: int | None = None, at: float | None = None) -> None:
+        """Scale the vehicle's speed and acceleration authority by ``factor`` (0, 1]."""
+        self.inject(FaultEvent(FaultKind.WEAK, self._at(at), sysid, value=factor))
+
     def _at(self, at: float | None) -> float:
         return self.time if at is None else float(at)
 
@@ -254,6 +264,21 @@ class SimFleet:
             ph.motor_failed[idx] = True
         elif ev.kind is FaultKind.LOW_BATTERY:
             ph.battery[idx] = np.minimum(ph.battery[idx], ev.value)
+        elif ev.kind is FaultKind.WEAK:
+            ph.authority[idx] = ev.value
+        elif ev.kind is FaultKind.PUSH:
+            # Carried, not flown: the displacement is spread over the physics steps of
+            # ``duration`` (the autopilot sees its position error grow and fights it).
+            rate = self.config.physics_rate_hz
+            steps = max(1, round((ev.duration or 1.0) * rate))
+            start = self.boot_time + ev.at
+
+            def carry(k: int) -> Callable[[], None]:
+                def step() -> None:
+                    ph.pos[idx] += vec / steps
+                return step
+            for k in range(steps):
+                self._add_timer(start + k / rate, carry(k))
         else:
             target = ph.glitch if ev.kind is FaultKind.GPS_GLITCH else ph.gust_extra
             target[idx] += vec

@@ -41,7 +41,7 @@ _CAPABILITIES = (mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
                  | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
 
 #: Firmware versions reported (major, minor, patch, FIRMWARE_VERSION_TYPE).
-_VERSIONS = {Flavour.ARDUPILOT: (4, 7, 0, mavlink.FIRMWARE_VERSION_TYPE_DEV),
+_VERSIONS = {Flavour.ARDUPILOT: (4, 8, 0, mavlink.FIRMWARE_VERSION_TYPE_DEV),
              Flavour.PX4: (1, 15, 0, mavlink.FIRMWARE_VERSION_TYPE_OFFICIAL)}
 
 
