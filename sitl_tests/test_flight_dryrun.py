@@ -295,10 +295,12 @@ def test_land_one_mid_show_leaves_around_the_others_and_lands_on_its_spot(
 def test_a_three_second_link_cut_mid_show(flavour: Flavour) -> None:
     """ArduPilot keeps GUIDED through it (FS_GCS_TIMEOUT 5 s), flying on along its last
     setpoint's velocity and acceleration until GUID_TIMEOUT (3 s), as mode_guided does,
-    then holding its position target, while the show flies on; PX4's offboard-loss failsafe holds it (AUTO.LOITER) and would land
-    it where it is, in the formation, so once heard again it is taken back into OFFBOARD.
-    Either way it is heard again off its plan: it holds there and leaves on a planned way
-    out instead of dashing back, and the flight ends with everyone down safely."""
+    then holding its position target, while the show flies on; PX4's offboard-loss
+    failsafe holds it (AUTO.LOITER) and would land it where it is, in the formation, so
+    once heard again it is taken back into OFFBOARD.  Heard again off its plan (PX4
+    always, ArduPilot when its dead reckoning left it off): it holds there and leaves on a
+    planned way out instead of dashing back, and the flight ends with everyone down
+    safely."""
     async def cut(runner: ShowRunner, sim: SimProcess) -> None:
         await until(runner, lambda: show_time(runner) > 12.0)  # mid-transition
         sim.call("cut_link", 5, None, float(sim.get("time")) + 3.0)

@@ -15,8 +15,10 @@ Every tick, after the monitor has carried telemetry to the tick's instant,
    hands the batch to the worker, if it is idle.
 
 The stream then sends a vehicle under MPC its last accepted trajectory
-(:meth:`overrides`), sampled at its own lead; the guard compares telemetry
-with the same trajectory (:meth:`commanded`).  A trajectory older than
+(:meth:`overrides`), sampled at its own lead.  The guard still judges every
+drone against its path: the plan is what keeps the fleet apart, and an MPC
+trajectory starts where the vehicle is, so a drone blown far off would never
+look off against it.  A trajectory older than
 ``STALE_S`` (the worker fell behind) is dropped and the vehicle gets its path
 again.  A ``fallback`` (the verified stop) is flown like a solution; an
 ``unsafe`` result is never flown: the vehicle keeps its path, and a notice says

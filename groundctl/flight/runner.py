@@ -560,7 +560,10 @@ class ShowRunner:
                 if v.phase not in (VehiclePhase.SHOW, VehiclePhase.LEAVING) \
                         or sysid not in ids_pos:
                     continue
-                want = self._commanded(seq, sysid, now)
+                # Judged against its path, MPC or not: the plan keeps the fleet apart
+                # along the paths, and a drone far off its own is held for (its MPC
+                # trajectory starts where it is, so it would never look off).
+                want = seq.commanded(sysid, now)
                 if want is not None:
                     errors[sysid] = float(np.linalg.norm(ids_pos[sysid] - want))
             # Everything in the air counts, a drone descending through the show included.
@@ -574,7 +577,7 @@ class ShowRunner:
                 closing = _range_rate(ids_pos[pair[0]], ids_pos[pair[1]],
                                       self.link.vehicles[pair[0]],
                                       self.link.vehicles[pair[1]], self.plan)
-                a, b = self._commanded(seq, pair[0], now), self._commanded(seq, pair[1], now)
+                a, b = seq.commanded(pair[0], now), seq.commanded(pair[1], now)
                 if a is not None and b is not None:
                     planned = float(np.linalg.norm(a - b))
         # The link judges a fleet-wide silence over the drones in the air only.
@@ -796,15 +799,6 @@ class ShowRunner:
         for event, text, fields in self.replanner.tick(now, eligible, req.clocks(self.plan),
                                                        positions, velocities, obstacles):
             self._say(text, event, **fields)
-
-    def _commanded(self, seq: ShowSequence, sysid: int, now: float) -> np.ndarray | None:
-        """Where ``sysid`` is told to be now: its MPC trajectory if it flies one, else its
-        path."""
-        if self.replanner is not None:
-            mpc = self.replanner.commanded(sysid, now)
-            if mpc is not None:
-                return mpc
-        return seq.commanded(sysid, now)
 
     def _link_delays(self, now: float) -> dict[int, float | None]:
         """Recent one-way link delay per vehicle (half the recent median round trip)."""
