@@ -20,7 +20,7 @@ and with MPC side by side, for each autopilot flavour::
     .venv/bin/python benchmarks/bench_mpc.py flight --show demo --speed 2 \
         --scenarios calm push
 
-Scenarios: ``calm``; ``wind`` (6 m/s gusting 4 m/s); ``weak`` (three vehicles at
+Scenarios: ``calm``; ``wind`` (6 m/s gusting about 4 m/s: ``--gust 2``); ``weak`` (three vehicles at
 0.6 of their speed and acceleration); ``push`` (one vehicle pushed 3 m into the
 formation mid-show).  Per run: safe, max / RMS tracking error, min separation
 (telemetry and simulator truth), worst pattern error, MPC activations, solve
@@ -134,7 +134,9 @@ def _scenario(name: str, plan_drones: int, duration: float) -> dict[str, object]
     if name == "calm":
         return {}
     if name == "wind":
-        return {"wind": (6.0, 0.0, 0.0), "gust_std": 4.0, "seed": 3}
+        # "Gusting 4 m/s": gusts of about +-4 m/s, i.e. a standard deviation of 2 m/s
+        # per axis (a standard deviation of 4 gives +-8 m/s gusts: see the README).
+        return {"wind": (6.0, 0.0, 0.0), "gust_std": 2.0, "seed": 3}
     if name == "weak":
         ids = sorted({1, middle, plan_drones})
         return {"weak": tuple((s, 0.6) for s in ids)}

@@ -522,6 +522,16 @@ class ShowSequence:
         state = self.path_state(sysid, now)
         return None if state is None else state[0]
 
+    def commanded_all(self, req: StreamRequest, now: float) -> dict[int, np.ndarray]:
+        """Where every streamed vehicle's path puts it at ``now`` (show frame), from this
+        tick's request: one vectorised evaluation for the whole fleet."""
+        ids = list(req.paths)
+        if not ids:
+            return {}
+        pos, _, _ = sample_paths([req.paths[s] for s in ids], np.full(len(ids), now),
+                                 req.clocks(self.plan))
+        return dict(zip(ids, pos, strict=True))
+
     @property
     def phase(self) -> ShowPhase:
         """LANDED only once every vehicle is down or given up; a lost vehicle may still be
@@ -740,12 +750,21 @@ class ShowSequence:
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """Position, velocity, acceleration (show frame) of ``sysid``'s path at our time
         ``now`` (no lead), or None if it is not streamed."""
-        req = self.stream_request(now)
-        path = req.paths.get(sysid)
+        path = self.path(sysid, now)
         if path is None:
             return None
-        p, v, a = sample_paths([path], np.array([now]), req.clocks(self.plan))
+        p, v, a = sample_paths([path], np.array([now]), self._path_clocks(now))
         return p[0], v[0], a[0]
+
+    def _path_clocks(self, now: float) -> PathClocks:
+        """What this instant's paths are sampled on (as :meth:`stream_request` gives)."""
+        braking = self._ended and self.started_at is not None and self.clock.at(now).rate > 0 \
+            and self.clock.show_time(now) < self.plan.duration
+        ret = self._return[0] if self._return is not None else None
+        return PathClocks(self.plan, self.clock if self.started_at is not None else None,
+                          self.show_time(now),
+                          self.started_at is None or (self._ended and not braking),
+                          ret, self._return_clock)
 
     # -- land-all return ---------------------------------------------------------------
     @property

@@ -556,6 +556,8 @@ class ShowRunner:
             ids, pos = telemetry_positions(self.plan, self.link.vehicles, now)
         ids_pos = dict(zip(ids, pos, strict=True))
         if in_show:
+            wanted = seq.commanded_all(req[1] if req is not None and req[0] == now
+                                       else seq.stream_request(now), now)
             for sysid, v in seq.vehicles.items():
                 if v.phase not in (VehiclePhase.SHOW, VehiclePhase.LEAVING) \
                         or sysid not in ids_pos:
@@ -563,7 +565,7 @@ class ShowRunner:
                 # Judged against its path, MPC or not: the plan keeps the fleet apart
                 # along the paths, and a drone far off its own is held for (its MPC
                 # trajectory starts where it is, so it would never look off).
-                want = seq.commanded(sysid, now)
+                want = wanted.get(sysid)
                 if want is not None:
                     errors[sysid] = float(np.linalg.norm(ids_pos[sysid] - want))
             # Everything in the air counts, a drone descending through the show included.
@@ -577,7 +579,7 @@ class ShowRunner:
                 closing = _range_rate(ids_pos[pair[0]], ids_pos[pair[1]],
                                       self.link.vehicles[pair[0]],
                                       self.link.vehicles[pair[1]], self.plan)
-                a, b = seq.commanded(pair[0], now), seq.commanded(pair[1], now)
+                a, b = wanted.get(pair[0]), wanted.get(pair[1])
                 if a is not None and b is not None:
                     planned = float(np.linalg.norm(a - b))
         # The link judges a fleet-wide silence over the drones in the air only.
