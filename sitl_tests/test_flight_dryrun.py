@@ -72,6 +72,11 @@ def test_quick_show_is_flown_landed_and_recorded(flavour: Flavour, tmp_path: Pat
     for name in ("dry_run", "connected", "preflight_passed", "sequence_started",
                  "sequence_finished", "report"):
         assert name in events
+    if flavour is Flavour.ARDUPILOT:  # GUID_TIMEOUT shortened on every vehicle, confirmed
+        params = [e for e in read_events(tmp_path / "events.jsonl") if e["event"] == "param_set"]
+        assert sorted(e["system_id"] for e in params if e["name"] == "GUID_TIMEOUT") == \
+            list(range(1, 10))
+        assert "param_not_set" not in events
     log = mavutil.mavlink_connection(str(tmp_path / "flight.tlog"), dialect="ardupilotmega")
     kinds: set[tuple[int, str]] = set()
     while (msg := log.recv_match()) is not None:

@@ -182,6 +182,12 @@ class RunnerConfig:
     """A progress line this often during the flight."""
     mpc: bool | None = None
     """Replan a vehicle off its path with MPC (None: as the plan's ``[mpc]`` says)."""
+    guided_timeout_s: float | None = 1.0
+    """ArduPilot: GUID_TIMEOUT set before arming, s (None: left as it is).  Given
+    position + velocity + acceleration, GUIDED flies on along the last setpoint's
+    velocity and acceleration until this long without one (the default 3 s): through a
+    link drop the fleet would fly straight lines off its curved paths into each other.
+    Shorter, a vehicle that stops hearing us stops sooner and holds where it is."""
     mpc_deadline_s: float = 0.2
     """An MPC batch not back within this many wall seconds is discarded (the vehicles
     keep flying their last trajectory, then their path)."""
@@ -450,6 +456,23 @@ class ShowRunner:
                                      grounded_tracks=self._excluded_tracks())
         return self.sequence
 
+    async def _configure(self, seq: ShowSequence) -> None:
+        """Parameters the show relies on, set before arming (ArduPilot GUID_TIMEOUT)."""
+        timeout = self.config.guided_timeout_s
+        if timeout is None:
+            return
+        ardu = [s for s, v in seq.vehicles.items() if v.flavour is Flavour.ARDUPILOT]
+        if not ardu:
+            return
+        done = await asyncio.gather(*(self.link.set_param(s, "GUID_TIMEOUT", timeout)
+                                      for s in ardu), return_exceptions=True)
+        failed = [s for s, ok in zip(ardu, done, strict=True) if ok is not True]
+        if failed:
+            self._say(f"GUID_TIMEOUT {timeout:g} s not confirmed by vehicle(s) {_ids(failed)}: "
+                      "through a link drop they fly on along their last setpoint for up to "
+                      "their own GUID_TIMEOUT (3 s by default)", "param_not_set",
+                      system_ids=failed, name="GUID_TIMEOUT")
+
     async def fly(self) -> None:
         """Arm, take off, fly the show, land; returns once every vehicle is down."""
         seq = self._build()
@@ -463,6 +486,7 @@ class ShowRunner:
             self.replanner = Replanner(self.plan, self.plan.mpc, cfg.rate_hz,
                                        cfg.mpc_deadline_s)
             self.replanner.start()  # its worker loads while the fleet arms
+        await self._configure(seq)
         now = self.clock.now()
         self._say(f"arming {len(seq.vehicles)} vehicle(s)", "sequence_started")
         self._perform(seq.start(now))

@@ -644,6 +644,25 @@ class FleetLink:
         else:
             self._send(sysid, msg)
 
+    async def set_param(self, sysid: int, name: str, value: float, *, timeout: float = 1.0,
+                        attempts: int = 3) -> bool:
+        """Set a float parameter on ``sysid``: PARAM_SET until its PARAM_VALUE echoes the
+        value (``timeout`` seconds of the link's clock per attempt); True if confirmed."""
+        state = self.vehicles.get(sysid)
+        if state is None:
+            raise LinkError(f"vehicle {sysid} has not been heard")
+        for _ in range(attempts):
+            state.params.pop(name, None)
+            self._send(sysid, messages.param_set(sysid, name, value))
+            deadline = self.clock.now() + timeout
+            while self.clock.now() < deadline:
+                got = state.params.get(name)
+                if got is not None and math.isclose(got, value, rel_tol=1e-6, abs_tol=1e-6):
+                    self._emit("param_set", system_id=sysid, name=name, value=value)
+                    return True
+                await asyncio.sleep(self.clock.wall_interval(0.02))
+        return False
+
     def send_message(self, sysid: int, msg: mavlink.MAVLink_message) -> None:
         """Send any message object to vehicle ``sysid`` (escape hatch)."""
         self._send(sysid, msg)

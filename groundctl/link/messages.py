@@ -177,6 +177,15 @@ def timesync(tc1: int, ts1: int) -> mavlink.MAVLink_timesync_message:
     return mavlink.MAVLink_timesync_message(int(tc1), int(ts1))
 
 
+def param_set(target_system: int, name: str, value: float
+              ) -> mavlink.MAVLink_param_set_message:
+    """PARAM_SET of a REAL32 parameter (what ArduPilot's float parameters are)."""
+    if not 0 < len(name) <= 16:
+        raise ValueError(f"`name` must be 1-16 characters, got {name!r}")
+    return mavlink.MAVLink_param_set_message(target_system, 1, name.encode("ascii"),
+                                             float(value), mavlink.MAV_PARAM_TYPE_REAL32)
+
+
 def command_long(
     target_system: int,
     command: int,

@@ -7,6 +7,7 @@ STATUSTEXT...) so the caller can log them.  No I/O here.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
@@ -140,6 +141,8 @@ class VehicleState:
     """The most recent STATUSTEXTs, oldest first (chunked ones reassembled)."""
     text_chunks: dict[int, _Chunks] = field(default_factory=dict)
     """Chunked STATUSTEXTs being reassembled, by MAVLink 2 ``id``."""
+    params: dict[str, float] = field(default_factory=dict)
+    """Parameter values the vehicle reported (PARAM_VALUE), by name."""
     acks: deque[mavlink.MAVLink_command_ack_message] = field(
         default_factory=lambda: deque(maxlen=20)
     )
@@ -362,6 +365,15 @@ def _statustext(state: VehicleState, msg: Any, now: float, changes: list[StateCh
         _text_line(state, "".join(ch.parts), ch.severity, now, changes)
 
 
+def _param_value(state: VehicleState, msg: Any, now: float,
+                 changes: list[StateChange]) -> None:
+    raw = msg.param_id
+    name = (raw.decode("ascii", "replace") if isinstance(raw, bytes) else str(raw))
+    name = name.split("\0", 1)[0]
+    if name and math.isfinite(float(msg.param_value)):
+        state.params[name] = float(msg.param_value)
+
+
 def _ack(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
     state.acks.append(msg)
 
@@ -383,4 +395,5 @@ _HANDLERS = {
     "STATUSTEXT": _statustext,
     "COMMAND_ACK": _ack,
     "TIMESYNC": _timesync,
+    "PARAM_VALUE": _param_value,
 }
