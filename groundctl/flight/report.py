@@ -196,10 +196,13 @@ def render_report(report: dict[str, Any]) -> str:
     mpc = report.get("mpc")
     if mpc and mpc["enabled"]:
         ms = mpc["solve_ms"]
-        lines.append(f"MPC: {mpc['activations']} activation(s) on vehicle(s) "
-                     f"{mpc['vehicles'] or '-'}; solve p50 {ms['p50']} ms, p95 {ms['p95']} ms, "
-                     f"max {ms['max']} ms over {ms['solves']}; fallbacks {mpc['fallbacks']}, "
-                     f"late {mpc['late']}")
+        if not mpc["activations"]:
+            lines.append("MPC: on, never needed (no drone off its path)")
+        else:
+            lines.append(f"MPC: {mpc['activations']} activation(s) on vehicle(s) "
+                         f"{mpc['vehicles']}; solve p50 {ms['p50']} ms, p95 {ms['p95']} ms, "
+                         f"max {ms['max']} ms over {ms['solves']}; fallbacks "
+                         f"{mpc['fallbacks']}, late {mpc['late']}")
     elif mpc:
         lines.append("MPC: off")
     link = report["link"]
