@@ -46,6 +46,9 @@ def test_cli_fleet_is_seen_by_a_ground_station_and_stops_on_ctrl_c(stop: int) ->
     (["--autopilot", "px4", "--profile", "ardupilot-4.8"],
      "dynamics profile 'ardupilot-4.8' is not a px4 profile: expected one of px4-1.15"),
     (["--profile", "ardupilot-9"], "invalid choice: 'ardupilot-9'"),
+    (["--push", "1@x:0,0,3"], "--push must be SYSID@T:E,N,U (e.g. 5@20:3,0,0), not '1@x:0,0,3'"),
+    (["--weak", "3:1.5"], "--weak must be SYSID[,SYSID...]:FACTOR with FACTOR in (0, 1]"),
+    (["--count", "2", "--weak", "9:0.5"], "system id 9"),
 ])
 def test_cli_rejects_bad_arguments(args: list[str], message: str,
                                    capsys: pytest.CaptureFixture[str]) -> None:

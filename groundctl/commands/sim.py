@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from groundctl.clock import ScaledClock
-from groundctl.commands.options import signing_key
+from groundctl.commands.options import push, signing_key, weak
 from groundctl.errors import EXIT_OK, SimulatorError
 from groundctl.execute.frames import show_to_enu
 from groundctl.link.flavours import Flavour
@@ -162,6 +162,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="autopilot parameter at boot (repeatable), e.g. FS_GCS_ENABLE=1")
     p.add_argument("--profile", choices=PROFILE_NAMES, default=None,
                    help="flight-dynamics calibration (default: ardupilot-4.8 or px4-1.15)")
+    p.add_argument("--push", type=push, action="append", default=[], metavar="SYSID@T:E,N,U",
+                   help="carry a vehicle E,N,U metres (east, north, up) over one second at T "
+                        "simulated seconds after boot (repeatable)")
+    p.add_argument("--weak", type=weak, action="append", default=[],
+                   metavar="SYSID[,SYSID...]:FACTOR",
+                   help="scale those vehicles' speed and acceleration authority by FACTOR")
     p.add_argument("--boot-text", action="store_true",
                    help="send the autopilot's boot text before MAVLink, as ArduPilot SITL does")
     p.set_defaults(func=run)
@@ -259,6 +265,10 @@ def run(args: argparse.Namespace) -> int:
     # A service manager stops us with SIGTERM: the same clean stop as Ctrl-C.
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
+        for sysid, at, offset in args.push:
+            fleet.push(offset, sysid, at=at)
+        for sysid, factor in (w for group in args.weak for w in group):
+            fleet.weaken(factor, sysid)
         fleet.start()
         while True:
             time.sleep(1.0)
