@@ -145,10 +145,7 @@ class Replanner:
             errors = {s: float(np.linalg.norm(e)) for s, e in zip(ids, err_vec, strict=True)}
             offsets = np.linspace(0.0, self.config.horizon_s, CONFLICT_SAMPLES)
             future = self._predict(plist, ids, now + offsets, clocks, err_vec, now)
-            drift = error_forecast(err_vec, vel - path_vel, offsets)
-            for i, sysid in enumerate(ids):
-                if self._fresh(sysid, now) is not None:
-                    drift[i] = err_vec[i]  # predicted by its MPC trajectory as it is
+            drift = self._drift(ids, err_vec, vel - path_vel, offsets, now)
             conflicts = predicted_conflicts(ids, future, drift,
                                             self.plan.limits.min_separation) \
                 if len(ids) > 1 else {}
@@ -197,6 +194,16 @@ class Replanner:
             self._status[sysid] = res.status
         return events
 
+    def _drift(self, ids: Sequence[int], err: FloatArray, rate: FloatArray,
+               offsets: FloatArray, now: float) -> FloatArray:
+        """(n, K, 3) each vehicle's expected error over ``offsets``; a vehicle flying an
+        MPC trajectory keeps its error as it is (the trajectory is its prediction)."""
+        drift = error_forecast(err, rate, offsets)
+        for i, sysid in enumerate(ids):
+            if self._fresh(sysid, now) is not None:
+                drift[i] = err[i]
+        return drift
+
     def _predict(self, plist: Sequence[Path], ids: Sequence[int], times: FloatArray,
                  clocks: PathClocks, err_vec: FloatArray, now: float) -> FloatArray:
         """(n, K, 3) each vehicle's path at ``times`` (the error is added by the caller);
@@ -220,12 +227,15 @@ class Replanner:
         dt, n_steps = cfg.dt, cfg.steps
         t0 = round(now / dt) * dt  # on the tick grid: consecutive solves warm-start
         times: FloatArray = t0 + dt * np.arange(n_steps + 1, dtype=float)
-        # Everyone's prediction over the horizon: path + current error, or MPC trajectory.
+        # Everyone's prediction over the horizon: path + error as it is expected to drift
+        # (the trigger's forecast), or their MPC trajectory.
         here = np.array([positions[s] for s in ids])
         plist = [paths[s] for s in ids]
-        on_path, _, _ = sample_paths(plist, np.full(len(ids), now), clocks)
+        on_path, path_vel, _ = sample_paths(plist, np.full(len(ids), now), clocks)
         err = here - on_path
-        future = self._predict(plist, ids, times, clocks, err, now) + err[:, None, :]
+        vel = np.array([velocities.get(s, path_vel[i]) for i, s in enumerate(ids)])
+        future = self._predict(plist, ids, times, clocks, err, now) \
+            + self._drift(ids, err, vel - path_vel, times - now, now)
         row = {s: i for i, s in enumerate(ids)}
         reach = cfg.reach_m + 2.0 * cfg.horizon_s * self.plan.limits.max_speed_h
         requests = []

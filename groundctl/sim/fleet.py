@@ -151,7 +151,7 @@ class SimFleet:
                 c = self.codecs[i].counters
                 out.append(VehicleState(
                     sysid=v.sysid, port=self._sockets[i].getsockname()[1], time=self.time,
-                    position=_t3(ph.pos[i]), velocity=_t3(ph.vel[i]),
+                    position=_t3(ph.pos[i]), velocity=_t3(ph.ground_vel[i]),
                     estimated_position=_t3(ph.est_pos[i]), armed=v.armed, mode=v.mode,
                     landed=bool(ph.on_ground[i]), crashed=bool(ph.crashed[i]), led=v.led,
                     led_blink_hz=v.led_blink_hz,
@@ -267,18 +267,15 @@ class SimFleet:
         elif ev.kind is FaultKind.WEAK:
             ph.authority[idx] = ev.value
         elif ev.kind is FaultKind.PUSH:
-            # Carried, not flown: the displacement is spread over the physics steps of
-            # ``duration`` (the autopilot sees its position error grow and fights it).
-            rate = self.config.physics_rate_hz
-            steps = max(1, round((ev.duration or 1.0) * rate))
-            start = self.boot_time + ev.at
+            # Carried, not flown: moved at vector / duration for ``duration`` whatever its
+            # autopilot does (which sees its position error grow and fights it back).
+            duration = ev.duration or 1.0
+            rate = vec / duration
+            ph.carry[idx] += rate
 
-            def carry(k: int) -> Callable[[], None]:
-                def step() -> None:
-                    ph.pos[idx] += vec / steps
-                return step
-            for k in range(steps):
-                self._add_timer(start + k / rate, carry(k))
+            def release(rate: np.ndarray = rate) -> None:
+                ph.carry[idx] -= rate
+            self._add_timer(self.boot_time + ev.at + duration, release)
         else:
             target = ph.glitch if ev.kind is FaultKind.GPS_GLITCH else ph.gust_extra
             target[idx] += vec

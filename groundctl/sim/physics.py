@@ -135,6 +135,9 @@ class FleetPhysics:
         """Thrust lost (fault)."""
         self.battery = np.ones(n)
         """Remaining battery fraction."""
+        self.carry = np.zeros((n, 3))
+        """Velocity at which an outside push carries each vehicle, ENU m/s (a fault): it
+        moves the vehicle whatever its autopilot does, and its GPS sees it."""
         self.authority = np.ones(n)
         """Fraction of its speed and acceleration authority each vehicle has (a weak motor
         or battery fault: it cannot keep up), in (0, 1]."""
@@ -161,6 +164,11 @@ class FleetPhysics:
         """Injected GPS glitch offset (m)."""
 
     # -- derived ----------------------------------------------------------------------------
+
+    @property
+    def ground_vel(self) -> np.ndarray:
+        """Velocity over the ground (what GPS measures): its own plus any push carrying it."""
+        return self.vel + self.carry
 
     @property
     def est_pos(self) -> np.ndarray:
@@ -314,7 +322,7 @@ class FleetPhysics:
         drag = (d.drag + d.drag_quad * np.linalg.norm(air, axis=1, keepdims=True)) * air
         total = acc + np.where(airborne[:, None], drag, 0.0)
         self.vel = self.vel + total * dt
-        self.pos = self.pos + self.vel * dt
+        self.pos = self.pos + (self.vel + self.carry) * dt
 
         # Ground contact: clamp, stop, detect crashes.
         below = self.pos[:, 2] <= self.ground_z

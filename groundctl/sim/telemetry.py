@@ -93,7 +93,7 @@ def battery_status(v: Vehicle, now: float) -> Msg:
 
 
 def _est(v: Vehicle) -> tuple[np.ndarray, np.ndarray]:
-    return v.ph.est_pos[v.i], v.ph.vel[v.i]
+    return v.ph.est_pos[v.i], v.ph.ground_vel[v.i]
 
 
 def _geodetic(v: Vehicle) -> np.ndarray:
