@@ -209,3 +209,18 @@ def test_timesync_exact_without_jitter_and_ignores_foreign_answers() -> None:
     assert est.receive(round(6.01 * NS), ts1, 1.03) is None  # duplicate answer
     assert answer(0, 77, 2.0) == (2 * NS, 77)
     assert answer(5, 77, 2.0) is None
+
+
+def test_a_chunked_statustext_left_unfinished_is_reported_by_the_periodic_expiry() -> None:
+    from groundctl.link.state import expire_chunks
+
+    v = Vehicle()
+    s = VehicleState(3)
+    apply(s, _chunks(v, "q" * 50, cid=11, empty_end=False)[0], 1.0)  # PX4: nothing follows
+    assert expire_chunks(s, 1.5) == []
+    changes = expire_chunks(s, 2.1)
+    assert [c.fields["text"] for c in changes] == ["q" * 50 + " [...]"] and s.text_chunks == {}
+    # A plain text ends a pending chunked one first, in order.
+    apply(s, _chunks(v, "r" * 50, cid=12, empty_end=False)[0], 3.0)
+    changes = apply(s, v(v.mav.statustext_encode(6, b"plain")), 3.1)
+    assert [c.fields["text"] for c in changes] == ["r" * 50 + " [...]", "plain"]

@@ -120,6 +120,8 @@ class ReplanSupervisor:
             if sysid not in eligible:  # landed, lost, taken out: no longer ours to replan
                 ended.append(Release(sysid, now - self.active.pop(sysid)))
                 self._calm_since.pop(sysid, None)
+        for sysid in [s for s in self._over if s not in eligible]:
+            del self._over[sysid]  # heard again later, it needs its confirming ticks afresh
         for sysid in sorted(eligible):
             e = errors.get(sysid)
             if e is None:

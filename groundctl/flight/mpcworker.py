@@ -50,8 +50,11 @@ def _initialise(config: MpcConfig) -> None:
     import groundctl.execute.mpc  # noqa: F401  (the import is the point)
 
 
-def _solve_batch(requests: Sequence[MpcRequest]) -> dict[int, MpcResult]:
-    from groundctl.execute.mpc import MpcController, solve_in_priority
+def _solve_batch(requests: Sequence[MpcRequest], budget_s: float) -> dict[int, MpcResult]:
+    """Solve in priority order until ``budget_s`` wall seconds are spent: the vehicles
+    not reached get no result this time (they keep their last trajectory, then their
+    path), rather than the whole batch arriving late."""
+    from groundctl.execute.mpc import MpcController, with_predictions
 
     wanted = {r.sysid for r in requests}
     for sysid in list(_controllers):
@@ -60,7 +63,14 @@ def _solve_batch(requests: Sequence[MpcRequest]) -> dict[int, MpcResult]:
     for sysid in wanted:
         if sysid not in _controllers:
             _controllers[sysid] = MpcController(sysid, _config)
-    return solve_in_priority(_controllers, requests)
+    start = time.monotonic()
+    fresh: dict[int, MpcResult] = {}
+    for req in sorted(requests, key=lambda r: r.sysid):
+        if time.monotonic() - start > budget_s:
+            break
+        ctrl = _controllers[req.sysid]
+        fresh[req.sysid] = ctrl.solve(with_predictions(req, fresh, ctrl.config.dt))
+    return fresh
 
 
 def _ready() -> int:
@@ -86,6 +96,7 @@ class MpcWorker:
         self._executor: ProcessPoolExecutor | None = None
         self._future: Future[dict[int, MpcResult]] | None = None
         self._sent_at = 0.0
+        self._done_at: float | None = None
         self._warm: Future[int] | None = None
 
     def start(self) -> None:
@@ -112,11 +123,17 @@ class MpcWorker:
                 or not requests:
             return False
         try:
-            self._future = self._executor.submit(_solve_batch, list(requests))
+            future = self._executor.submit(_solve_batch, list(requests),
+                                           0.6 * self.deadline_s)
         except (BrokenProcessPool, RuntimeError):
             self._restart()
             return False
-        self._sent_at = time.monotonic()
+        self._sent_at, self._done_at = time.monotonic(), None
+
+        def finished(_f: Future[dict[int, MpcResult]]) -> None:
+            self._done_at = time.monotonic()  # when it came back, not when it is looked at
+        future.add_done_callback(finished)
+        self._future = future
         return True
 
     def collect(self) -> dict[int, MpcResult] | None:
@@ -126,7 +143,8 @@ class MpcWorker:
         if fut is None or not fut.done():
             return None
         self._future = None
-        late = time.monotonic() - self._sent_at > self.deadline_s
+        done = self._done_at if self._done_at is not None else time.monotonic()
+        late = done - self._sent_at > self.deadline_s
         try:
             results = fut.result()
         except BrokenProcessPool:
@@ -146,6 +164,11 @@ class MpcWorker:
         """A batch in flight is past its deadline (its result will be dropped)."""
         return self._future is not None and time.monotonic() - self._sent_at > self.deadline_s
 
+    def hung(self) -> bool:
+        """A batch has been in flight for ten deadlines: the worker is stuck."""
+        return self._future is not None \
+            and time.monotonic() - self._sent_at > 10 * self.deadline_s
+
     def _restart(self) -> None:
         self.close()
         self.start()
@@ -160,4 +183,4 @@ class MpcWorker:
             for proc in procs:
                 proc.kill()
             for proc in procs:
-                proc.join(timeout=2.0)
+                proc.join(timeout=0.1)  # killed: reaped at once (this may be the loop)

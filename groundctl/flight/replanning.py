@@ -113,15 +113,11 @@ class Replanner:
         out = {}
         for sysid in self.supervisor.active:
             res = self._fresh(sysid, now)
-            if res is not None:
-                p, v, a = res.sample(now + lead_of(sysid))
+            at = now + lead_of(sysid)
+            if res is not None and at <= res.end:  # never past what was verified
+                p, v, a = res.sample(at)
                 out[sysid] = (np.asarray(p), np.asarray(v), np.asarray(a))
         return out
-
-    def commanded(self, sysid: int, now: float) -> FloatArray | None:
-        """Where its MPC trajectory puts ``sysid`` now, if it flies one."""
-        res = self._fresh(sysid, now)
-        return None if res is None else np.asarray(res.sample(now)[0])
 
     # -- the tick ---------------------------------------------------------------------
     def tick(self, now: float, paths: Mapping[int, Path], clocks: PathClocks,
@@ -132,6 +128,11 @@ class Replanner:
         the other vehicles in the air (descending, say), predicted where they are.
         Returns the events to log."""
         events: list[Event] = []
+        if self.worker.hung():
+            self.worker.close()
+            self.worker.start()
+            events.append(("mpc_fallback", "MPC worker stuck: restarted (vehicles keep their "
+                                           "paths meanwhile)", {"status": "restarted"}))
         events += self._collect(now)
         ids = [s for s in sorted(paths) if s in positions]
         if not ids:
@@ -142,7 +143,8 @@ class Replanner:
             on_path, path_vel, _ = sample_paths(plist, np.full(len(ids), now), clocks)
             err_vec = here - on_path
             vel = np.array([velocities.get(s, path_vel[i]) for i, s in enumerate(ids)])
-            errors = {s: float(np.linalg.norm(e)) for s, e in zip(ids, err_vec, strict=True)}
+            norms = np.linalg.norm(err_vec, axis=1)
+            errors = {s: float(e) for s, e in zip(ids, norms, strict=True)}
             offsets = np.linspace(0.0, self.config.horizon_s, CONFLICT_SAMPLES)
             future = self._predict(plist, ids, now + offsets, clocks, err_vec, now)
             drift = self._drift(ids, err_vec, vel - path_vel, offsets, now)
@@ -235,11 +237,13 @@ class Replanner:
         err = here - on_path
         vel = np.array([velocities.get(s, path_vel[i]) for i, s in enumerate(ids)])
         future = self._predict(plist, ids, times, clocks, err, now) \
-            + self._drift(ids, err, vel - path_vel, times - now, now)
+            + self._drift(ids, err, vel - path_vel, np.maximum(times - now, 0.0), now)
         row = {s: i for i, s in enumerate(ids)}
         reach = cfg.reach_m + 2.0 * cfg.horizon_s * self.plan.limits.max_speed_h
+        dist = np.linalg.norm(here[None, :, :] - here[[row[s] for s in active]][:, None, :],
+                              axis=2)  # (active, n), one numpy call
         requests = []
-        for sysid in active:
+        for a_i, sysid in enumerate(active):
             i = row[sysid]
             p0 = np.asarray(positions[sysid], dtype=float)
             v0 = np.asarray(velocities.get(sysid, np.zeros(3)), dtype=float)
@@ -247,10 +251,10 @@ class Replanner:
             rep = [paths[sysid]] * (n_steps + 1)
             rp, rv, ra = sample_paths(rep, times, clocks)
             others, other_ids = [], []
-            for j, other in enumerate(ids):
-                if other != sysid and np.linalg.norm(here[j] - here[i]) <= reach:
+            for j in map(int, np.flatnonzero(dist[a_i] <= reach)):
+                if ids[j] != sysid:
                     others.append(future[j])
-                    other_ids.append(other)
+                    other_ids.append(ids[j])
             for other, where in obstacles.items():
                 if other not in row and np.linalg.norm(where - here[i]) <= reach:
                     others.append(np.repeat(np.asarray(where, dtype=float)[None],

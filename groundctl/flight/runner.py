@@ -261,10 +261,13 @@ class ShowRunner:
         self._finished = False
         self._request: tuple[float, StreamRequest] | None = None
         self.leads: LeadEstimator | None = None
-        self.replanner: Replanner | None = None
-        """MPC replanning (None: off)."""
         """Per-vehicle leads measured in flight (None: a fixed lead, ``config.lead_s``)."""
+        self.replanner: Replanner | None = None
+        """MPC replanning (None: off, or the flight is over)."""
+        self.mpc_summary: dict[str, Any] | None = None
+        """What the MPC did, kept once the flight is over (the report's ``mpc``)."""
         self._lead_at: float | None = None
+        self._late_suspects: set[int] = set()
 
     # -- reporting -------------------------------------------------------------------
     def _say(self, text: str, event: str = "notice", **fields: Any) -> None:
@@ -840,7 +843,9 @@ class ShowRunner:
         and stream each with its lead."""
         if self.leads is None or self._stream is None or self.monitor is None:
             return
-        dt = 0.0 if self._lead_at is None else max(now - self._lead_at, 0.0)
+        # After a stall the lead moves no more than over two ticks.
+        dt = 0.0 if self._lead_at is None else min(max(now - self._lead_at, 0.0),
+                                                   2.0 / self.config.rate_hz)
         self._lead_at = now
         steady = req.clock is not None and not req.ended and not seq.holds \
             and req.clock.at(now).rate == 1.0 \
@@ -942,7 +947,17 @@ class ShowRunner:
                  and s in self._stream.sysids
                  and len(self.link.vehicles[s].timesync.samples) >= 3}
         late = {s for s, r in self.records.items() if r.late}
+        for sysid in late - set(leads):  # out of the show (or not judged now): not late now
+            if seq.vehicles.get(sysid) is not None \
+                    and seq.vehicles[sysid].phase not in (VehiclePhase.READY, VehiclePhase.SHOW):
+                self._record(sysid).late = False
         newly, cleared = late_vehicles(leads, delays, late)
+        # Flagged only when it holds on two checks in a row (a second apart): one TIMESYNC
+        # step in the recent median, which a measured lead follows within the second,
+        # flags nobody.
+        confirmed = newly & self._late_suspects
+        self._late_suspects = newly - confirmed
+        newly = confirmed
         for sysid in sorted(newly):
             rec = self._record(sysid)
             rec.late, rec.late_count = True, rec.late_count + 1
@@ -1057,6 +1072,8 @@ class ShowRunner:
                 self._pool = None
             if self.replanner is not None:
                 self.replanner.close()
+                self.mpc_summary = self.replanner.report()
+                self.replanner = None
 
     # -- operator ---------------------------------------------------------------------
     def _operator(self, name: str, call: Callable[[float], list[Action]]) -> None:

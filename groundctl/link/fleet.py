@@ -41,7 +41,7 @@ from groundctl.link.flavours import Flavour, mode_request
 from groundctl.link.fleetfile import Endpoint
 from groundctl.link.messages import FORCE_MAGIC
 from groundctl.link.signing import SigningConfig
-from groundctl.link.state import VehicleState, apply
+from groundctl.link.state import VehicleState, apply, expire_chunks
 from groundctl.link.timesync import answer as timesync_answer
 from groundctl.link.transport import UdpTransport
 from groundctl.record.events import EventSink
@@ -424,6 +424,9 @@ class FleetLink:
         instead and the executor holds the show.
         """
         self.drain()
+        for sysid, state in self.vehicles.items():
+            for change in expire_chunks(state, now):
+                self._emit(change.event, system_id=sysid, **change.fields)
         silent = self.fleet_silent_for(now) > self.fleet_silence and bool(self.vehicles) \
             and self.silence_ids != set()
         if silent != self.fleet_silent:

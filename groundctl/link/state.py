@@ -334,6 +334,15 @@ def _flush_chunks(state: VehicleState, now: float, changes: list[StateChange],
         _text_line(state, "".join(ch.parts) + " [...]", ch.severity, now, changes)
 
 
+def expire_chunks(state: VehicleState, now: float) -> list[StateChange]:
+    """Chunked STATUSTEXTs still incomplete after STATUSTEXT_CHUNK_TIMEOUT_S, emitted as
+    they stand (the link calls this every tick: nothing else may arrive to end them)."""
+    changes: list[StateChange] = []
+    if state.text_chunks:
+        _flush_chunks(state, now, changes, older_than=now - STATUSTEXT_CHUNK_TIMEOUT_S)
+    return changes
+
+
 def _statustext(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
     raw = msg.text
     text = raw.decode("utf-8", "replace") if isinstance(raw, bytes) else str(raw)
@@ -341,7 +350,8 @@ def _statustext(state: VehicleState, msg: Any, now: float, changes: list[StateCh
     severity = int(msg.severity)
     cid, seq = int(getattr(msg, "id", 0) or 0), int(getattr(msg, "chunk_seq", 0) or 0)
     _flush_chunks(state, now, changes, older_than=now - STATUSTEXT_CHUNK_TIMEOUT_S)
-    if cid == 0:  # not chunked: the whole text
+    if cid == 0:  # not chunked: the whole text (any chunked one pending ended before it)
+        _flush_chunks(state, now, changes)
         _text_line(state, text, severity, now, changes)
         return
     ch = state.text_chunks.get(cid)
