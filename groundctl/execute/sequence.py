@@ -54,10 +54,12 @@ reach it (a link lost one way only, or our own receive path stalling) that is
 the one place guaranteed to be out of everyone's way, whereas a vehicle left
 without setpoints hovers where it is, in the others' paths.  If it is heard
 again it rejoins where the sequence is, unless it is more than
-``rejoin_tolerance_m`` off its plan (its autopilot held the last setpoint while
-the show flew on; the same check follows any silence over SILENCE_GAP_S, lost
-or not): then snapping back would be a dash across the formation, so it holds
-where it is and leaves the show on a way out planned from there.  If it hears
+``rejoin_tolerance_m`` off its plan (its autopilot flew on along the last
+setpoint for GUID_TIMEOUT, which the runner sets to 1 s on ArduPilot, then held
+it while the show flew on; PX4's offboard-loss failsafe held it; the same check
+follows any silence over SILENCE_GAP_S, lost or not): then snapping back would
+be a dash across the formation, so it holds where it is and leaves the show on
+a way out planned from there.  If it hears
 nothing, its own failsafe is in charge; a vehicle whose autopilot leaves its
 flight mode by itself (failsafe or pilot) is out of the show and never fought
 over.  A vehicle that fails to arm stays on its slot: if that puts
