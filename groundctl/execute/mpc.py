@@ -195,6 +195,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from groundctl.plan.qp_build import SLACK_TOL, FixedPattern, RowBuilder, chord_normals
 from groundctl.plan.quad_qp import SEPARATION_BUFFER, chord_separation
+from groundctl.plan.verify import inside_polygon
 from groundctl.show.model import Limits
 
 FloatArray = NDArray[np.float64]
@@ -563,18 +564,6 @@ def _dense_linear(q: FloatArray, substeps: int) -> FloatArray:
     return np.concatenate([d.reshape(len(q), -1, 3), q[:, -1:]], axis=1)
 
 
-def _inside(poly: FloatArray, xy: FloatArray) -> NDArray[np.bool_]:
-    """Even-odd rule over points (T, 2)."""
-    x, y = xy[:, 0], xy[:, 1]
-    inside = np.zeros(len(xy), dtype=bool)
-    for (x1, y1), (x2, y2) in zip(poly, np.roll(poly, -1, axis=0), strict=True):
-        crosses = (y1 > y) != (y2 > y)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            xint = x1 + (y - y1) * (x2 - x1) / (y2 - y1)
-        inside ^= crosses & (x < xint)
-    return inside
-
-
 def verify(pos: FloatArray, vel: FloatArray, acc: FloatArray, dt: float, limits: Limits,
            neighbours: FloatArray | None = None, neighbour_ids: ArrayLike | None = None, *,
            substeps: int = 10, limit_tol: float = 0.01, baseline: bool = False) -> TrajectoryCheck:
@@ -616,7 +605,7 @@ def verify(pos: FloatArray, vel: FloatArray, acc: FloatArray, dt: float, limits:
         out.append(f"altitude {z[k]:.2f} m at +{offs[k]:.2f} s (max_alt {limits.max_alt} m)")
     if limits.geofence:
         poly = np.asarray(limits.geofence, dtype=float)
-        inside = _inside(poly, ps[:, :2])
+        inside = inside_polygon(poly, ps[:, :2])
         if not inside.all() and not (baseline and not inside[0]):
             k = int(np.argmin(inside))
             out.append(f"outside the geofence at +{offs[k]:.2f} s "
@@ -697,7 +686,7 @@ def start_violations(request: MpcRequest, limit_tol: float = 0.01) -> list[str]:
                    f"{lim.max_speed_down} m/s")
     if p[2] < lim.min_alt - DIST_TOL or p[2] > lim.max_alt + DIST_TOL:
         out.append(f"altitude {p[2]:.2f} m outside [{lim.min_alt}, {lim.max_alt}] m")
-    if lim.geofence and not _inside(np.asarray(lim.geofence, dtype=float), p[None, :2])[0]:
+    if lim.geofence and not inside_polygon(np.asarray(lim.geofence, dtype=float), p[None, :2])[0]:
         out.append(f"position ({p[0]:.2f}, {p[1]:.2f}) outside the geofence")
     nb = request.others
     if len(nb):
@@ -1210,12 +1199,16 @@ def with_predictions(request: MpcRequest, fresh: Mapping[int, MpcResult],
 
 
 def solve_in_priority(controllers: Mapping[int, MpcController],
-                      requests: Iterable[MpcRequest]) -> dict[int, MpcResult]:
+                      requests: Iterable[MpcRequest], budget_s: float = math.inf,
+                      clock: Callable[[], float] = time.perf_counter
+                      ) -> dict[int, MpcResult]:
     """Solve every request in ascending system id, each against the fresh results of the
     ones before it (module docstring: why every pair then keeps its separation).
 
     ``controllers`` maps system id to that vehicle's controller; ``requests`` hold the
     executor's predictions for everyone, of which the earlier vehicles' are replaced.
+    Once ``budget_s`` (of ``clock``) is spent the rest are left unsolved: they get no
+    result, rather than every result coming too late.
     """
     ordered = sorted(requests, key=lambda r: r.sysid)
     sysids = [r.sysid for r in ordered]
@@ -1225,7 +1218,10 @@ def solve_in_priority(controllers: Mapping[int, MpcController],
     if missing:
         raise ValueError(f"`controllers` has no controller for vehicle {missing[0]}")
     fresh: dict[int, MpcResult] = {}
+    start = clock()
     for req in ordered:
+        if clock() - start > budget_s:
+            break
         ctrl = controllers[req.sysid]
         fresh[req.sysid] = ctrl.solve(with_predictions(req, fresh, ctrl.config.dt))
     return fresh

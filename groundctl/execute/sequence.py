@@ -519,11 +519,6 @@ class ShowSequence:
             resumed |= clock.release(now, reason)
         return resumed
 
-    def commanded(self, sysid: int, now: float) -> np.ndarray | None:
-        """Where vehicle ``sysid``'s path puts it now (show frame), if it is streamed."""
-        state = self.path_state(sysid, now)
-        return None if state is None else state[0]
-
     def commanded_all(self, req: StreamRequest, now: float) -> dict[int, np.ndarray]:
         """Where every streamed vehicle's path puts it at ``now`` (show frame), from this
         tick's request: one vectorised evaluation for the whole fleet."""
@@ -747,26 +742,6 @@ class ShowSequence:
             return Path(PathKind.HOLD, "holding off its plan until its way out", v.track,
                         point=v.hold_point)
         return Path(PathKind.PLAN, "the show plan", v.track)
-
-    def path_state(self, sysid: int, now: float
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """Position, velocity, acceleration (show frame) of ``sysid``'s path at our time
-        ``now`` (no lead), or None if it is not streamed."""
-        path = self.path(sysid, now)
-        if path is None:
-            return None
-        p, v, a = sample_paths([path], np.array([now]), self._path_clocks(now))
-        return p[0], v[0], a[0]
-
-    def _path_clocks(self, now: float) -> PathClocks:
-        """What this instant's paths are sampled on (as :meth:`stream_request` gives)."""
-        braking = self._ended and self.started_at is not None and self.clock.at(now).rate > 0 \
-            and self.clock.show_time(now) < self.plan.duration
-        ret = self._return[0] if self._return is not None else None
-        return PathClocks(self.plan, self.clock if self.started_at is not None else None,
-                          self.show_time(now),
-                          self.started_at is None or (self._ended and not braking),
-                          ret, self._return_clock)
 
     # -- land-all return ---------------------------------------------------------------
     @property

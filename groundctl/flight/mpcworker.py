@@ -18,20 +18,19 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import os
-import signal
+import pickle
 import time
 from collections.abc import Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import TYPE_CHECKING
 
+from groundctl.flight.workers import settle_worker
+
 if TYPE_CHECKING:  # numpy must load in the worker only after its thread limits are set
     from groundctl.execute.mpc import MpcConfig, MpcController, MpcRequest, MpcResult
 
 log = logging.getLogger(__name__)
-
-_SINGLE_THREADED = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                    "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
 
 # -- the worker's side ---------------------------------------------------------------------
 
@@ -39,22 +38,17 @@ _controllers: dict[int, MpcController] = {}
 _config: MpcConfig | None = None
 
 
-def _initialise(config: MpcConfig) -> None:
-    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
-        if hasattr(signal, name):
-            signal.signal(getattr(signal, name), signal.SIG_IGN)
-    for variable in _SINGLE_THREADED:
-        os.environ[variable] = "1"
+def _initialise(config_pickle: bytes) -> None:
+    settle_worker()  # before numpy: the config comes as bytes so it is unpickled after
     global _config
-    _config = config
-    import groundctl.execute.mpc  # noqa: F401  (the import is the point)
+    _config = pickle.loads(config_pickle)
 
 
 def _solve_batch(requests: Sequence[MpcRequest], budget_s: float) -> dict[int, MpcResult]:
     """Solve in priority order until ``budget_s`` wall seconds are spent: the vehicles
     not reached get no result this time (they keep their last trajectory, then their
     path), rather than the whole batch arriving late."""
-    from groundctl.execute.mpc import MpcController, with_predictions
+    from groundctl.execute.mpc import MpcController, solve_in_priority
 
     wanted = {r.sysid for r in requests}
     for sysid in list(_controllers):
@@ -63,14 +57,7 @@ def _solve_batch(requests: Sequence[MpcRequest], budget_s: float) -> dict[int, M
     for sysid in wanted:
         if sysid not in _controllers:
             _controllers[sysid] = MpcController(sysid, _config)
-    start = time.monotonic()
-    fresh: dict[int, MpcResult] = {}
-    for req in sorted(requests, key=lambda r: r.sysid):
-        if time.monotonic() - start > budget_s:
-            break
-        ctrl = _controllers[req.sysid]
-        fresh[req.sysid] = ctrl.solve(with_predictions(req, fresh, ctrl.config.dt))
-    return fresh
+    return solve_in_priority(_controllers, requests, budget_s, time.monotonic)
 
 
 def _ready() -> int:
@@ -104,7 +91,8 @@ class MpcWorker:
         if self._executor is None:
             self._executor = ProcessPoolExecutor(
                 max_workers=1, mp_context=mp.get_context("spawn"),
-                initializer=_initialise, initargs=(self.config,))
+                initializer=_initialise,
+                initargs=(pickle.dumps(self.config, protocol=pickle.HIGHEST_PROTOCOL),))
             self._warm = self._executor.submit(_ready)
 
     @property

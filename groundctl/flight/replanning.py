@@ -68,6 +68,20 @@ class ReplanStats:
     """Batches solved in time."""
 
 
+@dataclass(frozen=True)
+class _Measured:
+    """The flying vehicles this tick, measured against their paths (computed once)."""
+
+    ids: list[int]
+    paths: list[Path]
+    here: FloatArray
+    """(n, 3) telemetry positions carried to now."""
+    error: FloatArray
+    """(n, 3) position minus path position now."""
+    error_rate: FloatArray
+    """(n, 3) velocity minus path velocity now."""
+
+
 Event = tuple[str, str, dict[str, Any]]
 """(event name, operator text, fields)."""
 
@@ -135,19 +149,20 @@ class Replanner:
                                            "paths meanwhile)", {"status": "restarted"}))
         events += self._collect(now)
         ids = [s for s in sorted(paths) if s in positions]
+        m: _Measured | None = None
         if not ids:
             started, ended = self.supervisor.tick(now, {}, {}, eligible=())
         else:
-            here = np.array([positions[s] for s in ids])
             plist = [paths[s] for s in ids]
+            here = np.array([positions[s] for s in ids])
             on_path, path_vel, _ = sample_paths(plist, np.full(len(ids), now), clocks)
-            err_vec = here - on_path
             vel = np.array([velocities.get(s, path_vel[i]) for i, s in enumerate(ids)])
-            norms = np.linalg.norm(err_vec, axis=1)
+            m = _Measured(ids, plist, here, here - on_path, vel - path_vel)
+            norms = np.linalg.norm(m.error, axis=1)
             errors = {s: float(e) for s, e in zip(ids, norms, strict=True)}
             offsets = np.linspace(0.0, self.config.horizon_s, CONFLICT_SAMPLES)
-            future = self._predict(plist, ids, now + offsets, clocks, err_vec, now)
-            drift = self._drift(ids, err_vec, vel - path_vel, offsets, now)
+            future = self._predict(plist, ids, now + offsets, clocks, m.error, now)
+            drift = self._drift(ids, m.error, m.error_rate, offsets, now)
             conflicts = predicted_conflicts(ids, future, drift,
                                             self.plan.limits.min_separation) \
                 if len(ids) > 1 else {}
@@ -161,9 +176,8 @@ class Replanner:
                                         f"{r.after_s:.1f} s of MPC",
                            {"system_id": r.sysid, "after_s": round(r.after_s, 2)}))
         active = [s for s in sorted(self.supervisor.active) if s in positions and s in paths]
-        if active and not self.worker.busy:
-            self.worker.submit(self._requests(now, active, ids, paths, clocks, positions,
-                                              velocities, obstacles))
+        if active and m is not None and not self.worker.busy:
+            self.worker.submit(self._requests(now, active, m, clocks, velocities, obstacles))
         return events
 
     def _started(self, a: Activation) -> Event:
@@ -221,9 +235,8 @@ class Replanner:
                 pos[i] = np.asarray(res.sample(times)[0]) - err_vec[i]
         return pos
 
-    def _requests(self, now: float, active: Sequence[int], ids: Sequence[int],
-                  paths: Mapping[int, Path], clocks: PathClocks,
-                  positions: Mapping[int, FloatArray], velocities: Mapping[int, FloatArray],
+    def _requests(self, now: float, active: Sequence[int], m: _Measured, clocks: PathClocks,
+                  velocities: Mapping[int, FloatArray],
                   obstacles: Mapping[int, FloatArray]) -> list[MpcRequest]:
         cfg = self.config
         dt, n_steps = cfg.dt, cfg.steps
@@ -231,13 +244,9 @@ class Replanner:
         times: FloatArray = t0 + dt * np.arange(n_steps + 1, dtype=float)
         # Everyone's prediction over the horizon: path + error as it is expected to drift
         # (the trigger's forecast), or their MPC trajectory.
-        here = np.array([positions[s] for s in ids])
-        plist = [paths[s] for s in ids]
-        on_path, path_vel, _ = sample_paths(plist, np.full(len(ids), now), clocks)
-        err = here - on_path
-        vel = np.array([velocities.get(s, path_vel[i]) for i, s in enumerate(ids)])
-        future = self._predict(plist, ids, times, clocks, err, now) \
-            + self._drift(ids, err, vel - path_vel, np.maximum(times - now, 0.0), now)
+        ids, here = m.ids, m.here
+        future = self._predict(m.paths, ids, times, clocks, m.error, now) \
+            + self._drift(ids, m.error, m.error_rate, np.maximum(times - now, 0.0), now)
         row = {s: i for i, s in enumerate(ids)}
         reach = cfg.reach_m + 2.0 * cfg.horizon_s * self.plan.limits.max_speed_h
         dist = np.linalg.norm(here[None, :, :] - here[[row[s] for s in active]][:, None, :],
@@ -245,10 +254,9 @@ class Replanner:
         requests = []
         for a_i, sysid in enumerate(active):
             i = row[sysid]
-            p0 = np.asarray(positions[sysid], dtype=float)
             v0 = np.asarray(velocities.get(sysid, np.zeros(3)), dtype=float)
-            p0 = p0 + v0 * (t0 - now)
-            rep = [paths[sysid]] * (n_steps + 1)
+            p0 = here[i] + v0 * (t0 - now)
+            rep = [m.paths[i]] * (n_steps + 1)
             rp, rv, ra = sample_paths(rep, times, clocks)
             others, other_ids = [], []
             for j in map(int, np.flatnonzero(dist[a_i] <= reach)):
@@ -267,8 +275,15 @@ class Replanner:
                 neighbour_ids=np.array(other_ids, dtype=np.intp) if others else None))
         return requests
 
+    @staticmethod
+    def off_report() -> dict[str, Any]:
+        """The report's ``mpc`` object of a flight without MPC."""
+        return {"enabled": False, "activations": 0, "vehicles": [],
+                "solve_ms": {"p50": None, "p95": None, "p99": None, "max": None, "solves": 0},
+                "fallbacks": 0, "unsafe": 0, "late": 0, "failed": 0}
+
     def report(self) -> dict[str, Any]:
-        """The report's ``mpc`` object."""
+        """The report's ``mpc`` object (the same keys as :meth:`off_report`)."""
         ms = np.array(self.stats.solve_ms)
 
         def pct(q: float) -> float | None:

@@ -22,6 +22,7 @@ import numpy as np
 
 from groundctl.execute.sequence import VehiclePhase
 from groundctl.flight.monitor import FormationError
+from groundctl.flight.replanning import Replanner
 from groundctl.flight.runner import ShowRunner
 
 
@@ -137,10 +138,8 @@ def flight_report(runner: ShowRunner, error: str | None = None,
         },
         "link": {k: int(v) for k, v in vars(stats).items()},
         "mpc": runner.replanner.report() if runner.replanner is not None
-        else runner.mpc_summary if runner.mpc_summary is not None else {
-            "enabled": False, "activations": 0, "vehicles": [],
-            "solve_ms": {"p50": None, "p95": None, "p99": None, "max": None, "solves": 0},
-            "fallbacks": 0, "unsafe": 0, "late": 0, "failed": 0},
+        else runner.mpc_summary if runner.mpc_summary is not None
+        else Replanner.off_report(),
     }
     return report
 

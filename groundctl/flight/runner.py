@@ -268,6 +268,7 @@ class ShowRunner:
         """What the MPC did, kept once the flight is over (the report's ``mpc``)."""
         self._lead_at: float | None = None
         self._late_suspects: set[int] = set()
+        self._delays: tuple[float, dict[int, float | None]] | None = None
 
     # -- reporting -------------------------------------------------------------------
     def _say(self, text: str, event: str = "notice", **fields: Any) -> None:
@@ -830,12 +831,15 @@ class ShowRunner:
             self._say(text, event, **fields)
 
     def _link_delays(self, now: float) -> dict[int, float | None]:
-        """Recent one-way link delay per vehicle (half the recent median round trip)."""
-        out: dict[int, float | None] = {}
-        for sysid, state in self.link.vehicles.items():
-            rtt = state.timesync.recent_rtt_s(now)
-            out[sysid] = None if rtt is None else rtt / 2.0
-        return out
+        """Recent one-way link delay per vehicle (half the recent median round trip),
+        worked out once a second: TIMESYNC answers come at 1 Hz."""
+        if self._delays is None or now - self._delays[0] >= 1.0 or now < self._delays[0]:
+            out: dict[int, float | None] = {}
+            for sysid, state in self.link.vehicles.items():
+                rtt = state.timesync.recent_rtt_s(now)
+                out[sysid] = None if rtt is None else rtt / 2.0
+            self._delays = (now, out)
+        return self._delays[1]
 
     def _lead_tick(self, seq: ShowSequence, req: StreamRequest, now: float,
                    in_show: list[int]) -> None:

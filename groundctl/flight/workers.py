@@ -75,18 +75,24 @@ _SINGLE_THREADED = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"
 _plan: Plan | None = None
 
 
-def _initialise(plan_pickle: bytes) -> None:
-    """Worker start-up: ignore stop signals, go single-threaded, load the plan, import
-    the planner (so that the first request does not pay for it)."""
+def settle_worker() -> None:
+    """What every worker process does first (planning, MPC): ignore stop signals and go
+    single-threaded.  It must run before numpy is imported, so a worker's initializer
+    takes its arguments as pickled bytes and unpickles them after this."""
     # Stop signals reach the whole process group (Ctrl-C, a closed terminal, a service
     # manager); the parent decides what they mean and stops this worker itself.
     for name in ("SIGINT", "SIGTERM", "SIGHUP"):
         if hasattr(signal, name):
             signal.signal(getattr(signal, name), signal.SIG_IGN)
-    # Read by OpenBLAS / MKL / OpenMP when they load, i.e. with numpy: the plan comes as
-    # bytes so that numpy is first imported here, after this.
+    # Read by OpenBLAS / MKL / OpenMP when they load, i.e. with numpy.
     for variable in _SINGLE_THREADED:
         os.environ[variable] = "1"
+
+
+def _initialise(plan_pickle: bytes) -> None:
+    """Worker start-up: :func:`settle_worker`, load the plan, import the planner (so that
+    the first request does not pay for it)."""
+    settle_worker()
     global _plan
     _plan = pickle.loads(plan_pickle)
     import groundctl.flight.returning  # noqa: F401  (the import is the point)

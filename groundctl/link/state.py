@@ -325,13 +325,18 @@ def _text_line(state: VehicleState, text: str, severity: int, now: float,
     changes.append(StateChange("statustext", {"text": text, "severity": severity}))
 
 
-def _flush_chunks(state: VehicleState, now: float, changes: list[StateChange],
-                  older_than: float | None = None) -> None:
-    """Emit the chunked texts given up on (all, or those started before ``older_than``)."""
+def _flush_chunks(state: VehicleState, now: float, changes: list[StateChange], *,
+                  older_than: float | None = None, keep: int | None = None,
+                  cut: bool = True) -> None:
+    """Emit the chunked texts that will not be completed (all but ``keep``, or those
+    started before ``older_than``).  ``cut``: each is marked " [...]" as cut short (timed
+    out, or a plain text came after it); otherwise only where a chunk was lost (a new
+    chunked text began: PX4 sends no empty final chunk after an exactly full one)."""
     for cid in [c for c, ch in state.text_chunks.items()
-                if older_than is None or ch.started < older_than]:
+                if c != keep and (older_than is None or ch.started < older_than)]:
         ch = state.text_chunks.pop(cid)
-        _text_line(state, "".join(ch.parts) + " [...]", ch.severity, now, changes)
+        mark = " [...]" if cut or ch.gap else ""
+        _text_line(state, "".join(ch.parts) + mark, ch.severity, now, changes)
 
 
 def expire_chunks(state: VehicleState, now: float) -> list[StateChange]:
@@ -357,12 +362,7 @@ def _statustext(state: VehicleState, msg: Any, now: float, changes: list[StateCh
     ch = state.text_chunks.get(cid)
     if ch is None:
         ch = state.text_chunks[cid] = _Chunks(severity, [], 0, now)
-        for other in [c for c in state.text_chunks if c != cid]:
-            # A new text began: the older one will not be completed (PX4 sends no empty
-            # final chunk after a text filling its chunks exactly).
-            done = state.text_chunks.pop(other)
-            _text_line(state, "".join(done.parts) + (" [...]" if done.gap else ""),
-                       done.severity, now, changes)
+        _flush_chunks(state, now, changes, keep=cid, cut=False)  # a new text began
     if seq != ch.next_seq:
         ch.gap = True  # a chunk was lost (or came twice): say so where it was
         if seq < ch.next_seq:

@@ -86,7 +86,7 @@ class Verification:
         return max(0.0, self.separation_limit - self.overall.min_separation)
 
 
-def _inside(poly: NDArray[np.float64], xy: NDArray[np.float64]) -> NDArray[np.bool_]:
+def inside_polygon(poly: NDArray[np.float64], xy: NDArray[np.float64]) -> NDArray[np.bool_]:
     """Even-odd rule, vectorised over points (any shape (..., 2))."""
     x, y = xy[..., 0], xy[..., 1]
     inside = np.zeros(x.shape, dtype=bool)
@@ -184,7 +184,7 @@ def _window(dp: _DensePass, limits: Limits, t0: float, t1: float) -> WindowMetri
     outside = 0
     if limits.geofence:
         poly = np.asarray(limits.geofence, dtype=float)
-        outside = int((~_inside(poly, pos[..., :2])).sum())
+        outside = int((~inside_polygon(poly, pos[..., :2])).sum())
     return WindowMetrics(
         min_separation=sep, min_separation_pair=pair, min_separation_time=tsep,
         max_speed_h=float(np.linalg.norm(vel[..., :2], axis=2).max()),
