@@ -21,8 +21,9 @@ and with MPC side by side, for each autopilot flavour::
         --scenarios calm push
 
 Scenarios: ``calm``; ``wind`` (6 m/s gusting about 4 m/s: ``--gust 2``); ``weak`` (three vehicles at
-0.6 of their speed and acceleration); ``push`` (one vehicle pushed 3 m into the
-formation mid-show).  Per run: safe, max / RMS tracking error, min separation
+0.6 of their speed and acceleration); ``push`` (vehicle 1 pushed 3 m towards the
+formation's middle at 40 % of the show); ``shove`` (pushed 4.2 m straight at its
+neighbour, not in the default list).  Per run: safe, max / RMS tracking error, min separation
 (telemetry and simulator truth), worst pattern error, MPC activations, solve
 time p50 / p95 / p99 / max, fallbacks and late batches.
 """
@@ -36,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from groundctl.execute.mpc import MpcConfig, MpcController, MpcRequest
+from groundctl.plan.plan import Plan
 from groundctl.show.model import Limits
 
 #: The 8 grid neighbours around the vehicle, offsets from its path (x along the path).
@@ -126,10 +128,11 @@ def cmd_solve(args: argparse.Namespace) -> None:
           f"time.perf_counter around MpcController.solve)")
 
 
-def _scenario(name: str, plan_drones: int, duration: float) -> dict[str, object]:
+def _scenario(name: str, plan: Plan) -> dict[str, object]:
     """DryRunOptions keywords of one scenario (seeded, the same with and without MPC)."""
     from groundctl.flight.dryrun import Push
 
+    plan_drones, duration = plan.drones, plan.duration
     middle = plan_drones // 2 + 1
     if name == "calm":
         return {}
@@ -140,9 +143,18 @@ def _scenario(name: str, plan_drones: int, duration: float) -> dict[str, object]
     if name == "weak":
         ids = sorted({1, middle, plan_drones})
         return {"weak": tuple((s, 0.6) for s in ids)}
-    if name == "push":
-        # Into the formation: towards the fleet's middle, at 40 % of the show.
-        return {"pushes": (Push(1, 0.4 * duration, (3.0, 3.0, 0.0)),)}
+    if name in ("push", "shove"):
+        # At 40 % of the show, vehicle 1 pushed horizontally into the formation: 3 m
+        # towards the fleet's middle (``push``, the issue's scenario), or 3 m along
+        # each of two axes, 4.2 m, straight at its neighbour (``shove``, harder).
+        at = 0.4 * duration
+        if name == "shove":
+            return {"pushes": (Push(1, at, (3.0, 3.0, 0.0)),)}
+        state = plan.state_at(at)
+        towards = state.pos.mean(axis=0) - state.pos[0]
+        towards[2] = 0.0
+        vec = 3.0 * towards / max(float(np.linalg.norm(towards)), 1e-9)
+        return {"pushes": (Push(1, at, (float(vec[0]), float(vec[1]), 0.0)),)}
     raise SystemExit(f"unknown scenario {name!r}")
 
 
@@ -164,7 +176,7 @@ def cmd_flight(args: argparse.Namespace) -> None:
           f"{'sep m':>6} {'true m':>6} {'pattern':>7} {'act':>4} {'p50':>5} {'p95':>5} "
           f"{'p99':>5} {'max':>5} {'fb':>3} {'late':>4}")
     for scenario in args.scenarios:
-        extra = _scenario(scenario, plan.drones, plan.duration)
+        extra = _scenario(scenario, plan)
         for flavour in flavours:
             for mpc in (False, True):
                 options = DryRunOptions(flavour=flavour, speed=args.speed,

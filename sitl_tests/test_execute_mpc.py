@@ -166,6 +166,29 @@ def test_a_neighbour_closing_too_fast_leaves_an_unsafe_stop() -> None:
     assert "vehicle 9" in r.reason
 
 
+def test_a_dodge_that_needs_a_little_more_speed_is_flown_as_an_escape() -> None:
+    # Hovering, speed limit 1 m/s; a neighbour closes at 4 m/s from 5 m, 0.3 m off the
+    # line.  Keeping 1.5 m needs about 1.2 m/s sideways: no correction keeps every
+    # limit, the escape (speeds up to 20 % over) keeps the separation.
+    from dataclasses import replace
+
+    from groundctl.execute.mpc import ESCAPE_SPEED_MARGIN
+
+    limits = replace(LIMITS, max_speed_h=1.0)
+    hover = line((0.0, 0.0, 10.0), (0.0, 0.0, 0.0))
+    ram = line((5.0, 0.3, 10.0), (-4.0, 0.0, 0.0))
+    r = MpcController(1).solve(request(1, 0.0, (0.0, 0.0, 10.0), (0.0, 0.0, 0.0), hover,
+                                       [ram], [9], limits=limits))
+    assert r.status == "fallback", r.reason
+    assert "best escape found keeps" in r.reason and "its path 0.30 m" in r.reason
+    check_limits(r, replace(limits, max_speed_h=1.0 + ESCAPE_SPEED_MARGIN))
+    speed = np.linalg.norm(r.vel[:, :2], axis=1).max()
+    assert 1.01 < speed <= 1.2 * 1.01  # it did need the margin, and no more
+    ts = np.linspace(0.0, r.end, 601)
+    gap = np.linalg.norm(r.sample(ts)[0] - ram(ts)[0], axis=1)
+    assert gap.min() >= 1.5 - 1e-3
+
+
 def test_warm_start_cuts_the_iterations() -> None:
     path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))
     others = [line((0.0, dy, 10.0 + dz), (3.0, 0.0, 0.0)) for dy, dz in

@@ -161,9 +161,8 @@ class Replanner:
             norms = np.linalg.norm(m.error, axis=1)
             errors = {s: float(e) for s, e in zip(ids, norms, strict=True)}
             offsets = np.linspace(0.0, self.config.horizon_s, CONFLICT_SAMPLES)
-            future = self._predict(plist, ids, now + offsets, clocks, m.error, now)
-            drift = self._drift(ids, m.error, m.error_rate, offsets, now)
-            conflicts = predicted_conflicts(ids, future, drift,
+            future = self._future(m, now + offsets, clocks, velocities, now)
+            conflicts = predicted_conflicts(ids, future, np.zeros((len(ids), 3)),
                                             self.plan.limits.min_separation) \
                 if len(ids) > 1 else {}
             started, ended = self.supervisor.tick(now, errors, conflicts, eligible=ids)
@@ -210,30 +209,30 @@ class Replanner:
             self._status[sysid] = res.status
         return events
 
-    def _drift(self, ids: Sequence[int], err: FloatArray, rate: FloatArray,
-               offsets: FloatArray, now: float) -> FloatArray:
-        """(n, K, 3) each vehicle's expected error over ``offsets``; a vehicle flying an
-        MPC trajectory keeps its error as it is (the trajectory is its prediction)."""
-        drift = error_forecast(err, rate, offsets)
-        for i, sysid in enumerate(ids):
-            if self._fresh(sysid, now) is not None:
-                drift[i] = err[i]
-        return drift
+    def _future(self, m: _Measured, times: FloatArray, clocks: PathClocks,
+                velocities: Mapping[int, FloatArray], now: float) -> FloatArray:
+        """(n, K, 3) where each flying vehicle is expected at ``times``: what it is
+        commanded (its path, or its MPC trajectory) plus its deviation from that, now and
+        as it is expected to drift (:func:`~groundctl.execute.replan.error_forecast`).
 
-    def _predict(self, plist: Sequence[Path], ids: Sequence[int], times: FloatArray,
-                 clocks: PathClocks, err_vec: FloatArray, now: float) -> FloatArray:
-        """(n, K, 3) each vehicle's path at ``times`` (the error is added by the caller);
-        vehicles flying an MPC trajectory are predicted by it instead (minus their error,
-        so that adding it back is neutral)."""
-        n, k = len(ids), len(times)
-        rep = [p for p in plist for _ in range(k)]
+        Deviation from the MPC trajectory too, not only from the path: a vehicle being
+        pushed moves off whatever it is told to fly, and its MPC trajectory (which
+        brakes from its measured state at the solve instant) does not say so."""
+        n, k = len(m.ids), len(times)
+        rep = [p for p in m.paths for _ in range(k)]
         pos, _, _ = sample_paths(rep, np.tile(times, n), clocks)
         pos = pos.reshape(n, k, 3)
-        for i, sysid in enumerate(ids):
+        dev, rate = m.error.copy(), m.error_rate.copy()
+        for i, sysid in enumerate(m.ids):
             res = self._fresh(sysid, now)
             if res is not None:
-                pos[i] = np.asarray(res.sample(times)[0]) - err_vec[i]
-        return pos
+                pos[i] = np.asarray(res.sample(times)[0])
+                p_now, v_now, _ = res.sample(now)
+                dev[i] = m.here[i] - p_now
+                vel = velocities.get(sysid)
+                rate[i] = (np.zeros(3) if vel is None
+                           else np.asarray(vel, dtype=float) - np.asarray(v_now))
+        return np.asarray(pos + error_forecast(dev, rate, np.maximum(times - now, 0.0)))
 
     def _requests(self, now: float, active: Sequence[int], m: _Measured, clocks: PathClocks,
                   velocities: Mapping[int, FloatArray],
@@ -245,8 +244,7 @@ class Replanner:
         # Everyone's prediction over the horizon: path + error as it is expected to drift
         # (the trigger's forecast), or their MPC trajectory.
         ids, here = m.ids, m.here
-        future = self._predict(m.paths, ids, times, clocks, m.error, now) \
-            + self._drift(ids, m.error, m.error_rate, np.maximum(times - now, 0.0), now)
+        future = self._future(m, times, clocks, velocities, now)
         row = {s: i for i, s in enumerate(ids)}
         reach = cfg.reach_m + 2.0 * cfg.horizon_s * self.plan.limits.max_speed_h
         dist = np.linalg.norm(here[None, :, :] - here[[row[s] for s in active]][:, None, :],
