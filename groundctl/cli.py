@@ -34,6 +34,18 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Longest error line printed; the rest is cut (a hostile file can make a long one).
+MAX_ERROR_CHARS = 2000
+
+
+def one_line(text: str) -> str:
+    """``text`` as one printable line: line breaks, terminal escapes and other control
+    characters (which a file's names and keys may hold) shown escaped, and cut at
+    :data:`MAX_ERROR_CHARS`."""
+    out = "".join(ch if ch.isprintable() else ascii(ch)[1:-1] for ch in text)
+    return out if len(out) <= MAX_ERROR_CHARS else out[:MAX_ERROR_CHARS - 3] + "..."
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -45,7 +57,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args))
     except GroundctlError as exc:
-        print(f"groundctl {args.command}: error: {exc}", file=sys.stderr)
+        print(f"groundctl {args.command}: error: {one_line(str(exc))}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print(f"groundctl {args.command}: interrupted", file=sys.stderr)

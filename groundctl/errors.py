@@ -7,6 +7,7 @@ The tree::
     ├── InfeasibleTransition            a transition the limits cannot fly (index, needed_time)
     ├── PlanningError                   the optimiser failed (transition, status)
     ├── PlanFileError                   a plan file that cannot be read (path, message)
+    │   └── UntrustedPlan               a plan not tied to the show it is flown with (path, show)
     ├── UnsafePlan                      verification found violations (violations)
     ├── LinkError                       MAVLink transport and protocol
     │   ├── CommandRefused              a vehicle answered a command with a refusal
@@ -115,6 +116,18 @@ class PlanFileError(GroundctlError):
         self.path = str(path)
         self.message = message
         super().__init__(f"{self.path}: {message}")
+
+
+class UntrustedPlan(PlanFileError):
+    """A plan whose limits cannot be trusted: no show to take them from, a show it was
+    not planned from, or a plan that disagrees with its own show.
+
+    ``show`` is the show file it was checked against ("" if none was found).
+    """
+
+    def __init__(self, path: str | Path, message: str, show: str | Path = "") -> None:
+        self.show = str(show)
+        super().__init__(path, message)
 
 
 class UnsafePlan(GroundctlError):

@@ -149,7 +149,7 @@ def test_csv_points_parse_with_a_header_in_any_column_order():
 @pytest.mark.parametrize(("content", "line", "message"), [
     ("", 0, "the file is empty"),
     ("x,y\n1,2\n", 1, "has no column 'z'"),
-    ("x,y,z\n1,2,3\n1,abc,3\n", 3, "'y' must be a number, got 'abc'"),
+    ("x,y,z\n1,2,3\n1,abc,3\n", 3, "'y' is not a number"),
     ("x,y,z\n1,2\n", 2, "2 values but the header has 3 columns"),
     ("x,y,z\n", 1, "no points"),
 ])

@@ -9,9 +9,10 @@ from pathlib import Path
 from groundctl.commands.flying import (
     BUNDLED_DEMO,
     Interrupts,
+    add_plan_options,
     add_runner_options,
     finish,
-    load_or_plan,
+    plan_for,
     runner_config,
     say,
 )
@@ -59,6 +60,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    help="the simulated vehicles' flight-dynamics calibration (default: "
                         "ardupilot-4.8 or px4-1.15)")
     p.add_argument("--no-record", action="store_true", help="record nothing")
+    add_plan_options(p)
     add_runner_options(p)
     p.set_defaults(func=run)
 
@@ -67,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from groundctl.flight.dryrun import DryRunOptions, Push, fly_dry_run
     from groundctl.record.recording import default_directory
 
-    plan = load_or_plan(args.show, args.quiet)
+    plan = plan_for(args)
     record = None if args.no_record \
         else (args.record or default_directory(plan.show_name, "dry-run"))
     options = DryRunOptions(

@@ -16,9 +16,10 @@ from typing import Any
 from groundctl.clock import ScaledClock
 from groundctl.commands.flying import (
     Interrupts,
+    add_plan_options,
     add_runner_options,
     finish,
-    load_or_plan,
+    plan_for,
     read_operator_commands,
     runner_config,
     say,
@@ -62,13 +63,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    help="fleet file: system ids, addresses, tracks")
     p.add_argument("--connect-timeout", type=float, default=30.0, metavar="S",
                    help="wait this long for every vehicle's HEARTBEAT (default 30)")
+    add_plan_options(p)
     add_runner_options(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     fleet: FleetFile | None = load_fleet_file(args.fleet) if args.fleet is not None else None
-    plan = load_or_plan(args.show, args.quiet)
+    plan = plan_for(args)
     if fleet is not None and fleet.tracks:
         bad = sorted(t for t in fleet.tracks.values() if t >= plan.drones)
         if bad:

@@ -10,11 +10,11 @@ import os
 import signal
 import stat
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import IO, Any, Protocol
 
-from groundctl.commands.options import positive, signing_key
+from groundctl.commands.options import add_plan_source, add_points_dir, positive, signing_key
 from groundctl.commands.progress import ProgressBar
 from groundctl.errors import EXIT_ABORTED, EXIT_OK, EXIT_UNSAFE, GroundctlError, UnsafePlan
 from groundctl.execute.preflight import Thresholds
@@ -77,18 +77,28 @@ def runner_config(args: argparse.Namespace, tracks: dict[int, int] | None = None
                         thresholds=Thresholds(min_battery_pct=args.min_battery))
 
 
-def load_or_plan(path: Path, quiet: bool) -> Plan:
-    """A plan file as is, or a show file planned now; UnsafePlan if it does not verify."""
+def load_or_plan(path: Path, quiet: bool, *, show_file: Path | None = None,
+                 accept_plan_limits: bool = False,
+                 points_dirs: Sequence[Path] = ()) -> Plan:
+    """A plan file checked against its show, or a show file planned now; UnsafePlan if it
+    does not verify.
+
+    A ``.npz`` plan is verified against the limits of ``show_file`` (default:
+    its sibling ``X.toml``), which it must have been planned from, or with
+    ``accept_plan_limits`` against its own (:mod:`groundctl.plan.provenance`).
+    """
     if path.suffix == ".npz":
+        from groundctl.plan.provenance import plan_source
         from groundctl.plan.verify import verify
-        plan = Plan.load(path)
+        plan = plan_source(Plan.load(path), path, show_file, accept_plan_limits,
+                           points_dirs).plan
         ver = verify(plan)
         if not ver.safe:
             raise UnsafePlan(ver.violations)
         return plan
     from groundctl.plan.planner import plan_show
     from groundctl.show.loader import load_show
-    show = load_show(path)
+    show = load_show(path, points_dirs)
     if not quiet:
         print(f"planning {show.name}: {show.drones} drones", file=sys.stderr, flush=True)
     bar = ProgressBar(f"planning {show.name}")
@@ -102,6 +112,19 @@ def load_or_plan(path: Path, quiet: bool) -> Plan:
         print(f"planned and verified in {result.seconds:.1f} s: {result.plan.duration:.0f} s "
               f"show", file=sys.stderr, flush=True)
     return result.plan
+
+
+def plan_for(args: argparse.Namespace) -> Plan:
+    """:func:`load_or_plan` with the options :func:`add_plan_options` registered."""
+    return load_or_plan(args.show, args.quiet, show_file=args.plan_show,
+                        accept_plan_limits=args.accept_plan_limits, points_dirs=args.points_dir)
+
+
+def add_plan_options(p: argparse.ArgumentParser) -> None:
+    """Where a flying command's plan comes from: ``--show``, ``--accept-plan-limits``,
+    ``--points-dir``."""
+    add_plan_source(p)
+    add_points_dir(p)
 
 
 def say(quiet: bool) -> Callable[[str], None]:

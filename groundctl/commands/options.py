@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 
 def _number(text: str) -> float:
@@ -92,3 +93,37 @@ def weak(text: str) -> list[tuple[int, float]]:
     if not colon or not 0 < factor <= 1 or not all(1 <= s <= 255 for s in ids):
         raise argparse.ArgumentTypeError(usage)
     return [(s, factor) for s in ids]
+
+
+def workers(text: str) -> int:
+    """``--workers N``: 1..64 planning processes."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--workers must be a whole number, not {text!r}")\
+            from None
+    if not 1 <= value <= 64:
+        raise argparse.ArgumentTypeError(f"--workers must be within 1..64, not {text}")
+    return value
+
+
+def add_points_dir(p: argparse.ArgumentParser) -> None:
+    """``--points-dir DIR``: where else a show's point files may be read from."""
+    p.add_argument("--points-dir", type=Path, action="append", default=[], metavar="DIR",
+                   help="also read formation point files ('file = ...') from DIR "
+                        "(repeatable); by default only files under the show file's own "
+                        "directory are read")
+
+
+def add_plan_source(p: argparse.ArgumentParser) -> None:
+    """``--show SHOW | --accept-plan-limits``: what a saved plan is checked against."""
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--show", dest="plan_show", type=Path, default=None, metavar="SHOW",
+                       help="for a .npz plan: the show file it was planned from, whose "
+                            "limits it is checked against (default: the plan's sibling, "
+                            "X.plan.npz -> X.toml); a plan not planned from it, or edited "
+                            "since, is refused")
+    group.add_argument("--accept-plan-limits", action="store_true",
+                       help="for a .npz plan: trust the limits the plan file carries instead "
+                            "of its show's (a plan saved before plans recorded their show, "
+                            "or one from elsewhere without its show)")

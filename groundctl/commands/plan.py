@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+from groundctl.commands.options import add_points_dir, workers
 from groundctl.commands.progress import ProgressBar
 from groundctl.errors import EXIT_OK, EXIT_UNSAFE
 
@@ -17,8 +18,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("-o", "--output", metavar="PLAN",
                    help="plan file to write (default: SHOW with .plan.npz)")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object")
-    p.add_argument("--workers", type=int, default=None,
-                   help="parallel processes for transitions (default: one per core)")
+    p.add_argument("--workers", type=workers, default=None, metavar="N",
+                   help="parallel processes for transitions, 1..64 (default: one per core)")
+    add_points_dir(p)
     p.set_defaults(func=run)
 
 
@@ -32,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
     from groundctl.plan.report import report_dict, report_table
     from groundctl.show.loader import load_show
 
-    show = load_show(args.show)
+    show = load_show(args.show, args.points_dir)
     bar = ProgressBar(f"planning {show.name}")
     try:
         result = plan_show(show, workers=args.workers, progress=bar)

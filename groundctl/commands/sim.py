@@ -15,6 +15,7 @@ import signal
 import sys
 import time
 from collections import Counter
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,7 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from groundctl.clock import ScaledClock
-from groundctl.commands.options import push, signing_key, weak
+from groundctl.commands.options import add_points_dir, push, signing_key, weak
 from groundctl.errors import EXIT_OK, SimulatorError
 from groundctl.execute.frames import show_to_enu
 from groundctl.link.flavours import Flavour
@@ -57,7 +58,7 @@ class TakeoffSlots:
         return show_to_enu(self.origin, self.home)
 
 
-def takeoff_slots(path: Path) -> TakeoffSlots:
+def takeoff_slots(path: Path, points_dirs: Sequence[Path] = ()) -> TakeoffSlots:
     """The takeoff slots ``groundctl fly PATH`` checks vehicles against, without planning.
 
     A ``.npz`` plan file gives its saved ``home`` (PlanFileError if it is not
@@ -70,7 +71,7 @@ def takeoff_slots(path: Path) -> TakeoffSlots:
         return TakeoffSlots(plan.show_name, path, plan.origin,
                             np.asarray(plan.home, dtype=float))
     from groundctl.show.loader import load_show
-    show = load_show(path)
+    show = load_show(path, points_dirs)
     return TakeoffSlots(show.name, path, show.origin, np.asarray(show.home, dtype=float))
 
 
@@ -125,6 +126,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="stand on this show's takeoff slots (show file or .npz plan): its "
                         "origin, heading, layout and drone count, ready for 'groundctl fly "
                         "SHOW'")
+    add_points_dir(p)
     p.add_argument("--count", type=int, default=None,
                    help="number of vehicles (default 1, or the show's drone count)")
     p.add_argument("--autopilot", choices=[f.value for f in Flavour], default="ardupilot",
@@ -205,7 +207,7 @@ def build_config(args: argparse.Namespace, slots: TakeoffSlots | None = None) ->
     ``slots`` are the takeoff slots of ``args.show``, read here if not given.
     """
     if slots is None and args.show is not None:
-        slots = takeoff_slots(args.show)
+        slots = takeoff_slots(args.show, getattr(args, "points_dir", ()))
     count, place = _placement(args, slots)
     params: dict[str, float] = {}
     for item in args.param:
@@ -250,7 +252,7 @@ def run(args: argparse.Namespace) -> int:
     """Run the fleet until Ctrl-C."""
     if args.speed <= 0:
         raise SimulatorError("--speed must be positive")
-    slots = takeoff_slots(args.show) if args.show is not None else None
+    slots = takeoff_slots(args.show, args.points_dir) if args.show is not None else None
     config = build_config(args, slots)
     fleet = SimFleet(config, ScaledClock(args.speed))
     ports = fleet.ports

@@ -73,3 +73,11 @@ def min_transition_time(start: NDArray[np.float64], goal: NDArray[np.float64],
         return TimeBound(0.0, 0, 0.0, 0.0)
     worst = int(np.argmax(times))
     return TimeBound(float(times[worst]), worst, float(dist[worst]), float(vlim[worst]))
+
+
+def airborne_time(show_seconds: float, takeoff_altitude: float, limits: Limits) -> float:
+    """How long a drone is in the air for a show of ``show_seconds``: the climb to the
+    takeoff altitude, the show, the descent (each at its vertical speed limit), s.
+    ``limits.max_flight_time`` (the battery's endurance) bounds it."""
+    return (takeoff_altitude / limits.max_speed_up + show_seconds
+            + takeoff_altitude / limits.max_speed_down)

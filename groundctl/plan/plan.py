@@ -2,14 +2,17 @@
 
 The plan file is a NumPy ``.npz`` archive: the arrays of the trajectories and
 colour keyframes, plus one JSON document (``meta``) with the show's name,
-origin, limits and the formation timeline.  It holds no pickled objects, so
-loading a plan from elsewhere cannot run code.
+origin, limits, the formation timeline and the hash of the show file it was
+planned from.  It holds no pickled objects, so loading a plan from elsewhere
+cannot run code, and :meth:`Plan.load` checks every header, array and value
+before trusting any (:mod:`groundctl.plan.planfile`).  The limits it carries
+are not trusted for flying: :mod:`groundctl.plan.provenance` ties a plan to
+its show.
 """
 
 from __future__ import annotations
 
 import json
-import zipfile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,14 +20,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from groundctl.errors import PlanFileError
+from groundctl.plan.planfile import PLAN_FORMAT, read_plan_file
 from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import GeoOrigin, Limits, MpcSettings
 
 FloatArray = NDArray[np.float64]
 
-#: Bumped whenever the file layout changes incompatibly.
-PLAN_FORMAT = 1
+__all__ = ["PLAN_FORMAT", "FormationWindow", "Plan", "State"]
 
 
 @dataclass(frozen=True)
@@ -85,6 +87,9 @@ class Plan:
     """The formation timeline."""
     mpc: MpcSettings = field(default_factory=MpcSettings)
     """The show's MPC replanning settings (flown with the plan)."""
+    show_digest: str = ""
+    """:attr:`Show.digest <groundctl.show.model.Show.digest>` of the show file it was
+    planned from ("" for a plan built in code or saved before plans recorded it)."""
 
     @property
     def drones(self) -> int:
@@ -140,6 +145,8 @@ class Plan:
             "formations": [{"index": f.index, "name": f.name, "start": f.start,
                             "arrive": f.arrive, "end": f.end} for f in self.formations],
         }
+        if self.show_digest:
+            meta["show_digest"] = self.show_digest
         arrays: dict[str, Any] = {
             "meta": np.array(json.dumps(meta)),
             "times": self.trajectories.times,
@@ -157,38 +164,18 @@ class Plan:
 
     @classmethod
     def load(cls, path: str | Path) -> Plan:
-        """Read a plan written by :meth:`save`; PlanFileError if it is not one."""
-        path = Path(path)
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                meta = json.loads(str(data["meta"]))
-                if meta.get("format") != PLAN_FORMAT:
-                    raise PlanFileError(path, f"plan format {meta.get('format')!r} is not "
-                                              f"{PLAN_FORMAT}; re-plan the show")
-                lim = dict(meta["limits"])
-                if lim.get("geofence") is not None:
-                    lim["geofence"] = tuple(tuple(p) for p in lim["geofence"])
-                formations = tuple(
-                    FormationWindow(index=f["index"], name=f["name"], start=f["start"],
-                                    arrive=f["arrive"], end=f["end"],
-                                    goals=np.asarray(data[f"goals_{i}"], dtype=float))
-                    for i, f in enumerate(meta["formations"]))
-                return cls(
-                    show_name=meta["show_name"], origin=GeoOrigin(**meta["origin"]),
-                    limits=Limits(**lim), model=meta["model"],
-                    home=np.asarray(data["home"], dtype=float),
-                    takeoff_altitude=float(meta["takeoff_altitude"]),
-                    trajectories=Trajectories(np.asarray(data["times"], dtype=float),
-                                              np.asarray(data["pos"], dtype=float),
-                                              np.asarray(data["vel"], dtype=float)),
-                    color_times=np.asarray(data["color_times"], dtype=float),
-                    colors=np.asarray(data["colors"], dtype=float),
-                    formations=formations,
-                    mpc=MpcSettings(**meta["mpc"]) if "mpc" in meta else MpcSettings())
-        except PlanFileError:
-            raise
-        except FileNotFoundError as exc:
-            raise PlanFileError(path, "no such file") from exc
-        except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile,
-                json.JSONDecodeError) as exc:
-            raise PlanFileError(path, f"not a groundctl plan ({exc})") from exc
+        """Read a plan written by :meth:`save`; PlanFileError if it is not one.
+
+        Every header is checked before any array is read, and every array and
+        value before the plan is built (:func:`~groundctl.plan.planfile.read_plan_file`).
+        """
+        c = read_plan_file(path)
+        formations = tuple(
+            FormationWindow(index=w.index, name=w.name, start=w.start, arrive=w.arrive,
+                            end=w.end, goals=g)
+            for w, g in zip(c.windows, c.goals, strict=True))
+        return cls(show_name=c.show_name, origin=c.origin, limits=c.limits, model=c.model,
+                   home=c.home, takeoff_altitude=c.takeoff_altitude,
+                   trajectories=Trajectories(c.times, c.pos, c.vel), color_times=c.color_times,
+                   colors=c.colors, formations=formations, mpc=c.mpc,
+                   show_digest=c.show_digest)

@@ -86,7 +86,8 @@ def plan_show(show: Show, workers: int | None = None,
     else:
         jobs = [(f.index, f.name, s, g, f.transition_s, show.limits, show.planner)
                 for f, s, g in zip(show.formations, starts, goals, strict=True)]
-        workers = workers if workers is not None else min(len(jobs), os.cpu_count() or 1)
+        # Never more processes than transitions: each one is a whole interpreter.
+        workers = min(workers if workers is not None else os.cpu_count() or 1, len(jobs))
         if workers > 1 and len(jobs) > 1:
             with ProcessPoolExecutor(max_workers=workers) as pool:
                 for res in pool.map(_quad_job, jobs):
@@ -127,7 +128,8 @@ def plan_show(show: Show, workers: int | None = None,
         show_name=show.name, origin=show.origin, limits=show.limits, model=show.model.kind,
         home=np.asarray(show.home, dtype=float), takeoff_altitude=show.takeoff_altitude,
         trajectories=concatenate(parts), color_times=np.asarray(key_t),
-        colors=np.stack(key_c, axis=1), formations=tuple(windows), mpc=show.mpc)
+        colors=np.stack(key_c, axis=1), formations=tuple(windows), mpc=show.mpc,
+        show_digest=show.digest)
     verification = verify(plan)
     return PlanResult(plan=plan, transitions=tuple(results), verification=verification,
                       seconds=time.perf_counter() - t0)

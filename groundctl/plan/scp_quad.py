@@ -42,7 +42,6 @@ LDL factorisation fills in over a pairs-by-time mesh.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
@@ -136,7 +135,7 @@ class _Group:
 
 
 def _steps(duration: float, settings: PlannerSettings) -> tuple[int, float]:
-    steps = settings.steps or max(4, math.ceil(duration / settings.dt - 1e-9))
+    steps = settings.steps_for(duration)
     return steps, duration / steps
 
 

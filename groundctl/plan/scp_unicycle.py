@@ -429,7 +429,7 @@ def plan_unicycle_transition(index: int, name: str, start: FloatArray, goal: Flo
             index, name, float(d[worst] / model.speed), duration,
             f"drone {worst + 1} must cover {d[worst]:.1f} m at a constant {model.speed:.1f} m/s")
     n = len(start)
-    steps = settings.steps or max(4, int(np.ceil(duration / settings.dt - 1e-9)))
+    steps = settings.steps_for(duration)
     dt = duration / steps
     frac = np.linspace(0, 1, steps + 1)
     ref = s2[:, None, :] + frac[None, :, None] * (g2 - s2)[:, None, :]

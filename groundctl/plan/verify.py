@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from groundctl.plan.feasibility import airborne_time
 from groundctl.plan.plan import Plan
 from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import Limits
@@ -231,5 +232,9 @@ def verify(plan: Plan) -> Verification:
                      f"when the formation is due (tolerance {PATTERN_TOL} m)")
     if o.outside_fence:
         v.append(f"{o.outside_fence} trajectory samples lie outside the geofence")
+    airborne = airborne_time(tr.end - tr.start, plan.takeoff_altitude, lim)
+    if airborne > lim.max_flight_time * (1 + LIMIT_TOL):
+        v.append(f"drones are airborne {airborne:.0f} s with the climb and descent "
+                 f"(max_flight_time {lim.max_flight_time:g} s)")
     return Verification(overall=overall, windows=windows, pattern_errors=tuple(errors),
                         separation_limit=lim.min_separation, violations=tuple(v))

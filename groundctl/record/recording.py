@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import re
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -12,11 +13,27 @@ from groundctl.errors import GroundctlError
 from groundctl.record.events import EventLog
 from groundctl.record.tlog import TlogWriter
 
+#: How long the show's part of a recording directory's name may be.
+MAX_NAME_PART = 64
+
+
+def safe_name(name: str, fallback: str = "show") -> str:
+    """``name`` as one safe path component: letters, digits, ``.``, ``-`` and ``_``.
+
+    A show's name comes from a show or plan file, which may come from
+    anywhere: ``../../../../elsewhere/quick`` must not put the recordings
+    outside ``recordings/``.  Every other character becomes ``_``, leading dots
+    are dropped (no ``..``, no hidden directory) and the result is at most
+    :data:`MAX_NAME_PART` characters; nothing usable left gives ``fallback``.
+    """
+    cleaned = re.sub(r"[^A-Za-z0-9._-]", "_", name).lstrip(".")[:MAX_NAME_PART]
+    return cleaned if cleaned.strip("_") else fallback
+
 
 def default_directory(show: str, command: str, root: Path = Path("recordings")) -> Path:
-    """``recordings/<show>-<command>-<UTC time>``."""
+    """``recordings/<show>-<command>-<UTC time>``, the show's name made a safe component."""
     stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
-    return root / f"{show}-{command}-{stamp}"
+    return root / f"{safe_name(show)}-{safe_name(command, 'run')}-{stamp}"
 
 
 class Recording:

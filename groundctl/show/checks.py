@@ -14,6 +14,7 @@ from scipy.spatial import cKDTree
 
 from groundctl.plan.feasibility import TimeBound
 from groundctl.show.model import Limits, Model, UnicycleModel
+from groundctl.show.ranges import MAX_COORD
 from groundctl.show.reader import fmt
 
 FloatArray = NDArray[np.float64]
@@ -54,6 +55,23 @@ def separation_problem(points: FloatArray, min_separation: float,
     need = fmt(ceil_to(scale * min_separation / d))
     return (f"points are {dist} m apart but min_separation is {lim} m; "
             f"increase '{scale_key}' to at least {need}")
+
+
+def coordinate_problem(points: FloatArray, what: str = "point") -> str | None:
+    """Message naming the point farthest out if one lies beyond +-MAX_COORD horizontally.
+
+    The show frame is a flat tangent plane at the origin: 10 km out it is
+    already 8 m below the horizon.
+    """
+    if len(points) == 0:
+        return None
+    reach = np.abs(np.asarray(points, dtype=float)[:, :2]).max(axis=1)
+    far = int(np.argmax(reach))
+    if reach[far] <= MAX_COORD:
+        return None
+    xyz = ", ".join(f"{float(c):.6g}" for c in points[far])
+    return (f"{what} {far + 1} at ({xyz}) is more than {MAX_COORD:g} m from the origin; "
+            "keep the show within 10 km of [origin]")
 
 
 def inside_polygon(points: FloatArray, polygon: FloatArray) -> NDArray[np.bool_]:

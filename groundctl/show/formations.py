@@ -8,13 +8,14 @@ operator to increase, since every generated shape scales linearly with it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
 
+from groundctl.files import FileProblem, read_regular_file
 from groundctl.show import shapes
 from groundctl.show.colors import (
     GRADIENT_AXES,
@@ -25,7 +26,17 @@ from groundctl.show.colors import (
     parse_color,
 )
 from groundctl.show.model import Formation, Model, UnicycleModel
-from groundctl.show.reader import Table, fmt
+from groundctl.show.ranges import (
+    ANGLE_DEG,
+    MAX_GRADIENT_STOPS,
+    MAX_NAME_CHARS,
+    MAX_POINTS_FILE_BYTES,
+    MAX_SLOTS,
+    MAX_TEXT_CHARS,
+    SIZE,
+    above_zero,
+)
+from groundctl.show.reader import MISSING, Table, fmt
 from groundctl.show.shapes.font import SUPPORTED
 
 FloatArray = NDArray[np.float64]
@@ -76,10 +87,17 @@ class Context:
     """Dynamics model (the unicycle flies flat at ``takeoff_altitude``)."""
     takeoff_altitude: float
     """Height of the start positions above home, m."""
+    points_dirs: tuple[Path, ...] = ()
+    """Directories besides ``base_dir`` that point files may be read from."""
+    max_flight_time: float = 900.0
+    """[limits] max_flight_time: no transition or hold may be longer, s."""
+    files_read: list[tuple[str, bytes]] = field(default_factory=list)
+    """Every point file read so far (its name in the show file, its bytes), for the
+    show's digest."""
 
 
 def _count(t: Table, drones: int) -> int:
-    count = t.integer("count", drones, minimum=1)
+    count = t.integer("count", drones, minimum=1, maximum=MAX_SLOTS)
     if count < drones:
         raise t.error(f"'count' {count} is fewer than the {drones} drones; "
                       f"remove 'count' or set it to at least {drones}")
@@ -87,16 +105,18 @@ def _count(t: Table, drones: int) -> int:
 
 
 def _sized(t: Table, drones: int) -> tuple[int, float]:
-    return _count(t, drones), t.number("size", positive=True)
+    return _count(t, drones), t.ranged("size", MISSING, SIZE)
 
 
 def _grid(t: Table, drones: int) -> LocalShape:
-    rows = t.integer("rows", 0, minimum=1) if t.has("rows") else None
-    cols = t.integer("columns", 0, minimum=1) if t.has("columns") else None
+    rows = t.integer("rows", 0, minimum=1, maximum=MAX_SLOTS) if t.has("rows") else None
+    cols = t.integer("columns", 0, minimum=1, maximum=MAX_SLOTS) if t.has("columns") else None
     if rows is not None and cols is not None:
         if t.has("count"):
             raise t.error("give 'count' or 'rows' and 'columns', not all three")
         count = rows * cols
+        if count > MAX_SLOTS:
+            raise t.error(f"'rows' x 'columns' is {count} points, more than {MAX_SLOTS}")
     else:
         count = _count(t, drones)
         if rows is not None:
@@ -106,9 +126,9 @@ def _grid(t: Table, drones: int) -> LocalShape:
         raise t.error("give exactly one of 'spacing' (between neighbours) and 'size' "
                       "(width of the longer side)")
     if t.has("spacing"):
-        spacing = t.number("spacing", positive=True)
+        spacing = t.ranged("spacing", MISSING, SIZE)
         return LocalShape(shapes.grid(count, spacing, c), "spacing", spacing)
-    size = t.number("size", positive=True)
+    size = t.ranged("size", MISSING, SIZE)
     return LocalShape(shapes.grid(count, size / max(r - 1, c - 1, 1), c), "size", size)
 
 
@@ -116,11 +136,16 @@ def _text(t: Table) -> LocalShape:
     value = t.string("text")
     if not value.strip():
         raise t.error("'text' is empty; write at least one character")
+    if len(value) > MAX_TEXT_CHARS:
+        raise t.error(f"'text' must be at most {MAX_TEXT_CHARS} characters, got {len(value)}")
     bad = shapes.unsupported_chars(value)
     if bad:
         raise t.error(f"'text' has characters the font cannot draw: {bad!r}; "
                       f"it draws {SUPPORTED.replace(' ', '')} and space")
-    spacing = t.number("dot_spacing", DEFAULT_DOT_SPACING, positive=True)
+    spacing = t.ranged("dot_spacing", DEFAULT_DOT_SPACING, above_zero(1000.0))
+    dots = shapes.text_dot_count(value)
+    if dots > MAX_SLOTS:
+        raise t.error(f"'text' draws {dots} dots, more than {MAX_SLOTS}; write fewer characters")
     return LocalShape(shapes.text(value, spacing), "dot_spacing", spacing)
 
 
@@ -131,19 +156,45 @@ def _points(t: Table, ctx: Context) -> LocalShape:
     if t.has("points"):
         return LocalShape(t.point_list("points", (2, 3)), None, 0.0)
     name = t.string("file")
-    csv_path = ctx.base_dir / name
+    content = _read_points_file(t, name, ctx)
     try:
-        content = csv_path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise t.error(f"'file' {name!r} not found (looked for {csv_path})") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise t.error(f"'file' {name!r} cannot be read: {exc}") from exc
-    try:
-        pts = shapes.parse_points_csv(content)
+        pts = shapes.parse_points_csv(content, max_points=MAX_SLOTS)
     except shapes.CsvProblem as exc:
         at = f" line {exc.line}" if exc.line else ""
         raise t.error(f"'file' {name}{at}: {exc.message}") from None
     return LocalShape(pts, None, 0.0)
+
+
+def _read_points_file(t: Table, name: str, ctx: Context) -> str:
+    """The text of point file ``name``: a regular file of bounded size under the show
+    file's directory or a ``points_dirs`` directory (symbolic links resolved first).
+
+    No message quotes what the file holds: a show file from elsewhere must not be
+    able to make groundctl print a line of a file it points at.
+    """
+    csv_path = ctx.base_dir / name
+    roots = [ctx.base_dir, *ctx.points_dirs]
+    try:
+        real = csv_path.resolve()
+        inside = any(real.is_relative_to(root.resolve()) for root in roots)
+    except (OSError, RuntimeError, ValueError):  # a loop of links, a NUL in the name
+        raise t.error(f"'file' {name!r} is not a usable file name") from None
+    if not inside:
+        where = " or ".join(str(r) for r in roots)
+        raise t.error(f"'file' {name!r} is outside the show file's directory: point files "
+                      f"must be under {where} (allow another directory with --points-dir)")
+    try:
+        raw = read_regular_file(real, MAX_POINTS_FILE_BYTES)
+    except FileProblem as exc:
+        if exc.missing:
+            raise t.error(f"'file' {name!r} not found (looked for {csv_path})") from None
+        raise t.error(f"'file' {name!r}: {exc}") from None
+    try:
+        content = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise t.error(f"'file' {name!r} is not UTF-8 text (byte {exc.start})") from None
+    ctx.files_read.append((name, raw))
+    return content
 
 
 def local_shape(shape: str, t: Table, ctx: Context) -> LocalShape:
@@ -163,11 +214,11 @@ def local_shape(shape: str, t: Table, ctx: Context) -> LocalShape:
     elif shape == "square":
         pts = shapes.square(count, size)
     elif shape == "star":
-        arms = t.integer("arms", 5, minimum=3)
+        arms = t.integer("arms", 5, minimum=3, maximum=100)
         inner = t.number("inner", 0.4, positive=True, maximum=1.0)
         pts = shapes.star(count, size, arms, inner)
     elif shape == "spiral":
-        pts = shapes.spiral(count, size, t.number("turns", 2.0, positive=True))
+        pts = shapes.spiral(count, size, t.ranged("turns", 2.0, above_zero(100.0)))
     else:
         pts = shapes.sphere(count, size)
     return LocalShape(pts, "size", size)
@@ -192,6 +243,9 @@ def read_colors(t: Table, local: FloatArray) -> FloatArray:
         if key == "gradient":
             if len(value) < 2:
                 raise t.error(f"'gradient' needs at least 2 colours, got {len(value)}")
+            if len(value) > MAX_GRADIENT_STOPS:
+                raise t.error(f"'gradient' may have at most {MAX_GRADIENT_STOPS} colours, got "
+                              f"{len(value)}")
             axis = t.string("gradient_axis", "u", choices=GRADIENT_AXES)
             stops = np.array([parse_color(v) for v in value])
             return gradient(stops, gradient_parameter(local, cast(GradientAxis, axis)))
@@ -216,10 +270,11 @@ def read_formation(data: dict[str, object], index: int, ctx: Context) -> tuple[F
                                                                                LocalShape]:
     """Build formation ``index`` (1-based) from its table; shape-level problems raise here."""
     t = Table(data, ctx.path, f"formation {index}")
-    if isinstance(data.get("name"), str):
-        t.where = formation_where(index, str(data["name"]))
+    raw_name = data.get("name")
+    if isinstance(raw_name, str) and raw_name.isprintable() and len(raw_name) <= MAX_NAME_CHARS:
+        t.where = formation_where(index, raw_name)
     shape = t.string("shape", choices=SHAPES)
-    name = t.string("name", shape)
+    name = t.string("name", shape, max_length=MAX_NAME_CHARS)
     t.where = formation_where(index, name)
     others = {k: f"a key of shape {', '.join(s for s in SHAPES if k in SHAPE_KEYS[s])}"
               for keys in SHAPE_KEYS.values() for k in keys}
@@ -227,13 +282,13 @@ def read_formation(data: dict[str, object], index: int, ctx: Context) -> tuple[F
     t.check_keys(allowed, {k: v for k, v in others.items() if k not in allowed})
 
     unicycle = isinstance(ctx.model, UnicycleModel)
-    transition = t.number("transition", positive=True)
-    hold = t.number("hold", 0.0, minimum=0.0)
+    transition = t.number("transition", positive=True, maximum=ctx.max_flight_time)
+    hold = t.number("hold", 0.0, minimum=0.0, maximum=ctx.max_flight_time)
     if unicycle and hold > 0:
         raise t.error(f"'hold' must be 0 for the unicycle model, got {fmt(hold)}: "
                       "it flies at constant speed and cannot hover")
     plane = t.string("plane", "horizontal" if unicycle else "vertical", choices=shapes.PLANES)
-    rotation = t.number("rotation", 0.0)
+    rotation = t.ranged("rotation", 0.0, ANGLE_DEG)
     flat = f"the unicycle model flies flat at 'takeoff_altitude' {fmt(ctx.takeoff_altitude)} m"
     if unicycle and shape == "sphere":
         raise t.error(f"shape 'sphere' is 3D but {flat}; use a 2D shape")

@@ -15,7 +15,7 @@ optional)::
     [origin]    lat, lon, alt, heading = 0
     [limits]    max_speed_h, max_speed_up, max_speed_down, max_accel,
                 min_separation, min_altitude, max_altitude, geofence = [[x, y], ...],
-                land_battery_pct = 20
+                land_battery_pct = 20, max_flight_time = 900
     [model]     kind = "quadrotor" | "unicycle"; unicycle: speed, r_min, max_turn_rate
     [planner]   dt, steps, max_iterations, tolerance, pattern_tolerance, alpha, beta
     [takeoff]   layout = "grid" | "points" | "random", layout keys, headings
@@ -24,20 +24,29 @@ optional)::
     [landing]   transition, hold = 0, color = "#000000"
     [mpc]       enabled = true, horizon = 3, trigger_error = 0.4, release_error = 0.15,
                 release_after = 2
+
+Every number has a range (:mod:`groundctl.show.ranges`, the README's "Ranges"),
+checked before a shape is generated or a matrix allocated; point files must be
+regular files of bounded size under the show file's directory (or a directory
+the operator allows with ``--points-dir``).
 """
 
 from __future__ import annotations
 
+import hashlib
+import math
 import re
 import tomllib
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from groundctl.errors import ShowFileError
+from groundctl.files import FileProblem, read_regular_file
 from groundctl.plan.assign import assign_chain
-from groundctl.plan.feasibility import min_transition_time
+from groundctl.plan.feasibility import airborne_time, min_transition_time
 from groundctl.plan.qp_build import MAX_TOLERANCE
 from groundctl.show import checks
 from groundctl.show.colors import ColorError, parse_color
@@ -53,7 +62,23 @@ from groundctl.show.model import (
     Show,
     UnicycleModel,
 )
-from groundctl.show.reader import Table, closest, describe, fmt
+from groundctl.show.ranges import (
+    DT,
+    LIMIT_RANGES,
+    MAX_DRONE_STEPS,
+    MAX_DRONES,
+    MAX_FORMATIONS,
+    MAX_GEOFENCE_CORNERS,
+    MAX_NAME_CHARS,
+    MAX_SHOW_FILE_BYTES,
+    MAX_STEPS,
+    MPC_RANGES,
+    ORIGIN_RANGES,
+    TAKEOFF_ALTITUDE,
+    Range,
+    above_zero,
+)
+from groundctl.show.reader import MISSING, Table, closest, describe, fmt
 from groundctl.show.takeoff import read_headings, read_home
 
 TOP_LEVEL = ("show", "origin", "limits", "model", "planner", "takeoff", "formation", "landing",
@@ -70,28 +95,50 @@ _LIMIT_KEYS = {
     "min_altitude": "min_alt",
     "max_altitude": "max_alt",
     "land_battery_pct": "land_battery_pct",
+    "max_flight_time": "max_flight_time",
 }
-_PLANNER_FLOATS = ("dt", "tolerance", "pattern_tolerance")
+#: Most parts of a dotted key or table name (``a.b.c`` has 3); show files use 2.
+MAX_KEY_PARTS = 32
+# One key part (bare, or quoted), possessive so that no input makes the search backtrack,
+# and a run started only at the beginning of a word, so that each is scanned once.  It
+# looks at the text, not at TOML: 33 dot-separated words inside a string count too.
+_KEY_PART = r"""(?:[A-Za-z0-9_-]++|"[^"\n]*+"|'[^'\n]*+')"""
+_DEEP_KEY = re.compile(rf"""(?<![A-Za-z0-9_"'.-]){_KEY_PART}"""
+                       rf"(?:[ \t]*+\.[ \t]*+{_KEY_PART}){{{MAX_KEY_PARTS}}}")
 LANDING_SHAPE = "home"
 LANDING_COLOR = "#000000"
 
 
-def load_show(path: str | Path) -> Show:
-    """Read and validate the show file at ``path``; :class:`ShowFileError` on any problem."""
+def load_show(path: str | Path, points_dirs: Sequence[str | Path] = ()) -> Show:
+    """Read and validate the show file at ``path``; :class:`ShowFileError` on any problem.
+
+    ``points_dirs`` are directories, besides the show file's own, that point
+    files (``file = "..."``) may be read from.
+    """
     p = Path(path)
     try:
-        raw = p.read_bytes()
-    except FileNotFoundError:
-        raise ShowFileError(p, "", "no such file") from None
-    except OSError as exc:
-        raise ShowFileError(p, "", f"cannot read the file: {exc.strerror or exc}") from exc
+        raw = read_regular_file(p, MAX_SHOW_FILE_BYTES)
+    except FileProblem as exc:
+        raise ShowFileError(p, "", str(exc)) from None
     try:
-        data = tomllib.loads(raw.decode("utf-8"))
+        text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ShowFileError(p, "", f"not UTF-8 text (byte {exc.start})") from None
+    deep = _DEEP_KEY.search(text)
+    if deep:
+        # tomllib's work and memory grow with the square of a dotted key's length: a
+        # 200 KB key of 100,000 parts takes minutes and tens of gigabytes.
+        line = text.count("\n", 0, deep.start()) + 1
+        raise ShowFileError(p, f"line {line}", f"a dotted key or table name has more than "
+                                               f"{MAX_KEY_PARTS} parts")
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise _syntax_error(p, exc) from None
-    return parse_show(data, str(p), p.parent)
+    except RecursionError:  # tomllib recurses once per nested array or inline table
+        raise ShowFileError(p, "", "TOML syntax error: arrays or inline tables nested too "
+                                   "deeply") from None
+    return parse_show(data, str(p), p.parent, points_dirs=points_dirs, source=raw)
 
 
 def _syntax_error(path: Path, exc: tomllib.TOMLDecodeError) -> ShowFileError:
@@ -128,18 +175,19 @@ def _check_top_level(data: dict[str, Any], path: str) -> None:
 def _read_limits(t: Table) -> Limits:
     t.check_keys((*_LIMIT_KEYS, "geofence"))
     d = Limits()
-    values = {field: t.number(key, getattr(d, field), positive=field != "min_alt",
-                              minimum=0.0 if field == "min_alt" else None)
-              for key, field in _LIMIT_KEYS.items()}
-    if values["land_battery_pct"] >= 100.0:
-        raise t.error(f"'land_battery_pct' {fmt(values['land_battery_pct'])} must be below "
+    values = {field: t.ranged(key, getattr(d, field), LIMIT_RANGES[field])
+              for key, field in _LIMIT_KEYS.items() if field != "land_battery_pct"}
+    battery = t.number("land_battery_pct", d.land_battery_pct, positive=True)
+    if battery >= 100.0:
+        raise t.error(f"'land_battery_pct' {fmt(battery)} must be below "
                       "100 (the percentage below which a drone leaves the show to land)")
+    values["land_battery_pct"] = battery
     if values["max_alt"] <= values["min_alt"]:
         raise t.error(f"'max_altitude' {fmt(values['max_alt'])} m must be above "
                       f"'min_altitude' {fmt(values['min_alt'])} m")
     fence = None
     if t.has("geofence"):
-        pts = t.point_list("geofence", (2,), min_count=3)
+        pts = t.point_list("geofence", (2,), min_count=3, max_count=MAX_GEOFENCE_CORNERS)
         area = 0.5 * np.abs(np.dot(pts[:, 0], np.roll(pts[:, 1], 1))
                             - np.dot(pts[:, 1], np.roll(pts[:, 0], 1)))
         if area <= 1e-9:
@@ -155,25 +203,29 @@ def _read_model(t: Table) -> Model:
         return QuadrotorModel()
     t.check_keys(("kind", *_UNICYCLE_KEYS))
     d = UnicycleModel()
-    return UnicycleModel(speed=t.number("speed", d.speed, positive=True),
-                         r_min=t.number("r_min", d.r_min, positive=True),
-                         max_turn_rate=t.number("max_turn_rate", d.max_turn_rate, positive=True))
+    return UnicycleModel(speed=t.ranged("speed", d.speed, above_zero(50.0)),
+                         r_min=t.ranged("r_min", d.r_min, above_zero(10_000.0)),
+                         max_turn_rate=t.ranged("max_turn_rate", d.max_turn_rate,
+                                                above_zero(100.0)))
 
 
 def _read_planner(t: Table) -> PlannerSettings:
     t.check_keys(("dt", "steps", "max_iterations", "tolerance", "pattern_tolerance",
                   "alpha", "beta", "tracking_margin"))
     d = PlannerSettings()
-    floats = {k: t.number(k, getattr(d, k), positive=True) for k in _PLANNER_FLOATS}
-    # Larger tolerances would let the SCP stop while a pair it left out drifts close.
-    floats["tolerance"] = t.number("tolerance", d.tolerance, positive=True,
-                                   maximum=MAX_TOLERANCE)
+    weight = Range(0.0, 1e6)
     return PlannerSettings(
-        **floats,
-        steps=t.integer("steps", 0, minimum=2) if t.has("steps") else d.steps,
-        max_iterations=t.integer("max_iterations", d.max_iterations, minimum=1),
-        alpha=t.number("alpha", d.alpha, minimum=0.0),
-        beta=t.number("beta", d.beta, minimum=0.0),
+        dt=t.ranged("dt", d.dt, DT),
+        # Larger tolerances would let the SCP stop while a pair it left out drifts close.
+        tolerance=t.number("tolerance", d.tolerance, positive=True, maximum=MAX_TOLERANCE),
+        pattern_tolerance=t.ranged("pattern_tolerance", d.pattern_tolerance,
+                                   above_zero(10.0)),
+        steps=t.integer("steps", 0, minimum=2, maximum=MAX_STEPS) if t.has("steps")
+        else d.steps,
+        max_iterations=t.integer("max_iterations", d.max_iterations, minimum=1,
+                                 maximum=1000),
+        alpha=t.ranged("alpha", d.alpha, weight),
+        beta=t.ranged("beta", d.beta, weight),
         tracking_margin=t.number("tracking_margin", d.tracking_margin, minimum=0.0,
                                  maximum=1.0),
     )
@@ -185,23 +237,24 @@ def _read_mpc(t: Table) -> MpcSettings:
     enabled = t.get("enabled", d.enabled)
     if not isinstance(enabled, bool):
         raise t.error(f"'enabled' must be true or false, got {describe(enabled)}")
-    trigger = t.number("trigger_error", d.trigger_error_m, positive=True)
-    release = t.number("release_error", min(d.release_error_m, trigger / 2), positive=True)
+    trigger = t.ranged("trigger_error", d.trigger_error_m, MPC_RANGES["trigger_error_m"])
+    release = t.ranged("release_error", min(d.release_error_m, trigger / 2),
+                       MPC_RANGES["release_error_m"])
     if release >= trigger:
         raise t.error(f"'release_error' {fmt(release)} m must be below 'trigger_error' "
                       f"{fmt(trigger)} m")
     return MpcSettings(enabled=enabled,
                        horizon_s=t.number("horizon", d.horizon_s, minimum=0.5, maximum=10.0),
                        trigger_error_m=trigger, release_error_m=release,
-                       release_after_s=t.number("release_after", d.release_after_s,
-                                                minimum=0.0))
+                       release_after_s=t.ranged("release_after", d.release_after_s,
+                                                MPC_RANGES["release_after_s"]))
 
 
 def _landing(t: Table, home: np.ndarray, takeoff_altitude: float, index: int,
-             unicycle: bool) -> Formation:
+             unicycle: bool, max_flight_time: float) -> Formation:
     t.check_keys(("transition", "hold", "color"))
-    transition = t.number("transition", positive=True)
-    hold = t.number("hold", 0.0, minimum=0.0)
+    transition = t.number("transition", positive=True, maximum=max_flight_time)
+    hold = t.number("hold", 0.0, minimum=0.0, maximum=max_flight_time)
     if unicycle and hold > 0:
         raise t.error(f"'hold' must be 0 for the unicycle model, got {fmt(hold)}: "
                       "it flies at constant speed and cannot hover")
@@ -215,24 +268,28 @@ def _landing(t: Table, home: np.ndarray, takeoff_altitude: float, index: int,
                      hold_s=hold, index=index)
 
 
-def parse_show(data: dict[str, Any], path: str, base_dir: str | Path = ".") -> Show:
+def parse_show(data: dict[str, Any], path: str, base_dir: str | Path = ".", *,
+               points_dirs: Sequence[str | Path] = (), source: bytes | None = None) -> Show:
     """Validate an already-parsed show file (``tomllib`` output) into a :class:`Show`.
 
     ``path`` is only used in messages; ``base_dir`` resolves relative file
-    names (CSV point files).
+    names (CSV point files), which must lie under it or under one of
+    ``points_dirs``.  ``source`` is the show file's bytes: with it the show
+    gets its :attr:`Show.digest`.
     """
     _check_top_level(data, path)
     st = _table(data, "show", path, required=True)
     st.check_keys(("name", "drones", "takeoff_altitude"))
-    name = st.string("name", Path(path).stem or "show")
-    drones = st.integer("drones", minimum=1)
-    takeoff_altitude = st.number("takeoff_altitude", 3.0, positive=True)
+    name = st.string("name", Path(path).stem or "show", max_length=MAX_NAME_CHARS)
+    drones = st.integer("drones", minimum=1, maximum=MAX_DRONES)
+    takeoff_altitude = st.ranged("takeoff_altitude", 3.0, TAKEOFF_ALTITUDE)
 
     ot = _table(data, "origin", path, required=True)
     ot.check_keys(("lat", "lon", "alt", "heading"))
-    origin = GeoOrigin(lat=ot.number("lat", minimum=-90.0, maximum=90.0),
-                       lon=ot.number("lon", minimum=-180.0, maximum=180.0),
-                       alt=ot.number("alt"), heading_deg=ot.number("heading", 0.0))
+    origin = GeoOrigin(lat=ot.ranged("lat", MISSING, ORIGIN_RANGES["lat"]),
+                       lon=ot.ranged("lon", MISSING, ORIGIN_RANGES["lon"]),
+                       alt=ot.ranged("alt", MISSING, ORIGIN_RANGES["alt"]),
+                       heading_deg=ot.ranged("heading", 0.0, ORIGIN_RANGES["heading_deg"]))
 
     limits = _read_limits(_table(data, "limits", path))
     model = _read_model(_table(data, "model", path))
@@ -249,6 +306,7 @@ def parse_show(data: dict[str, Any], path: str, base_dir: str | Path = ".") -> S
     home, seed = layout.home, layout.seed
     problem = (checks.separation_problem(home, limits.min_separation, layout.scale_key,
                                          layout.scale)
+               or checks.coordinate_problem(home, "home")
                or checks.geofence_problem(home, limits, "home"))
     if problem:
         raise tt.error(problem.replace("points ", "homes ", 1))
@@ -260,14 +318,20 @@ def parse_show(data: dict[str, Any], path: str, base_dir: str | Path = ".") -> S
                                                        for f in raw_formations):
         raise ShowFileError(path, "[formation]", "must be an array of tables: write "
                             "[[formation]] (double brackets) before each formation")
+    if len(raw_formations) > MAX_FORMATIONS:
+        raise ShowFileError(path, "[formation]", f"at most {MAX_FORMATIONS} formations, got "
+                                                 f"{len(raw_formations)}")
 
     ctx = Context(path=path, base_dir=Path(base_dir), drones=drones, model=model,
-                  takeoff_altitude=takeoff_altitude)
+                  takeoff_altitude=takeoff_altitude, points_dirs=tuple(map(Path, points_dirs)),
+                  max_flight_time=limits.max_flight_time)
     formations: list[Formation] = []
     for i, raw in enumerate(raw_formations, start=1):
         formation, table, local = read_formation(raw, i, ctx)
-        problem = (checks.separation_problem(formation.points, limits.min_separation,
-                                             local.scale_key, local.scale)
+        problem = (_steps_problem(formation.transition_s, planner)
+                   or checks.separation_problem(formation.points, limits.min_separation,
+                                                local.scale_key, local.scale)
+                   or checks.coordinate_problem(formation.points)
                    or checks.geofence_problem(formation.points, limits)
                    or checks.altitude_problem(formation.points, limits))
         if problem:
@@ -280,15 +344,59 @@ def parse_show(data: dict[str, Any], path: str, base_dir: str | Path = ".") -> S
 
     if "landing" in data:
         lt = _table(data, "landing", path)
-        formations.append(_landing(lt, home, takeoff_altitude, len(formations) + 1,
-                                   unicycle))
+        landing = _landing(lt, home, takeoff_altitude, len(formations) + 1, unicycle,
+                           limits.max_flight_time)
+        problem = _steps_problem(landing.transition_s, planner)
+        if problem:
+            raise lt.error(problem)
+        formations.append(landing)
 
     mpc = _read_mpc(_table(data, "mpc", path))
+    digest = "" if source is None else _digest(source, ctx.files_read)
     show = Show(name=name, drones=drones, origin=origin, limits=limits, model=model, home=home,
                 takeoff_altitude=takeoff_altitude, formations=tuple(formations),
-                planner=planner, start_headings=headings, mpc=mpc, source=path)
+                planner=planner, start_headings=headings, mpc=mpc, source=path, digest=digest)
+    _check_budget(show, path)
     _check_transitions(show, path)
     return show
+
+
+def _digest(source: bytes, files: Sequence[tuple[str, bytes]]) -> str:
+    """SHA-256 of the show file's bytes and of every point file it read, in order."""
+    h = hashlib.sha256(b"groundctl show v1\0")
+    for part in (source, *(b for pair in files for b in (pair[0].encode(), pair[1]))):
+        h.update(len(part).to_bytes(8, "little"))
+        h.update(part)
+    return h.hexdigest()
+
+
+def _steps_problem(transition_s: float, planner: PlannerSettings) -> str | None:
+    """Message if a transition needs more QP steps than :data:`MAX_STEPS`."""
+    steps = planner.steps_for(transition_s)
+    if steps <= MAX_STEPS:
+        return None
+    need = math.ceil(transition_s / MAX_STEPS * 100 - 1e-9) / 100
+    return (f"'transition' {fmt(transition_s)} s at [planner] dt {fmt(planner.dt)} s is "
+            f"{steps} QP steps, more than {MAX_STEPS}; raise 'dt' to at least {need:g} s "
+            f"or shorten the transition")
+
+
+def _check_budget(show: Show, path: str) -> None:
+    """The battery's endurance and the planner's work, before any of it is done."""
+    planned = sum(f.transition_s + f.hold_s for f in show.formations)
+    airborne = airborne_time(planned, show.takeoff_altitude, show.limits)
+    limit = show.limits.max_flight_time
+    if airborne > limit + 1e-9:
+        raise ShowFileError(path, "[limits]", (
+            f"the show keeps drones airborne {fmt(airborne)} s (climb, every transition and "
+            f"hold, descent) but 'max_flight_time' is {fmt(limit)} s; shorten the show, or "
+            f"raise 'max_flight_time' if the batteries last longer"))
+    steps = sum(show.planner.steps_for(f.transition_s) for f in show.formations)
+    if show.drones * steps > MAX_DRONE_STEPS:
+        raise ShowFileError(path, "[planner]", (
+            f"{show.drones} drones x {steps} QP steps is {show.drones * steps} drone-steps, "
+            f"more than {MAX_DRONE_STEPS}; raise 'dt', shorten the transitions or fly fewer "
+            f"drones"))
 
 
 def assigned_goals(show: Show) -> list[np.ndarray]:

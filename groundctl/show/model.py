@@ -10,6 +10,7 @@ executor) works in this frame; the link layer converts to each vehicle's own NED
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -56,6 +57,9 @@ class Limits:
     land_battery_pct: float = 20.0
     """A drone whose battery falls below this mid-show leaves the show on a way out and
     lands (below half of it, it lands where it is), percent."""
+    max_flight_time: float = 900.0
+    """The battery's endurance: the climb, every transition and hold, and the descent
+    must fit in it, s."""
 
 
 @dataclass(frozen=True)
@@ -138,6 +142,11 @@ class PlannerSettings:
     time: more pairs are near their rows, so QP groups grow (grid -> sphere,
     100 drones: 0.18 s -> 2.5 s at 0.1 m, 13 s at 0.2 m)."""
 
+    def steps_for(self, duration: float) -> int:
+        """QP steps N of a transition lasting ``duration`` s: ``steps``, or dt's worth
+        (at least 4).  Both planners use this rule; the loader bounds it."""
+        return self.steps or max(4, math.ceil(duration / self.dt - 1e-9))
+
 
 @dataclass(frozen=True)
 class Formation:
@@ -187,6 +196,9 @@ class Show:
     """MPC replanning in flight."""
     source: str = ""
     """Path of the show file it came from ("" if built in code)."""
+    digest: str = ""
+    """SHA-256 (hex) of the show file and the point files it reads ("" if built in code);
+    a plan records it, so that a plan is only flown with the show it was planned from."""
 
     @property
     def start_positions(self) -> FloatArray:

@@ -1,0 +1,116 @@
+"""The range of every number a show or plan file may hold, checked before any work.
+
+A show file is operator input and a plan file may come from anywhere: a
+number out of these ranges is refused by the loader with one line naming the
+file, the place, the rule and the value (``ShowFileError``), before a shape
+is generated, a matrix allocated or a planner started.  The README's
+"Ranges" section lists them; the loader and the plan-file reader both read
+them from here.
+
+Why these bounds:
+
+* ``MAX_DRONES`` 1000: the largest fleet the planner is measured at (README,
+  1000 drones in 2-4 s); one MAVLink network addresses 255 vehicles anyway.
+* ``MAX_SLOTS`` 5000 points per formation: the assignment's cost matrix is
+  drones x slots doubles (1000 x 5000: 40 MB).
+* ``MAX_STEPS`` 2000 QP steps per transition and ``MAX_DRONE_STEPS`` 10^6
+  drone-steps per show: the verifier samples every knot 12 times for every
+  drone (position, velocity, acceleration), about 0.9 GB at the limit.
+* ``MAX_COORD`` 10 km: the show frame is a flat tangent plane at the origin.
+* Flight time: every transition and hold, plus the climb and the descent, must
+  fit in ``[limits] max_flight_time`` (default 900 s), the battery's endurance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from groundctl.files import MiB
+
+MAX_DRONES = 1000
+MAX_SLOTS = 5000
+MAX_FORMATIONS = 100
+MAX_STEPS = 2000
+MAX_DRONE_STEPS = 1_000_000
+MAX_COORD = 10_000.0
+MAX_TEXT_CHARS = 200
+MAX_GEOFENCE_CORNERS = 1000
+MAX_GRADIENT_STOPS = 100
+MAX_NAME_CHARS = 100
+MAX_SEED = 2**64 - 1
+MAX_SHOW_FILE_BYTES = 1 * MiB
+MAX_POINTS_FILE_BYTES = 1 * MiB
+DEFAULT_MAX_FLIGHT_TIME = 900.0
+
+
+@dataclass(frozen=True)
+class Range:
+    """An allowed interval of one number."""
+
+    low: float
+    """Smallest value (excluded if ``low_open``)."""
+    high: float
+    """Largest value (excluded if ``high_open``)."""
+    low_open: bool = False
+    """``low`` itself is not allowed (e.g. a speed must be greater than 0)."""
+    high_open: bool = False
+    """``high`` itself is not allowed."""
+
+    def problem(self, key: str, value: object) -> str | None:
+        """Why ``value`` is not a number in this range (None if it is)."""
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            return f"'{key}' must be a number, got {type(value).__name__}"
+        try:
+            x = float(value)
+        except OverflowError:
+            return f"'{key}' must be at most {self.high:g}, got an integer of " \
+                   f"{len(str(value))} digits"
+        if not math.isfinite(x):
+            return f"'{key}' must be finite, got {x}"
+        if x < self.low or (self.low_open and x <= self.low):
+            rule = "greater than" if self.low_open else "at least"
+            return f"'{key}' must be {rule} {self.low:g}, got {x:g}"
+        if x > self.high or (self.high_open and x >= self.high):
+            rule = "below" if self.high_open else "at most"
+            return f"'{key}' must be {rule} {self.high:g}, got {x:g}"
+        return None
+
+
+def above_zero(high: float) -> Range:
+    """0 < x <= high."""
+    return Range(0.0, high, low_open=True)
+
+
+#: Limits field -> its range.
+LIMIT_RANGES: dict[str, Range] = {
+    "max_speed_h": above_zero(50.0),
+    "max_speed_up": above_zero(50.0),
+    "max_speed_down": above_zero(50.0),
+    "max_accel": above_zero(50.0),
+    "min_separation": above_zero(100.0),
+    "min_alt": Range(0.0, MAX_COORD),
+    "max_alt": above_zero(MAX_COORD),
+    "land_battery_pct": Range(0.0, 100.0, low_open=True, high_open=True),
+    "max_flight_time": above_zero(3600.0),
+}
+#: GeoOrigin field -> its range.
+ORIGIN_RANGES: dict[str, Range] = {
+    "lat": Range(-90.0, 90.0),
+    "lon": Range(-180.0, 180.0),
+    "alt": Range(-500.0, MAX_COORD),
+    "heading_deg": Range(-360.0, 360.0),
+}
+#: MpcSettings field -> its range.
+MPC_RANGES: dict[str, Range] = {
+    "horizon_s": Range(0.5, 10.0),
+    "trigger_error_m": above_zero(10.0),
+    "release_error_m": above_zero(10.0),
+    "release_after_s": Range(0.0, 600.0),
+}
+TAKEOFF_ALTITUDE = above_zero(MAX_COORD)
+COORDINATE = Range(-MAX_COORD, MAX_COORD)
+ANGLE_DEG = Range(-360.0, 360.0)
+SIZE = above_zero(MAX_COORD)
+SPACING = above_zero(1000.0)
+DT = Range(0.01, 5.0)
