@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pymap3d
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -49,9 +50,20 @@ def test_heartbeat_mode_flavour_armed(flavour: Flavour, mode: str) -> None:
     assert state.system_status == mavlink.MAV_STATE_ACTIVE
     assert [c.event for c in changes] == ["flavour", "mode_changed", "armed"]
     assert apply(state, v.heartbeat(flavour, mode, armed=True), 2.0) == []
-    changes = apply(state, v.heartbeat(flavour, mode, armed=False), 3.0)
+    # A disarm nobody asked for, in the air as far as the link knows: believed from the
+    # next HEARTBEAT with the vehicle's stream in between, not from one alone.
+    assert apply(state, v.heartbeat(flavour, mode, armed=False), 3.0) == []
+    assert state.armed
+    _stream(v, state, 3.5)
+    changes = apply(state, v.heartbeat(flavour, mode, armed=False), 4.0)
     assert [c.event for c in changes] == ["disarmed"]
-    assert state.last_heard == 3.0 and state.first_heard == 1.0 and state.packets == 3
+    assert state.last_heard == 4.0 and state.first_heard == 1.0 and state.packets == 20
+
+
+def _stream(v: Vehicle, state: VehicleState, t: float, n: int = 16) -> None:
+    """What the vehicle streams between two reports (ATTITUDE here)."""
+    for _ in range(n):
+        apply(state, v(v.mav.attitude_encode(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)), t)
 
 
 def test_companion_heartbeat_does_not_override_autopilot() -> None:
@@ -62,33 +74,51 @@ def test_companion_heartbeat_does_not_override_autopilot() -> None:
     assert state.flavour is None and state.mode == "UNKNOWN" and state.last_heartbeat is None
 
 
+def _geodetic(north: float, east: float, down: float) -> tuple[int, int, int]:
+    """MAVLink lat, lon (1e-7 deg), alt (mm) of a point NED of the EKF origin below."""
+    lat, lon, alt = pymap3d.ned2geodetic(north, east, down, 47.3977, 8.5455, 488.0)
+    return round(float(lat) * 1e7), round(float(lon) * 1e7), round(float(alt) * 1000)
+
+
 def test_telemetry_fields() -> None:
     v = Vehicle()
     m = v.mav
     s = VehicleState(3)
-    apply(s, v(m.local_position_ned_encode(1000, 1.0, 2.0, -3.0, 0.1, 0.2, -0.3)), 0)
-    apply(s, v(m.global_position_int_encode(1000, 473977419, 85455938, 500_000, 12_000,
-                                            100, -50, 25, 9000)), 0)
-    apply(s, v(m.sys_status_encode(0, 0, 0, 0, 12600, 0, 87, 0, 0, 0, 0, 0, 0)), 0)
-    apply(s, v(m.gps_raw_int_encode(0, 3, 0, 0, 0, 0, 0, 0, 0, 14)), 0)
-    apply(s, v(m.gps_global_origin_encode(473977000, 85455000, 488_000)), 0)
-    changes = apply(s, v(m.home_position_encode(473977001, 85455001, 488_100, 0, 0, 0,
-                                                [1, 0, 0, 0], 0, 0, 0)), 0)
-    assert s.position_ned == (1.0, 2.0, -3.0)
+    lat, lon, alt = _geodetic(1.0, 2.0, -12.0)
+    home = _geodetic(0.5, 0.5, 0.1)
+    changes = []
+    # Positions, battery and home are believed from reports that go on agreeing (the
+    # first one alone could be anyone's): the vehicle reports each a few times.
+    for k, t in enumerate((0.0, 0.3, 0.6, 0.9)):
+        ms = 1000 + round(t * 1000)
+        apply(s, v(m.local_position_ned_encode(ms, 1.0, 2.0, -12.0, 0.1, 0.2, -0.3)), t)
+        apply(s, v(m.global_position_int_encode(ms, lat, lon, alt, 12_000,
+                                                10, 20, -30, 9000)), t)
+        apply(s, v(m.sys_status_encode(0, 0, 0, 0, 12600, 0, 87, 0, 0, 0, 0, 0, 0)), t)
+        apply(s, v(m.gps_raw_int_encode(0, 3, 0, 0, 0, 0, 0, 0, 0, 14)), t)
+        if k == 3:
+            apply(s, v(m.gps_global_origin_encode(473977000, 85455000, 488_000)), t)
+        changes = apply(s, v(m.home_position_encode(*home, 0.5, 0.5, 0.1, [1, 0, 0, 0],
+                                                    0, 0, 0)), t)
+    assert s.position_ned == (1.0, 2.0, -12.0)
     assert s.velocity_ned == pytest.approx((0.1, 0.2, -0.3))
     g = s.global_position
-    assert g is not None and g.lat_deg == pytest.approx(47.3977419) and g.alt_m == 500.0
-    assert g.relative_alt_m == 12.0 and g.vel_ned == (1.0, -0.5, 0.25) and g.heading_deg == 90
+    assert g is not None and g.lat_deg == pytest.approx(lat / 1e7) and g.alt_m == alt / 1000
+    assert g.relative_alt_m == 12.0 and g.vel_ned == (0.1, 0.2, -0.3) and g.heading_deg == 90
     assert (s.battery_remaining_pct, s.battery_voltage_v) == (87, 12.6)
     assert (s.gps_fix_type, s.gps_satellites) == (3, 14)
     assert s.ekf_origin is not None and s.ekf_origin.alt_m == 488.0
-    assert s.home is not None and s.home.alt_m == pytest.approx(488.1)
+    assert s.home is not None and s.home.alt_m == pytest.approx(487.9)
     assert [c.event for c in changes] == ["home"]
-    # BATTERY_STATUS overrides; "unknown" markers do not erase known values
-    apply(s, v(m.battery_status_encode(0, 0, 0, 0, [4000, 4000, 4000] + [65535] * 7,
-                                       0, 0, 0, 55)), 0)
+    assert s.link_conflicts == 0
+    # BATTERY_STATUS overrides (a jump of more than 5 points: from its second report);
+    # "unknown" markers do not erase known values
+    for t in (1.0, 2.0):
+        apply(s, v(m.battery_status_encode(0, 0, 0, 0, [4000, 4000, 4000] + [65535] * 7,
+                                           0, 0, 0, 55)), t)
+        _stream(v, s, t)
     assert (s.battery_remaining_pct, s.battery_voltage_v) == (55, 12.0)
-    apply(s, v(m.sys_status_encode(0, 0, 0, 0, 65535, 0, -1, 0, 0, 0, 0, 0, 0)), 0)
+    apply(s, v(m.sys_status_encode(0, 0, 0, 0, 65535, 0, -1, 0, 0, 0, 0, 0, 0)), 3.0)
     assert (s.battery_remaining_pct, s.battery_voltage_v) == (55, 12.0)
 
 

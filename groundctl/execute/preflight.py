@@ -6,6 +6,10 @@ and the rule, so the operator sees why a vehicle is held back.  A
 raises :class:`~groundctl.errors.PreflightFailed` unless every vehicle that
 is not excluded passed.
 
+A vehicle the show does not need (every track already has a vehicle, and it
+has none: a stray system id, a spare drone, a spoofed HEARTBEAT) is reported
+and ignored, never checked: it cannot block the others.
+
 Excluding a vehicle keeps the rest of the show valid (the same trajectories
 minus some drones), but the excluded drone still stands on its takeoff slot:
 :func:`remaining_plan_conflicts` checks the neighbours' takeoff and landing
@@ -15,7 +19,7 @@ do not pass too close to it.
 from __future__ import annotations
 
 from collections.abc import Collection, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -138,7 +142,14 @@ def check_link(state: VehicleState, th: Thresholds) -> CheckResult:
         problems.append(f"RTT {rtt * 1000:.0f} ms (limit {th.max_rtt_s * 1000:.0f} ms)")
     if problems:
         return CheckResult("link", False, ", ".join(problems))
-    return CheckResult("link", True, f"loss {loss:.0%}, RTT {rtt * 1000:.0f} ms")
+    detail = f"loss {loss:.0%}, RTT {rtt * 1000:.0f} ms"
+    # Shown, never failed on: a spoofer's packets must not keep a vehicle on the ground
+    # (what they said was not believed).
+    if state.link_conflicts:
+        detail += f", {state.link_conflicts} link conflict(s)"
+    if state.bad_signatures:
+        detail += f", {state.bad_signatures} bad signature(s)"
+    return CheckResult("link", True, detail)
 
 
 def check_autopilot(state: VehicleState) -> CheckResult:
@@ -168,7 +179,10 @@ class PreflightReport:
     """Every vehicle's check results at one instant."""
 
     results: dict[int, list[CheckResult]]
-    """System id -> its check results."""
+    """System id -> its check results (the vehicles that may fly)."""
+    extra: dict[int, str] = field(default_factory=dict)
+    """System id -> why it is ignored: heard, but not needed by the show (every track
+    has a vehicle and it has none).  Never checked, never blocking."""
 
     def failures(self, excluded: Collection[int] = ()) -> dict[int, list[str]]:
         """System id -> failed checks as text, for the vehicles not ``excluded``."""
@@ -179,7 +193,10 @@ class PreflightReport:
     def lines(self, excluded: Collection[int] = ()) -> list[str]:
         """One line per vehicle, in system id order."""
         out = []
-        for sysid in sorted(self.results):
+        for sysid in sorted({*self.results, *self.extra}):
+            if sysid in self.extra:
+                out.append(f"vehicle {sysid}: ignored: {self.extra[sysid]}")
+                continue
             failed = [str(r) for r in self.results[sysid] if not r.ok]
             if sysid in excluded:
                 status = "excluded by the operator"
@@ -208,6 +225,9 @@ class PreflightReport:
         if not_ready:
             line += f", waiting for {len(not_ready)}: " + ", ".join(
                 f"{name} ({', '.join(map(str, ids))})" for name, ids in waiting.items())
+        if self.extra:
+            line += (f"; {len(self.extra)} not in the show, ignored: "
+                     + ", ".join(map(str, sorted(self.extra))))
         return line
 
     def failing_lines(self, excluded: Collection[int] = ()) -> list[str]:
@@ -223,9 +243,22 @@ class PreflightReport:
 
 def run_preflight(vehicles: Mapping[int, VehicleState], assignment: Assignment, now: float,
                   thresholds: Thresholds | None = None) -> PreflightReport:
-    """Check every vehicle in ``vehicles``."""
-    return PreflightReport({sysid: check_vehicle(state, assignment, now, thresholds)
-                            for sysid, state in sorted(vehicles.items())})
+    """Check every vehicle in ``vehicles`` the show may need.
+
+    Once every track of the plan has a vehicle, one without a track is not needed:
+    it goes in :attr:`PreflightReport.extra` (reported, ignored).  While some track
+    still has none, every vehicle is checked (it may be the one that will take it).
+    """
+    results: dict[int, list[CheckResult]] = {}
+    extra: dict[int, str] = {}
+    for sysid, state in sorted(vehicles.items()):
+        if sysid not in assignment.tracks and not assignment.unassigned_tracks:
+            why = assignment.refused.get(sysid)
+            extra[sysid] = ("not in the show (every track has a vehicle"
+                            + (f"; {why}" if why else "") + ")")
+            continue
+        results[sysid] = check_vehicle(state, assignment, now, thresholds)
+    return PreflightReport(results, extra)
 
 
 @dataclass(frozen=True)

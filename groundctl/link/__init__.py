@@ -1,7 +1,8 @@
 """MAVLink link layer: one UDP endpoint for the fleet, per-vehicle state, commands.
 
 Pure protocol modules (no I/O): :mod:`.messages` (what we send),
-:mod:`.state` (what we know), :mod:`.command` (COMMAND_LONG/ACK exchange),
+:mod:`.state` (what we know), :mod:`.trust` (what we believe: reports checked
+against the vehicle's own stream), :mod:`.command` (COMMAND_LONG/ACK exchange),
 :mod:`.timesync`, :mod:`.quality`, :mod:`.codec`, :mod:`.signing`,
 :mod:`.flavours`.  I/O: :mod:`.transport` (socket) and :mod:`.fleet`
 (:class:`FleetLink`, the asyncio API).

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from groundctl.link.signing import SigningConfig, apply_signing
+from groundctl.link.signing import SigningConfig, SigningGuard, apply_signing, new_guard
 
 #: Our MAVLink system id by convention for a ground station.
 GCS_SYSTEM_ID = 255
@@ -23,23 +23,45 @@ GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = 190
 
 
+class GuardedMAVLink(mavlink.MAVLink):
+    """pymavlink's codec with incoming signatures checked by a :class:`SigningGuard`
+    (verified before any replay state moves; see :mod:`groundctl.link.signing`)."""
+
+    guard: SigningGuard | None = None
+
+    def check_signature(self, msgbuf: bytearray, srcSystem: int,
+                        srcComponent: int) -> bool:
+        if self.guard is None:
+            return bool(super().check_signature(msgbuf, srcSystem, srcComponent))
+        # Raising here (not returning False) also keeps a badly signed packet from
+        # pymavlink's allow-unsigned fallback: only unsigned packets may be let through.
+        self.guard.verify(msgbuf, srcSystem, srcComponent)
+        return True
+
+
 def new_codec(
     src_system: int = GCS_SYSTEM_ID,
     src_component: int = GCS_COMPONENT_ID,
     signing: SigningConfig | None = None,
     wall: Callable[[], float] = time.time,
+    guard: SigningGuard | None = None,
 ) -> mavlink.MAVLink:
-    """A pymavlink ``MAVLink`` object with no file, robust parsing, optional signing."""
+    """A pymavlink ``MAVLink`` object with no file, robust parsing, optional signing.
+
+    Incoming signatures are checked by ``guard`` (shared by the codecs of one link), or
+    by a guard of this codec's own.
+    """
     if not 1 <= src_system <= 255:
         raise ValueError(f"`src_system` must be in 1..255, got {src_system}")
     if not 0 <= src_component <= 255:
         raise ValueError(f"`src_component` must be in 0..255, got {src_component}")
-    mav = mavlink.MAVLink(None, srcSystem=src_system, srcComponent=src_component)
+    mav = GuardedMAVLink(None, srcSystem=src_system, srcComponent=src_component)
     # Robust parsing turns garbage into BAD_DATA messages instead of raising
     # MAVError in the middle of a buffer (which would lose the packets after it).
     mav.robust_parsing = True
     if signing is not None:
         apply_signing(mav, signing, wall)
+        mav.guard = guard if guard is not None else new_guard(signing, wall)
     return mav
 
 
@@ -72,6 +94,9 @@ class ParseResult:
     """One reason per rejected piece: bad prefix, CRC, length, signature, truncation."""
     unknown: int = 0
     """Well-formed packets of messages our dialect does not know (ignored)."""
+    refused_signatures: list[int] = field(default_factory=list)
+    """The system id each packet refused by signing claimed (unsigned, wrong signature,
+    replayed timestamp), one entry per packet (also in :attr:`bad`)."""
 
 
 class DatagramParser:
@@ -91,7 +116,12 @@ class DatagramParser:
             self._reset()
         for msg in parsed:
             if isinstance(msg, mavlink.MAVLink_bad_data):
-                result.bad.append(str(msg.reason))
+                reason = str(msg.reason)
+                result.bad.append(reason)
+                if "signature" in reason.lower():
+                    sysid = _claimed_system(bytes(msg.data))
+                    if sysid is not None:
+                        result.refused_signatures.append(sysid)
             elif isinstance(msg, mavlink.MAVLink_unknown):
                 # A message our dialect lacks: well-formed, just not ours to read.
                 result.unknown += 1
@@ -110,3 +140,12 @@ class DatagramParser:
         self.mav.buf_index = 0
         self.mav.expected_length = mavlink.HEADER_LEN_V1 + 2
         self.mav.have_prefix_error = False
+
+
+def _claimed_system(data: bytes) -> int | None:
+    """The sender system id in a packet's header (MAVLink 2 or 1), None if too short."""
+    if len(data) > 5 and data[0] == mavlink.PROTOCOL_MARKER_V2:
+        return data[5]
+    if len(data) > 3 and data[0] == mavlink.PROTOCOL_MARKER_V1:
+        return data[3]
+    return None

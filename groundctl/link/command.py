@@ -134,7 +134,16 @@ class CommandExchange:
 
     def receive(self, ack: mavlink.MAVLink_command_ack_message, now: float) -> None:
         """Feed a COMMAND_ACK for this command (the caller checked :meth:`matches`)."""
-        if self.done or self.started_at is None or self._refusal is not None:
+        if self.done or self.started_at is None:
+            return
+        if self._refusal is not None:
+            # A refusal and an acceptance of one command cannot both be the vehicle's
+            # (without signing anyone can send an ACK): the acceptance is what the
+            # vehicle will act on, so it wins while the refusal waits for its reason.
+            if ack.result == mavlink.MAV_RESULT_ACCEPTED:
+                self._refusal, self.reason = None, ""
+                self.ack = ack
+                self.deadline = math.inf
             return
         if ack.result == mavlink.MAV_RESULT_IN_PROGRESS:
             self.in_progress = True

@@ -8,16 +8,20 @@ bytes between them and the socket, and runs the periodic duties: ground
 station HEARTBEAT, TIMESYNC requests, lost-vehicle detection.
 
 Anything odd on the wire (garbage, a truncated or badly signed packet, an
-unexpected system id, a known vehicle talking from a new address) is counted,
-logged and ignored; it never raises out of the receive path.
+unexpected system id, a known vehicle talking from a new address, a packet that
+contradicts the vehicle's own stream) is counted, logged and ignored; it never
+raises out of the receive path.  A fleet file's address pins its vehicle: only
+packets from that address (or host, ``host:*``) speak for that system id.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import ipaddress
 import logging
 import math
+import socket
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -37,13 +41,14 @@ from groundctl.link.codec import (
     new_codec,
 )
 from groundctl.link.command import CommandExchange
-from groundctl.link.flavours import Flavour, mode_request
+from groundctl.link.flavours import Flavour, mode_from_set_mode, mode_request
 from groundctl.link.fleetfile import Endpoint
 from groundctl.link.messages import FORCE_MAGIC
-from groundctl.link.signing import SigningConfig
-from groundctl.link.state import VehicleState, apply, expire_chunks
+from groundctl.link.signing import SigningConfig, new_guard
+from groundctl.link.state import VehicleState, apply, expect, expire_chunks, unexpect
 from groundctl.link.timesync import answer as timesync_answer
 from groundctl.link.transport import UdpTransport
+from groundctl.link.trust import EXPECT_S, Trust
 from groundctl.record.events import EventSink
 from groundctl.record.tlog import TlogWriter
 
@@ -77,7 +82,13 @@ class LinkStats:
     unknown_messages: int = 0
     """Well-formed packets of messages our dialect does not know, ignored."""
     address_conflicts: int = 0
-    """Packets from a known system id arriving from an unexpected address."""
+    """Packets from a known system id arriving from an unexpected address (or from
+    anywhere but the address a fleet file pins it to)."""
+    link_conflicts: int = 0
+    """Packets that contradicted their vehicle's own stream (see
+    :attr:`VehicleState.link_conflicts`), not acted on."""
+    bad_signatures: int = 0
+    """Packets refused by signing (unsigned, wrong signature, replayed), not acted on."""
     foreign_packets: int = 0
     """Packets from other ground stations (or our own system id), ignored."""
     sent: int = 0
@@ -102,8 +113,10 @@ class FleetLink:
 
     ``listen`` is the local (host, port) to bind; port 0 picks a free one
     (see :attr:`local_address`).  ``endpoints`` lists vehicles at known
-    addresses (a fleet file); their first packet confirms or corrects the
-    address.  ``expected_ids``, when given, restricts the fleet: other system
+    addresses (a fleet file): each is contacted there first, and only packets
+    from that address (or, for an endpoint without a port, from that host) speak
+    for its system id; packets under its id from anywhere else are address
+    conflicts.  ``expected_ids``, when given, restricts the fleet: other system
     ids are counted and ignored.  All times (timeouts, periods) are in
     seconds of ``clock``.
     """
@@ -164,8 +177,12 @@ class FleetLink:
         self.vehicles: dict[int, VehicleState] = {}
         """Vehicles heard from, by system id."""
         self.stats = LinkStats()
-        self._addresses: dict[int, Address] = {e.system_id: e.address for e in self.endpoints}
-        self._provisional: set[int] = set(self._addresses)
+        self._addresses: dict[int, Address] = {
+            e.system_id: e.address for e in self.endpoints if e.address is not None}
+        self._pins: dict[int, tuple[str, int | None]] = {
+            e.system_id: (_resolve(e.host), e.port) for e in self.endpoints}
+        self._guard = None if self.signing is None else new_guard(self.signing, wall)
+        self._bad_signatures: dict[int, int] = {}
         self._parsers: dict[Address, DatagramParser] = {}
         self._encoders: dict[int, Encoder] = {}
         self._bad_by_address: dict[Address, int] = {}
@@ -230,7 +247,8 @@ class FleetLink:
         parser = self._parsers.get(addr)
         if parser is None:
             parser = DatagramParser(
-                new_codec(self.system_id, self.component_id, self.signing, self._wall)
+                new_codec(self.system_id, self.component_id, self.signing, self._wall,
+                          self._guard)
             )
             self._parsers[addr] = parser
         return parser
@@ -245,6 +263,8 @@ class FleetLink:
         result = self._parser(addr).feed(data)
         for reason in result.bad:
             self._bad_packet(addr, reason)
+        for sysid in result.refused_signatures:
+            self._bad_signature(sysid, addr)
         self.stats.unknown_messages += result.unknown
         for msg in result.messages:
             self.stats.packets += 1
@@ -265,6 +285,19 @@ class FleetLink:
         log.debug("bad packet from %s:%s: %s", addr[0], addr[1], reason)
         if _log_worthy(n):
             self._emit("bad_packet", address=f"{addr[0]}:{addr[1]}", reason=reason, count=n)
+
+    def _bad_signature(self, sysid: int, addr: Address) -> None:
+        # Counted against the system id the packet claims, and nothing else: a refused
+        # packet is not heard from anyone, so it changes no state at all.
+        self.stats.bad_signatures += 1
+        n = self._bad_signatures.get(sysid, 0) + 1
+        self._bad_signatures[sysid] = n
+        state = self.vehicles.get(sysid)
+        if state is not None:
+            state.bad_signatures = n
+        if _log_worthy(n):
+            self._emit("bad_signature", system_id=sysid, address=f"{addr[0]}:{addr[1]}",
+                       count=n)
 
     def _handle(self, msg: mavlink.MAVLink_message, addr: Address, now: float) -> None:
         sysid = msg.get_srcSystem()
@@ -288,6 +321,7 @@ class FleetLink:
         state = self.vehicles.get(sysid)
         if state is None:
             state = self.vehicles[sysid] = VehicleState(sysid)
+            state.bad_signatures = self._bad_signatures.get(sysid, 0)
             self._emit("vehicle_appeared", system_id=sysid, address=f"{addr[0]}:{addr[1]}")
         if state.lost:
             state.lost = False
@@ -296,10 +330,17 @@ class FleetLink:
         self.last_packet_at = now
         changes = apply(state, msg, now)
         for change in changes:
+            if change.event == "link_conflict":
+                self.stats.link_conflicts += 1
+                if not _log_worthy(int(change.fields["count"])):
+                    continue  # a flood must not flood the event log
+                log.warning("vehicle %d: link conflict: %s", sysid, change.fields["reason"])
             self._emit(change.event, system_id=sysid, **change.fields)
         self._heard.set()
 
         kind = msg.get_type()
+        if not state.trust.last_trusted and kind != "STATUSTEXT":
+            return  # not believed: no answer, no ACK taken from it
         if kind == "TIMESYNC":
             reply = timesync_answer(msg.tc1, msg.ts1, now)
             if reply is not None:
@@ -318,32 +359,44 @@ class FleetLink:
 
     def _accept_address(self, sysid: int, addr: Address) -> bool:
         known = self._addresses.get(sysid)
+        pin = self._pins.get(sysid)
+        if pin is not None and not (addr[0] == pin[0] and pin[1] in (None, addr[1])):
+            # The fleet file says where this vehicle talks from: nobody else speaks for
+            # it, whoever comes first (a stray or spoofed HEARTBEAT must not win it).
+            where = f"{pin[0]}:{'*' if pin[1] is None else pin[1]}"
+            return self._address_conflict(sysid, addr, where)
         if known == addr:
             return True
-        if known is None or sysid in self._provisional:
-            # First packet: learn the address (a fleet file's address is only
-            # where to send until the vehicle shows where it really talks from).
-            self._provisional.discard(sysid)
+        if known is None:
+            # First packet: learn the address (for a host-only fleet entry, the port).
             self._addresses[sysid] = addr
-            if known is not None:
+            if pin is not None:
                 self._emit("address_learnt", system_id=sysid, address=f"{addr[0]}:{addr[1]}",
-                           configured=f"{known[0]}:{known[1]}")
+                           configured=f"{pin[0]}:*")
             return True
         if self.allow_address_change:
             self._addresses[sysid] = addr
+            state = self.vehicles.get(sysid)
+            if state is not None:
+                # A new sender (the vehicle rebooted onto a new port, as the operator
+                # allows): its numbering and tracks start afresh, not as a conflict.
+                state.trust = Trust()
             self._emit("address_changed", system_id=sysid, old=f"{known[0]}:{known[1]}",
                        new=f"{addr[0]}:{addr[1]}")
             return True
         # Someone else claims this system id (a duplicate id, a spoofer, or a
         # vehicle that rebooted onto a new port): never hijack the vehicle.
+        return self._address_conflict(sysid, addr, f"{known[0]}:{known[1]}")
+
+    def _address_conflict(self, sysid: int, addr: Address, known: str) -> bool:
         self.stats.address_conflicts += 1
         n = self._conflicts_by_id.get(sysid, 0) + 1
         self._conflicts_by_id[sysid] = n
         if _log_worthy(n):
-            log.warning("vehicle %d: ignoring packets from %s:%s (known at %s:%s)",
-                        sysid, addr[0], addr[1], known[0], known[1])
+            log.warning("vehicle %d: ignoring packets from %s:%s (known at %s)",
+                        sysid, addr[0], addr[1], known)
             self._emit("address_conflict", system_id=sysid, address=f"{addr[0]}:{addr[1]}",
-                       known=f"{known[0]}:{known[1]}", count=n)
+                       known=known, count=n)
         return False
 
     # -- send path -------------------------------------------------------
@@ -520,6 +573,7 @@ class FleetLink:
             )  # fmt: skip
             wake = asyncio.Event()
             self._exchanges[key] = (exchange, wake)
+            self._expect(sysid, command, params, timeout * (retries + 1) + EXPECT_S)
             try:
                 for msg in exchange.start(self.clock.now()):
                     self._send(sysid, msg)
@@ -537,12 +591,42 @@ class FleetLink:
         if exchange.error is not None:
             event = "command_refused" if exchange.ack is not None else "command_timeout"
             if exchange.ack is not None:
+                self._unexpect(sysid, command, params)
                 self.stats.commands_refused += 1
             else:
                 self.stats.commands_timed_out += 1
             self._emit(event, system_id=sysid, command=exchange.name, error=str(exchange.error))
             raise exchange.error
         return exchange.result()
+
+    def _expect(self, sysid: int, command: int, params: Sequence[float], for_s: float) -> None:
+        """What this command asks the vehicle for is believed at once when its HEARTBEAT
+        reports it (see :func:`groundctl.link.state.expect`)."""
+        state = self.vehicles.get(sysid)
+        if state is None or state.flavour is None:
+            return
+        now = self.clock.now()
+        p = [*params, 0.0, 0.0, 0.0][:3]
+        if command == mavlink.MAV_CMD_DO_SET_MODE:
+            name = mode_from_set_mode(state.flavour, p[1], p[2])
+            if name is not None:
+                expect(state, now, mode=name, for_s=for_s)
+        elif command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+            expect(state, now, armed=p[0] == 1, for_s=for_s)
+        elif command == mavlink.MAV_CMD_NAV_TAKEOFF and state.flavour is Flavour.PX4:
+            # PX4 takes off in AUTO.TAKEOFF and hovers in AUTO.LOITER once there.
+            for name in ("AUTO.TAKEOFF", "AUTO.LOITER"):
+                expect(state, now, mode=name, for_s=for_s)
+
+    def _unexpect(self, sysid: int, command: int, params: Sequence[float]) -> None:
+        state = self.vehicles.get(sysid)
+        if state is None or state.flavour is None:
+            return
+        p = [*params, 0.0, 0.0, 0.0][:3]
+        if command == mavlink.MAV_CMD_DO_SET_MODE:
+            unexpect(state, mode=mode_from_set_mode(state.flavour, p[1], p[2]))
+        elif command == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+            unexpect(state, armed=p[0] == 1)
 
     def _flavour(self, sysid: int) -> Flavour:
         state = self.vehicles.get(sysid)
@@ -669,3 +753,17 @@ class FleetLink:
     def send_message(self, sysid: int, msg: mavlink.MAVLink_message) -> None:
         """Send any message object to vehicle ``sysid`` (escape hatch)."""
         self._send(sysid, msg)
+
+
+def _resolve(host: str) -> str:
+    """A fleet file's host as packets will show it: an IP literal as it is, a name
+    resolved once (IPv4), or the name itself if it does not resolve."""
+    try:
+        return str(ipaddress.ip_address(host))
+    except ValueError:
+        pass
+    try:
+        return socket.gethostbyname(host)
+    except OSError:
+        log.warning("fleet file host %r does not resolve: no packet can match it", host)
+        return host

@@ -4,11 +4,15 @@
 
     [[vehicle]]
     system_id = 3
-    address = "127.0.0.1:14561"   # optional: vehicles that do not find us first
+    address = "127.0.0.1:14561"   # optional: where it listens and talks from
     track = 0                      # optional: the plan track it flies (else by position)
 
-Either every entry names a track or none does: a half-mapped fleet is a
-mistake, not a request for mixed assignment.
+An address pins its vehicle: only packets from that host and port speak for
+that system id (a HEARTBEAT under its id from anywhere else is an address
+conflict, whoever comes first).  ``address = "10.0.0.3:*"`` pins the host only,
+for a vehicle that talks from a port of its own choosing; it is contacted once
+it has spoken.  Either every entry names a track or none does: a half-mapped
+fleet is a mistake, not a request for mixed assignment.
 """
 
 from __future__ import annotations
@@ -40,12 +44,13 @@ class Endpoint:
     """MAVLink system id (1-254)."""
     host: str
     """IP address or host name."""
-    port: int
-    """UDP port."""
+    port: int | None
+    """UDP port; None: any port of that host (``host:*``)."""
 
     @property
-    def address(self) -> tuple[str, int]:
-        return (self.host, self.port)
+    def address(self) -> tuple[str, int] | None:
+        """Where to contact it before it has spoken (None: unknown until then)."""
+        return None if self.port is None else (self.host, self.port)
 
 
 def parse_address(text: str) -> tuple[str, int]:
@@ -60,6 +65,15 @@ def parse_address(text: str) -> tuple[str, int]:
     if not 0 < port < 65536:
         raise ValueError(f"address {text!r}: port {port} is not in 1..65535")
     return host.strip("[]"), port
+
+
+def parse_pin(text: str) -> tuple[str, int | None]:
+    """A fleet file's address: ``"host:port"`` -> ``(host, port)``, ``"host:*"`` (any
+    port of that host) -> ``(host, None)``; raises ValueError naming the problem."""
+    host, sep, port_text = text.rpartition(":")
+    if sep and host and port_text == "*":
+        return host.strip("[]"), None
+    return parse_address(text)
 
 
 @dataclass(frozen=True)
@@ -117,7 +131,7 @@ def parse_fleet_file(data: dict[str, object], path: str | Path = "<fleet>") -> F
             raise FleetFileError(path, f"{where}: address",
                                  f"must be a string 'host:port', got {address!r}")
         try:
-            host, port = parse_address(address)
+            host, port = parse_pin(address)
         except ValueError as exc:
             raise FleetFileError(path, f"{where}: address", str(exc)) from exc
         endpoints.append(Endpoint(sysid, host, port))

@@ -3,15 +3,25 @@
 pymavlink keeps signing state on each ``MAVLink`` codec object (``mav.signing``):
 the secret key, our link id, whether to sign what we send, a per-stream
 replay guard for what we receive, and a callback deciding whether an unsigned
-packet may pass.  This module only fills that state in; the codec enforces it
-(an unsigned or badly signed packet comes out of the parser as BAD_DATA).
+packet may pass.  This module fills that state in, and checks incoming
+signatures itself (:class:`SigningGuard`): pymavlink 2.4.50's
+``check_signature`` stores a packet's timestamp as the stream's newest *before*
+it verifies the signature, so one packet with a wrong signature and a fresh
+timestamp made every later genuine packet of that stream a "replay" (the
+vehicle was marked lost for the rest of the flight).  Here nothing moves until
+the signature is verified, and the replay guard is shared by every codec of a
+link (MAVLink keys streams by link id, system and component, not by address: a
+signed packet replayed from another port is a replay too).  A rejected packet
+comes out of the parser as BAD_DATA whose reason says ``signature``.
 """
 
 from __future__ import annotations
 
+import hashlib
+import hmac
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -60,3 +70,55 @@ def apply_signing(
     mav.signing.timestamp = signing_timestamp(wall())
     allow, always = config.allow_unsigned, config.unsigned_ok
     mav.signing.allow_unsigned_callback = lambda _mav, msgid: allow or msgid in always
+
+
+#: A new stream's first timestamp may be this far behind ours (MAVLink: one minute), in
+#: signing timestamp units (10 µs).
+NEW_STREAM_SLACK = 60 * 100_000
+
+
+@dataclass
+class SigningGuard:
+    """Incoming signature checks for every codec of one link (or of one vehicle).
+
+    :meth:`verify` checks the signature first and only then the timestamp against the
+    stream's newest, so a forged packet changes nothing; a replayed one (a timestamp
+    not after the newest of its stream) is refused without changing anything either.
+    """
+
+    key: bytes
+    """The shared secret, 32 bytes."""
+    timestamp: int
+    """Our newest timestamp: the wall clock at start, then the newest accepted.  A new
+    stream must start within NEW_STREAM_SLACK of it."""
+    streams: dict[tuple[int, int, int], int] = field(default_factory=dict)
+    """(link id, system id, component id) -> newest timestamp of a verified packet."""
+
+    def __post_init__(self) -> None:
+        if len(self.key) != 32:
+            raise ValueError(f"`key` must be 32 bytes, got {len(self.key)}")
+
+    def verify(self, msgbuf: bytes | bytearray, src_system: int, src_component: int) -> None:
+        """Accept signed packet ``msgbuf`` or raise pymavlink's MAVError saying why (the
+        parser turns it into BAD_DATA, so it never leaves the codec)."""
+        if len(msgbuf) < 13 + 12:
+            raise mavlink.MAVError("bad signature: packet too short to carry one")
+        link_id = msgbuf[-13]
+        timestamp = int.from_bytes(msgbuf[-12:-6], "little")
+        digest = hashlib.sha256(self.key + bytes(msgbuf[:-6])).digest()[:6]
+        if not hmac.compare_digest(digest, bytes(msgbuf[-6:])):
+            raise mavlink.MAVError("bad signature (wrong key or corrupted packet)")
+        stream = (link_id, src_system, src_component)
+        newest = self.streams.get(stream)
+        if newest is not None and timestamp <= newest:
+            raise mavlink.MAVError(f"signature replayed: timestamp {timestamp} not after "
+                                   f"{newest} on link {link_id}")
+        if newest is None and timestamp + NEW_STREAM_SLACK < self.timestamp:
+            raise mavlink.MAVError("signature of a new stream more than a minute old")
+        self.streams[stream] = timestamp
+        self.timestamp = max(self.timestamp, timestamp)
+
+
+def new_guard(config: SigningConfig, wall: Callable[[], float] = time.time) -> SigningGuard:
+    """A guard for ``config``'s key, starting from the wall clock now."""
+    return SigningGuard(bytes(config.key), signing_timestamp(wall()))

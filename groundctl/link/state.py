@@ -2,14 +2,21 @@
 
 :func:`apply` takes a decoded message and the time it arrived and updates a
 :class:`VehicleState`; it returns the notable changes (mode changed, armed,
-STATUSTEXT...) so the caller can log them.  No I/O here.
+STATUSTEXT, link conflicts...) so the caller can log them.  No I/O here.
+
+The fields are what the ground station *believes*: a report that contradicts the
+vehicle's own stream changes nothing, and a mode, arming, landed state, battery
+level, EKF origin or home that would end its show unasked is believed only once a
+second report confirms it (:mod:`groundctl.link.trust` has the rules).
 """
 
 from __future__ import annotations
 
 import math
+import operator
 from collections import deque
-from dataclasses import dataclass, field
+from collections.abc import Collection
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -17,6 +24,28 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from groundctl.link.flavours import Flavour, decode_mode
 from groundctl.link.quality import SequenceTracker
 from groundctl.link.timesync import TimesyncEstimator, TimesyncSample
+from groundctl.link.trust import (
+    BATTERY_STEP_PCT,
+    CONFIRM_PACKETS,
+    CONFIRM_PACKETS_IN_STEP,
+    DISARM_BALLISTIC_S,
+    DISARM_CLIMB_MS,
+    EXPECT_S,
+    GROUND_FRESH_S,
+    GROUND_HEIGHT_M,
+    GROUND_SPEED_MS,
+    HOME_UNDER_M,
+    LANDING_MODES,
+    ORIGIN_TOLERANCE_M,
+    PAIR_WINDOW_S,
+    HeartbeatClaim,
+    QuickClaim,
+    Sample,
+    Seq,
+    Trust,
+    metres_per_degree,
+    origin_error_m,
+)
 
 Vec3 = tuple[float, float, float]
 
@@ -147,6 +176,20 @@ class VehicleState:
         default_factory=lambda: deque(maxlen=20)
     )
     """The most recent COMMAND_ACKs, oldest first."""
+    landed_state: int | None = None
+    """EXTENDED_SYS_STATE.landed_state (MAV_LANDED_STATE), where the vehicle sends it."""
+    link_conflicts: int = 0
+    """Packets under this system id that contradicted the vehicle's own stream (a second
+    sender: two packets with one sequence number, a jump back, a position off its track,
+    a mode or disarm reported once and contradicted, an EKF origin its positions deny).
+    Counted, never acted on."""
+    last_conflict: str | None = None
+    """Why the last link conflict was one."""
+    bad_signatures: int = 0
+    """Packets under this system id refused by signing (wrong key, replayed timestamp,
+    unsigned): counted, never acted on."""
+    trust: Trust = field(default_factory=Trust, repr=False)
+    """The bookkeeping behind what is believed (pending reports, numberings)."""
 
     @property
     def loss_ratio(self) -> float:
@@ -193,66 +236,296 @@ def _is_autopilot_heartbeat(msg: mavlink.MAVLink_heartbeat_message) -> bool:
     )
 
 
+#: Messages read from a packet that does not fit the vehicle's stream (a link
+#: conflict) or from a component other than its autopilot: nothing they say changes
+#: what the ground station believes, but their text is worth showing.
+_FROM_ANYONE = frozenset({"STATUSTEXT"})
+#: Every message type whose report may wait for confirmation.
+_ALL_KINDS = frozenset({"HEARTBEAT", "SYS_STATUS", "EXTENDED_SYS_STATE", "HOME_POSITION",
+                        "GPS_GLOBAL_ORIGIN"})
+
+
 def apply(state: VehicleState, msg: mavlink.MAVLink_message, now: float) -> list[StateChange]:
-    """Update ``state`` from ``msg`` received at ``now``; returns notable changes."""
+    """Update ``state`` from ``msg`` received at ``now``; returns notable changes.
+
+    What the message says is believed only as far as :mod:`groundctl.link.trust`
+    allows: a packet that contradicts the vehicle's own stream is counted as a link
+    conflict (a ``link_conflict`` change) and not acted on, and
+    ``state.trust.last_trusted`` says whether this one was (the link routes ACKs and
+    answers TIMESYNC only for packets it trusts).
+    """
     changes: list[StateChange] = []
     state.packets += 1
     if state.first_heard is None:
         state.first_heard = now
     state.last_heard = now
     header = msg.get_header()
-    state.quality.update(header.srcComponent, header.seq)
-
+    comp = header.srcComponent
+    state.quality.update(comp, header.seq)
+    trust = state.trust
+    buf = msg.get_msgbuf()
+    numbering = trust.sequence(comp)
     kind = msg.get_type()
+    verdict = numbering.check(header.seq, hash(bytes(buf)) if buf else hash(str(msg)), kind,
+                              now)
+    if numbering.blame is not None:
+        _conflict(state, f"component {comp}: {numbering.blame}", changes, numbering.blamed)
+        numbering.blame = None
+    if verdict is Seq.DUPLICATE:
+        trust.last_trusted = False  # the same bytes again: already acted on
+        return changes
+    if verdict in (Seq.CONFLICT, Seq.HELD):
+        if verdict is Seq.CONFLICT:
+            _conflict(state, f"component {comp}: {numbering.reason}", changes,
+                      numbering.suspects)
+        trust.last_trusted = False
+        if kind == "HEARTBEAT" and _is_autopilot_heartbeat(msg) \
+                and comp == trust.autopilot_component:
+            state.last_heartbeat = now  # it may be the vehicle's own: it is alive
+        if kind in _FROM_ANYONE:
+            _HANDLERS[kind](state, msg, now, changes)
+        return changes
+    if verdict is Seq.RESTART:
+        # A second numbering took over (or the vehicle rebooted without a silence):
+        # nothing waiting for confirmation can be told apart from a forger's.
+        _conflict(state, f"component {comp}: {numbering.reason}", changes, _ALL_KINDS)
+    trust.last_trusted = True
+    if kind == "HEARTBEAT":
+        _heartbeat(state, msg, now, changes)
+        return changes
+    if trust.quick is not None:
+        _settle_quick(state, now, changes)
+    if trust.autopilot_component is not None and comp != trust.autopilot_component \
+            and kind not in _FROM_ANYONE:
+        # Only the autopilot speaks for the vehicle's state: a packet under another
+        # component id has its own numbering, which no stream of the autopilot's
+        # could contradict.
+        trust.last_trusted = False
+        return changes
     handler = _HANDLERS.get(kind)
     if handler is not None:
         handler(state, msg, now, changes)
+    if trust.quick is not None:
+        _settle_quick(state, now, changes)
     return changes
+
+
+def expect(state: VehicleState, now: float, *, mode: str | None = None,
+           armed: bool | None = None, for_s: float = EXPECT_S) -> None:
+    """The executor asked vehicle ``state`` for ``mode`` (or to arm / disarm) at ``now``:
+    when its HEARTBEAT reports it within ``for_s`` it is believed at once."""
+    if mode is not None:
+        state.trust.expected.modes[mode] = now + for_s
+    if armed is not None:
+        state.trust.expected.armed = (armed, now + for_s)
+
+
+def unexpect(state: VehicleState, *, mode: str | None = None,
+             armed: bool | None = None) -> None:
+    """The vehicle refused what was asked: nothing of it is expected any more."""
+    if mode is not None:
+        state.trust.expected.modes.pop(mode, None)
+    exp = state.trust.expected.armed
+    if armed is not None and exp is not None and exp[0] is armed:
+        state.trust.expected.armed = None
+
+
+def _conflict(state: VehicleState, reason: str, changes: list[StateChange],
+              kinds: Collection[str] = ()) -> None:
+    """Count a link conflict; what messages of ``kinds`` said and is still waiting for
+    confirmation is forgotten (one of the two packets was not the vehicle's)."""
+    state.link_conflicts += 1
+    state.last_conflict = reason
+    state.trust.forget(kinds)
+    changes.append(StateChange("link_conflict", {"reason": reason,
+                                                 "count": state.link_conflicts}))
 
 
 def _heartbeat(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
     if not _is_autopilot_heartbeat(msg):
         return
+    trust = state.trust
+    comp = msg.get_srcComponent()
+    pinned = trust.autopilot_component
+    if pinned is None or (comp == mavlink.MAV_COMP_ID_AUTOPILOT1 and pinned != comp):
+        # MAVLink's autopilot is component 1: a first HEARTBEAT under another
+        # component (a forged one, first) must not lock the real autopilot out.
+        if pinned is not None:
+            _conflict(state, f"autopilot HEARTBEATs from components {pinned} and {comp}: "
+                             f"following component {comp}", changes)
+        trust.autopilot_component = comp
+    elif comp != pinned:
+        _conflict(state, f"a second autopilot (component {comp}) speaks for this vehicle "
+                         f"(its autopilot is component {pinned})", changes)
+        trust.last_trusted = False
+        return
     state.last_heartbeat = now
     flavour = Flavour.from_heartbeat(msg.autopilot)
+    claim = HeartbeatClaim(flavour, decode_mode(flavour, msg.base_mode, msg.custom_mode),
+                           bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED))
+    if not trust.heartbeat_seen:
+        trust.heartbeat_seen = True  # nothing to contradict yet: the first is believed
+        _believe_heartbeat(state, claim, msg.type, msg.system_status, changes)
+        return
+    believed = HeartbeatClaim(state.flavour, state.mode, state.armed)
+    if claim == believed:
+        state.vehicle_type, state.system_status = msg.type, msg.system_status
+        pending = trust.heartbeat.first()
+        said = trust.quick.claim if trust.quick is not None else \
+            pending.value if pending is not None else None
+        if isinstance(said, HeartbeatClaim):
+            trust.heartbeat.clear()
+            trust.quick = None
+            _conflict(state, f"one HEARTBEAT said {said.describe()}, the next "
+                             f"{claim.describe()} again", changes)
+        return
+    if trust.heartbeat.offer(claim, now, operator.eq, state.packets):
+        trust.quick = None
+        _believe_heartbeat(state, claim, msg.type, msg.system_status, changes)
+    elif (trust.quick is None or trust.quick.claim != claim) \
+            and _believable_without_second(state, claim, believed, now):
+        step = trust.sequence(comp).step
+        wait = CONFIRM_PACKETS_IN_STEP if step == 1 else CONFIRM_PACKETS
+        trust.quick = QuickClaim(claim, msg.type, msg.system_status, state.packets + wait)
+
+
+def _settle_quick(state: VehicleState, now: float, changes: list[StateChange]) -> None:
+    """A claim that needs no second HEARTBEAT is believed once a few more packets of
+    the vehicle came with no conflict over a HEARTBEAT (a forged one would have met
+    the vehicle's own numbering by then), if it still holds."""
+    trust = state.trust
+    q = trust.quick
+    assert q is not None
+    if state.packets < q.due:
+        return
+    trust.quick = None
+    believed = HeartbeatClaim(state.flavour, state.mode, state.armed)
+    if q.claim != believed and _believable_without_second(state, q.claim, believed, now):
+        trust.heartbeat.clear()
+        _believe_heartbeat(state, q.claim, q.vehicle_type, q.system_status, changes)
+
+
+def _believable_without_second(state: VehicleState, claim: HeartbeatClaim,
+                               believed: HeartbeatClaim, now: float) -> bool:
+    """A change the executor asked for, or a disarm standing on the ground after a
+    landing: nothing ends by surprise, so it needs no second HEARTBEAT."""
+    exp = state.trust.expected
+    if claim.flavour is not believed.flavour:
+        return False
+    if claim.mode != believed.mode and not exp.mode(claim.mode, now):
+        return False
+    if claim.armed != believed.armed and not exp.arming(claim.armed, now):
+        return not claim.armed and claim.mode in LANDING_MODES and _on_ground(state, now)
+    return True
+
+
+def _on_ground(state: VehicleState, now: float) -> bool:
+    """The vehicle's own believed telemetry says it stands on the ground, now."""
+    trust = state.trust
+    gp = state.global_position
+    if gp is not None and trust.global_at is not None and now - trust.global_at <= \
+            GROUND_FRESH_S and gp.relative_alt_m <= GROUND_HEIGHT_M \
+            and abs(gp.vel_ned[2]) <= GROUND_SPEED_MS:
+        return True
+    return (state.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND
+            and trust.landed_at is not None and now - trust.landed_at <= 2 * GROUND_FRESH_S)
+
+
+def _believe_heartbeat(state: VehicleState, claim: HeartbeatClaim, vehicle_type: int,
+                       system_status: int, changes: list[StateChange]) -> None:
+    flavour = claim.flavour
     if flavour is not state.flavour:
         state.flavour = flavour
         changes.append(StateChange("flavour", {"flavour": str(flavour) if flavour else None}))
-    state.vehicle_type = msg.type
-    state.system_status = msg.system_status
-    mode = decode_mode(flavour, msg.base_mode, msg.custom_mode)
-    if mode != state.mode:
-        changes.append(StateChange("mode_changed", {"old": state.mode, "new": mode}))
-        state.mode = mode
-    armed = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-    if armed != state.armed:
-        state.armed = armed
-        changes.append(StateChange("armed" if armed else "disarmed", {}))
+    state.vehicle_type = vehicle_type
+    state.system_status = system_status
+    exp = state.trust.expected
+    if claim.mode != state.mode:
+        changes.append(StateChange("mode_changed", {"old": state.mode, "new": claim.mode}))
+        state.mode = claim.mode
+    exp.modes.pop(claim.mode, None)
+    if claim.armed != state.armed:
+        state.armed = claim.armed
+        changes.append(StateChange("armed" if claim.armed else "disarmed", {}))
+    if exp.armed is not None and exp.armed[0] is claim.armed:
+        exp.armed = None
 
 
 def _local_position(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
-    prev = state.local_time_boot_ms
-    if prev is not None and msg.time_boot_ms > prev:
-        gap = (msg.time_boot_ms - prev) / 1000.0
-        if gap > STREAM_GAP_S:
-            state.stream_gaps += 1
-            state.last_stream_gap_s = gap
-    state.position_ned = (msg.x, msg.y, msg.z)
-    state.velocity_ned = (msg.vx, msg.vy, msg.vz)
-    state.local_time_boot_ms = msg.time_boot_ms
+    trust = state.trust
+    sample = Sample(msg.time_boot_ms / 1000.0, (msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz),
+                    now)
+    believed, conflict = trust.local.offer(sample)
+    if conflict is not None:
+        _conflict(state, f"LOCAL_POSITION_NED: {conflict}", changes)
+    for s in believed:
+        ms = round(s.t * 1000.0)
+        prev = state.local_time_boot_ms
+        if prev is not None and ms > prev:
+            gap = (ms - prev) / 1000.0
+            if gap > STREAM_GAP_S:
+                state.stream_gaps += 1
+                state.last_stream_gap_s = gap
+        state.position_ned = s.pos
+        state.velocity_ned = s.vel
+        state.local_time_boot_ms = ms
+    if believed:
+        _after_motion(state, believed[-1].vel[2], now, changes)
 
 
 def _global_position(
     state: VehicleState, msg: Any, now: float, changes: list[StateChange]
 ) -> None:
-    state.global_position = GlobalPosition(
-        lat_deg=msg.lat / 1e7,
-        lon_deg=msg.lon / 1e7,
-        alt_m=msg.alt / 1000.0,
+    trust = state.trust
+    lat, lon, alt = msg.lat / 1e7, msg.lon / 1e7, msg.alt / 1000.0
+    if not (abs(lat) <= 90.0 and abs(lon) <= 180.0):
+        _conflict(state, f"GLOBAL_POSITION_INT at latitude {lat}, longitude {lon}", changes)
+        return
+    if trust.global_ref is None:
+        trust.global_ref = (lat, lon, *metres_per_degree(lat))
+    lat0, lon0, north_m, east_m = trust.global_ref
+    here = GlobalPosition(
+        lat_deg=lat,
+        lon_deg=lon,
+        alt_m=alt,
         relative_alt_m=msg.relative_alt / 1000.0,
         vel_ned=(msg.vx / 100.0, msg.vy / 100.0, msg.vz / 100.0),
         heading_deg=None if msg.hdg == 65535 else msg.hdg / 100.0,
     )
+    t = msg.time_boot_ms / 1000.0
+    sample = Sample(t, ((lat - lat0) * north_m, (lon - lon0) * east_m, -alt), here.vel_ned, now,
+                    payload=(here, t))
+    believed, conflict = trust.global_.offer(sample)
+    if conflict is not None:
+        _conflict(state, f"GLOBAL_POSITION_INT: {conflict}", changes)
+    if not believed:
+        return
+    last = believed[-1]
+    payload = last.payload
+    assert isinstance(payload, tuple)
+    gp: GlobalPosition = payload[0]
+    t_last: float = payload[1]
+    state.global_position = gp
+    trust.global_raw = (t_last, gp.lat_deg, gp.lon_deg, gp.alt_m)
+    trust.global_at = now
+    # Measure the next samples around this one (metres per degree change with latitude).
+    trust.global_ref = (gp.lat_deg, gp.lon_deg, *metres_per_degree(gp.lat_deg))
+    trust.global_.ref = replace(last, pos=(0.0, 0.0, -gp.alt_m))
+    _after_motion(state, gp.vel_ned[2], now, changes)
+
+
+def _after_motion(state: VehicleState, vz_down: float, now: float,
+                  changes: list[StateChange]) -> None:
+    """A believed position sample: refute a pending disarm of a climbing vehicle, and
+    check a pending EKF origin against the positions."""
+    trust = state.trust
+    if state.armed and -vz_down > DISARM_CLIMB_MS and any(
+            isinstance(p.value, HeartbeatClaim) and not p.value.armed
+            and now - p.at >= DISARM_BALLISTIC_S for p in trust.heartbeat.items):
+        _conflict(state, f"HEARTBEAT said disarmed while it climbs at {-vz_down:.1f} m/s",
+                  changes, ("HEARTBEAT",))
+    if trust.origin is not None:
+        _settle_origin(state, changes)
 
 
 def _sys_status(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
@@ -264,7 +537,7 @@ def _sys_status(state: VehicleState, msg: Any, now: float, changes: list[StateCh
         state.prearm_ok = ok
     # -1 and UINT16_MAX mean "not measured": keep what BATTERY_STATUS may have said.
     if msg.battery_remaining >= 0:
-        state.battery_remaining_pct = float(msg.battery_remaining)
+        _battery(state, float(msg.battery_remaining), now, changes)
     if msg.voltage_battery != 65535:
         state.battery_voltage_v = msg.voltage_battery / 1000.0
 
@@ -275,10 +548,32 @@ def _battery_status(
     if msg.id != 0:
         return  # only the first (main) battery
     if msg.battery_remaining >= 0:
-        state.battery_remaining_pct = float(msg.battery_remaining)
+        _battery(state, float(msg.battery_remaining), now, changes)
     cells = [v for v in msg.voltages if v != 65535]
     if cells:
         state.battery_voltage_v = sum(cells) / 1000.0
+
+
+def _battery(state: VehicleState, pct: float, now: float, changes: list[StateChange]) -> None:
+    """A battery level: the first, and one far from the believed level (a low one sends
+    the vehicle home, or keeps it on the ground), is believed from a second report."""
+    trust = state.trust
+    believed = state.battery_remaining_pct
+    if believed is not None and abs(pct - believed) <= BATTERY_STEP_PCT:
+        state.battery_remaining_pct = pct
+        pending = trust.battery.first()
+        if pending is not None and isinstance(pending.value, float):
+            # Reported once far off, then the believed level again: not the vehicle's.
+            trust.battery.clear()
+            _conflict(state, f"battery {pending.value:.0f} % in one report, {pct:.0f} % "
+                             "around it", changes)
+        return
+    if trust.battery.offer(pct, now, _same_battery, state.packets):
+        state.battery_remaining_pct = pct
+
+
+def _same_battery(a: object, b: object) -> bool:
+    return isinstance(a, float) and isinstance(b, float) and abs(a - b) <= BATTERY_STEP_PCT
 
 
 def _gps_raw(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
@@ -286,8 +581,45 @@ def _gps_raw(state: VehicleState, msg: Any, now: float, changes: list[StateChang
     state.gps_satellites = None if msg.satellites_visible == 255 else msg.satellites_visible
 
 
+def _extended_sys_state(state: VehicleState, msg: Any, now: float,
+                        changes: list[StateChange]) -> None:
+    trust = state.trust
+    value = int(msg.landed_state)
+    if value == state.landed_state:
+        trust.landed_at = now
+        return
+    if trust.landed_state.offer(value, now, operator.eq, state.packets):
+        changes.append(StateChange("landed_state", {"state": value}))
+        state.landed_state, trust.landed_at = value, now
+
+
 def _origin(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
-    origin = GeoPoint(msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1000.0)
+    # Believed once the vehicle's own positions agree with it (see _settle_origin).
+    state.trust.origin = (msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1000.0)
+    _settle_origin(state, changes)
+
+
+def _settle_origin(state: VehicleState, changes: list[StateChange]) -> None:
+    """Check the pending EKF origin against a believed local and global position pair
+    close in time: where the global position minus the local offset puts the origin."""
+    trust = state.trust
+    claim, local, raw = trust.origin, trust.local.ref, trust.global_raw
+    if claim is None or local is None or raw is None:
+        return
+    t, lat, lon, alt = raw
+    dt = t - local.t
+    if abs(dt) > PAIR_WINDOW_S:
+        return  # wait for a closer pair
+    ned = (local.pos[0] + local.vel[0] * dt, local.pos[1] + local.vel[1] * dt,
+           local.pos[2] + local.vel[2] * dt)
+    trust.origin = None
+    horizontal, vertical, allowed = origin_error_m(claim, (lat, lon, alt), ned)
+    if not (horizontal <= allowed and vertical <= allowed):
+        _conflict(state, f"EKF origin {claim[0]:.7f}, {claim[1]:.7f}, {claim[2]:.1f} m is "
+                         f"{horizontal:.1f} m across and {vertical:.1f} m up or down from "
+                         "where its own positions put it", changes)
+        return
+    origin = GeoPoint(*claim)
     if origin != state.ekf_origin:
         state.ekf_origin = origin
         changes.append(StateChange("ekf_origin", {"lat": origin.lat_deg, "lon": origin.lon_deg,
@@ -295,7 +627,50 @@ def _origin(state: VehicleState, msg: Any, now: float, changes: list[StateChange
 
 
 def _home(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
-    home = GeoPoint(msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1000.0)
+    """HOME_POSITION: refused where it says where it is in the local frame (ArduPilot
+    and PX4 both do) and the EKF origin puts that elsewhere; believed at once where
+    it also lies under the disarmed vehicle (both set home where it stands, at boot
+    and at arming); otherwise from a second agreeing report."""
+    trust = state.trust
+    claim = (msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1000.0)
+    local = (float(msg.x), float(msg.y), float(msg.z))
+    origin = state.ekf_origin
+    checked = False
+    if origin is not None and any(local):
+        horizontal, vertical, allowed = origin_error_m(
+            (origin.lat_deg, origin.lon_deg, origin.alt_m), claim, local)
+        if not (horizontal <= allowed and vertical <= allowed):
+            _conflict(state, f"home is {horizontal:.1f} m across and {vertical:.1f} m up or "
+                             "down from where its own local position puts it", changes,
+                      ("HOME_POSITION",))
+            return
+        checked = True
+    home = state.home
+    if home is not None and _near(claim, (home.lat_deg, home.lon_deg, home.alt_m)):
+        return
+    gp = state.global_position
+    under = checked and not state.armed and gp is not None and trust.global_at is not None \
+        and now - trust.global_at <= GROUND_FRESH_S \
+        and _near(claim, (gp.lat_deg, gp.lon_deg, gp.alt_m), HOME_UNDER_M)
+    if under or trust.home.offer(claim, now, _near_claims, state.packets):
+        trust.home.clear()
+        _believe_home(state, claim, changes)
+
+
+def _near_claims(a: object, b: object) -> bool:
+    return isinstance(a, tuple) and isinstance(b, tuple) and _near(a, b)
+
+
+def _near(a: tuple[float, float, float], b: tuple[float, float, float],
+          within_m: float = ORIGIN_TOLERANCE_M) -> bool:
+    north_m, east_m = metres_per_degree(a[0])
+    return math.hypot((a[0] - b[0]) * north_m, (a[1] - b[1]) * east_m) <= within_m \
+        and abs(a[2] - b[2]) <= within_m
+
+
+def _believe_home(state: VehicleState, claim: tuple[float, float, float],
+                  changes: list[StateChange]) -> None:
+    home = GeoPoint(*claim)
     if home != state.home:
         state.home = home
         changes.append(StateChange("home", {"lat": home.lat_deg, "lon": home.lon_deg,
@@ -402,6 +777,7 @@ _HANDLERS = {
     "GPS_RAW_INT": _gps_raw,
     "GPS_GLOBAL_ORIGIN": _origin,
     "HOME_POSITION": _home,
+    "EXTENDED_SYS_STATE": _extended_sys_state,
     "STATUSTEXT": _statustext,
     "COMMAND_ACK": _ack,
     "TIMESYNC": _timesync,
