@@ -184,6 +184,16 @@ the timing of the 10 Hz ticks against the push) -- the push carries the vehicle
 4.2 m in one second whatever is commanded, so the neighbour alone must make up
 the gap within its acceleration limit.
 
+Weak vehicles
+-------------
+A vehicle with less authority than its fleet
+(:mod:`groundctl.execute.authority`) gets its own, scaled limits and a
+``lookahead`` of its path (20 s): the reference it is corrected towards is then
+that path re-timed to what it can fly (:mod:`groundctl.execute.retime`: it sets
+off early and lands late, halving the largest error of simply following), not
+the path itself.  The re-timing is solved again every ``RETIME_EVERY_S``; the
+MPC, its neighbours and its verification are as for any vehicle.
+
 Many vehicles at once
 ---------------------
 If every vehicle solved against the others' *old* predictions, two vehicles
@@ -221,6 +231,7 @@ import osqp
 import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 
+from groundctl.execute.retime import Retimed, Retimer
 from groundctl.plan.qp_build import SLACK_TOL, FixedPattern, RowBuilder, chord_normals
 from groundctl.plan.quad_qp import SEPARATION_BUFFER, chord_separation
 from groundctl.plan.verify import inside_polygon
@@ -255,6 +266,8 @@ RECOVERY_MPS = 0.75
 #: How fast an autopilot streamed the path takes a vehicle back onto it (its offset
 #: fades as exp(-t / PATH_SETTLE_S)), s: the "keep its path" escape candidate.
 PATH_SETTLE_S = 1.0
+#: A weak vehicle's re-timed reference is solved again after this long, s.
+RETIME_EVERY_S = 1.0
 #: Below this a direction (speed, acceleration) is taken as undefined.
 _TINY = 1e-6
 
@@ -398,6 +411,13 @@ class MpcRequest:
     required with ``neighbours``."""
     a0: FloatArray | None = None
     """(3,) the vehicle's current acceleration, if known (smooths the first step)."""
+    lookahead: FloatArray | None = None
+    """(L+1, 3) the path at ``t0 + k lookahead_dt`` far beyond the horizon, for a
+    vehicle that cannot fly it as fast as it goes (``limits`` are then its own): the
+    reference becomes the path re-timed to those limits (module docstring, "Weak
+    vehicles").  None: the path as it is."""
+    lookahead_dt: float = 0.25
+    """Step of ``lookahead``, s."""
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.t0):
@@ -414,6 +434,11 @@ class MpcRequest:
         set_(self, "ref_acc", _array("ref_acc", self.ref_acc, (n, 3)))
         if self.a0 is not None:
             set_(self, "a0", _array("a0", self.a0, (3,)))
+        if self.lookahead is not None:
+            set_(self, "lookahead", _array("lookahead", self.lookahead, (None, 3)))
+            if len(self.lookahead) < 3 or not self.lookahead_dt > 0:
+                raise ValueError("`lookahead` must hold at least 3 samples and "
+                                 "`lookahead_dt` be positive")
         nb = np.empty((0, n, 3)) if self.neighbours is None else self.neighbours
         nb = _array("neighbours", nb, (None, n, 3))
         set_(self, "neighbours", nb)
@@ -753,6 +778,8 @@ class MpcController:
         self._lin: _Plan | None = None
         self._slot_ids = np.full(self.M, -1, dtype=np.intp)
         self._start_distance: FloatArray | None = None
+        self._retimer: Retimer | None = None
+        self._retimed: Retimed | None = None
         # The last fallback's two candidates, checked (read by the escape).
         self._stop_check = TrajectoryCheck((), math.inf, None)
         self._path_check = TrajectoryCheck((), math.inf, None)
@@ -899,6 +926,7 @@ class MpcController:
         self._last = None
         self._lin = None
         self._slot_ids[:] = -1
+        self._retimed = None
 
     def _check(self, req: MpcRequest) -> None:
         if req.sysid != self.sysid:
@@ -1096,6 +1124,8 @@ class MpcController:
     def solve(self, request: MpcRequest) -> MpcResult:
         """One tick: the verified correction, or a stop with the reason why not."""
         self._check(request)
+        if request.lookahead is not None:
+            request = self._retimed_request(request)
         start = self._clock()
         # Already inside a neighbour's separation (pushed there): not a reason to give
         # up, a reason to get out.  Anything else already broken is.
@@ -1218,6 +1248,26 @@ class MpcController:
             self._last = result
             return result
         return stop
+
+    def _retimed_request(self, req: MpcRequest) -> MpcRequest:
+        """``req`` with its reference replaced by the path re-timed to its limits (solved
+        again every ``RETIME_EVERY_S``, or when the last one no longer covers the
+        horizon); as it is if the re-timing QP fails."""
+        assert req.lookahead is not None
+        steps = len(req.lookahead) - 1
+        rt = self._retimed
+        stale = rt is None or not (rt.t0 <= req.t0 < rt.t0 + RETIME_EVERY_S) or \
+            rt.end < req.t0 + self.config.horizon_s
+        if stale:
+            if self._retimer is None or self._retimer.steps != steps or \
+                    self._retimer.dt != req.lookahead_dt:
+                self._retimer = Retimer(steps=steps, dt=req.lookahead_dt)
+            fresh = self._retimer.solve(req.t0, req.lookahead, req.p0, req.v0, req.limits)
+            rt = self._retimed = fresh if fresh is not None else rt
+        if rt is None:
+            return replace(req, lookahead=None)
+        rp, rv, ra = rt.sample(req.t0 + self.dt * np.arange(self.N + 1))
+        return replace(req, ref_pos=rp, ref_vel=rv, ref_acc=ra, lookahead=None)
 
     def _path_back(self, req: MpcRequest) -> TrajectoryCheck:
         """The path checked as the executor would fly it if the MPC gave nothing: the

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from groundctl.execute.authority import AuthorityEstimator, beyond, scaled_limits
 from groundctl.execute.mpc import MpcConfig, MpcRequest, MpcResult
 from groundctl.execute.paths import Path, PathClocks, sample_paths
 from groundctl.execute.replan import (
@@ -51,7 +52,7 @@ from groundctl.execute.replan import (
 )
 from groundctl.flight.mpcworker import MpcWorker
 from groundctl.plan.plan import Plan
-from groundctl.show.model import MpcSettings
+from groundctl.show.model import Limits, MpcSettings
 
 FloatArray = NDArray[np.float64]
 
@@ -59,9 +60,28 @@ FloatArray = NDArray[np.float64]
 STALE_S = 1.0
 #: Instants over the horizon at which conflicts are predicted (every half second).
 CONFLICT_SAMPLES = 7
+#: A weak vehicle's look ahead along its path: samples and their step (20 s).
+LOOKAHEAD_STEPS = 80
+LOOKAHEAD_DT = 0.25
 #: A vehicle within this of what it is told (its MPC trajectory, else its path) is
 #: replanned from that reference's state, farther off from its measured state, m.
 REINIT_M = 1.0
+
+
+def _within(vel: FloatArray, limits: Limits) -> bool:
+    """Whether velocity ``vel`` (3,) keeps the speed limits (what a start state must)."""
+    return bool(np.hypot(vel[0], vel[1]) <= limits.max_speed_h
+                and -limits.max_speed_down <= vel[2] <= limits.max_speed_up)
+
+
+def _clip_speed(vel: FloatArray, limits: Limits) -> FloatArray:
+    """``vel`` (3,) with its horizontal speed and vertical rate brought within the limits."""
+    out = np.array(vel, dtype=float)
+    vh = float(np.hypot(out[0], out[1]))
+    if vh > limits.max_speed_h:
+        out[:2] *= limits.max_speed_h / vh
+    out[2] = min(max(out[2], -limits.max_speed_down), limits.max_speed_up)
+    return out
 
 
 @dataclass
@@ -115,6 +135,9 @@ class Replanner:
         self.results: dict[int, MpcResult] = {}
         """The trajectory each vehicle under MPC flies now (accepted, or the stop)."""
         self._status: dict[int, str] = {}
+        self.authority = AuthorityEstimator()
+        """Every vehicle's thrust authority from its hover throttle."""
+        self._weak: dict[int, float] = {}
 
     # -- life cycle -------------------------------------------------------------------
     def start(self) -> None:
@@ -150,10 +173,12 @@ class Replanner:
     # -- the tick ---------------------------------------------------------------------
     def tick(self, now: float, paths: Mapping[int, Path], clocks: PathClocks,
              positions: Mapping[int, FloatArray], velocities: Mapping[int, FloatArray],
-             obstacles: Mapping[int, FloatArray]) -> list[Event]:
+             obstacles: Mapping[int, FloatArray],
+             throttles: Mapping[int, float] | None = None) -> list[Event]:
         """One tick; ``paths`` of the vehicles flying one (eligible for MPC) with telemetry
         ``positions`` / ``velocities`` (show frame, carried to ``now``); ``obstacles`` are
-        the other vehicles in the air (descending, say), predicted where they are.
+        the other vehicles in the air (descending, say), predicted where they are;
+        ``throttles`` their last VFR_HUD throttle, % (their authority).
         Returns the events to log."""
         events: list[Event] = []
         if self.worker.hung():
@@ -169,7 +194,12 @@ class Replanner:
         else:
             plist = [paths[s] for s in ids]
             here = np.array([positions[s] for s in ids])
-            on_path, path_vel, _ = sample_paths(plist, np.full(len(ids), now), clocks)
+            on_path, path_vel, path_acc = sample_paths(plist, np.full(len(ids), now), clocks)
+            for i, sysid in enumerate(ids):
+                thr = (throttles or {}).get(sysid)
+                if thr is not None:
+                    self.authority.sample(now, sysid, thr, path_acc[i])
+            demands = self._demands(ids, plist, clocks, now)
             vel = np.array([velocities.get(s, path_vel[i]) for i, s in enumerate(ids)])
             dev, dev_rate = here - on_path, vel - path_vel
             for i, sysid in enumerate(ids):
@@ -185,7 +215,8 @@ class Replanner:
             conflicts = predicted_conflicts(ids, future, np.zeros((len(ids), 3)),
                                             self.plan.limits.min_separation) \
                 if len(ids) > 1 else {}
-            started, ended = self.supervisor.tick(now, errors, conflicts, eligible=ids)
+            started, ended = self.supervisor.tick(now, errors, conflicts, eligible=ids,
+                                                  demands=demands)
         for a in started:
             events.append(self._started(a))
         for r in ended:
@@ -248,6 +279,23 @@ class Replanner:
                 pos[i] = np.asarray(res.sample(times)[0])
         return np.asarray(pos + error_forecast(m.dev, m.dev_rate, np.maximum(times - now, 0.0)))
 
+    def _demands(self, ids: Sequence[int], plist: Sequence[Path], clocks: PathClocks,
+                 now: float) -> dict[int, str]:
+        """Weak vehicles whose path over the look ahead asks more than their own limits:
+        system id -> what (for the trigger); their authorities are kept for the requests."""
+        self._weak = {s: a for s, a in self.authority.authority().items() if a < 1.0}
+        out: dict[int, str] = {}
+        times = now + LOOKAHEAD_DT * np.arange(LOOKAHEAD_STEPS + 1, dtype=float)
+        for sysid, path in zip(ids, plist, strict=True):
+            a = self._weak.get(sysid)
+            if a is None:
+                continue
+            _, vel, acc = sample_paths([path] * len(times), times, clocks)
+            what = beyond(scaled_limits(self.plan.limits, a), vel, acc)
+            if what is not None:
+                out[sysid] = f"{what}, at {a:.0%} of its fleet's thrust"
+        return out
+
     def _requests(self, now: float, active: Sequence[int], m: _Measured, clocks: PathClocks,
                   velocities: Mapping[int, FloatArray],
                   obstacles: Mapping[int, FloatArray]) -> list[MpcRequest]:
@@ -275,8 +323,14 @@ class Replanner:
             res = self._fresh(sysid, now)
             told_p, told_v = (rp[0], rv[0]) if res is None else \
                 (np.asarray(res.sample(t0)[0]), np.asarray(res.sample(t0)[1]))
-            if np.linalg.norm(p0 - told_p) <= REINIT_M:
+            weak = self._weak.get(sysid)
+            limits = self.plan.limits if weak is None else scaled_limits(self.plan.limits, weak)
+            if np.linalg.norm(p0 - told_p) <= REINIT_M and _within(told_v, limits):
                 p0, v0 = told_p, told_v
+            elif weak is not None:
+                # Its limits are an estimate (its share of the fleet's thrust): measured a
+                # little faster, it is planned from the fastest it is taken to manage.
+                v0 = _clip_speed(v0, limits)
             others, other_ids = [], []
             for j in map(int, np.flatnonzero(dist[a_i] <= reach)):
                 if ids[j] != sysid:
@@ -287,9 +341,13 @@ class Replanner:
                     others.append(np.repeat(np.asarray(where, dtype=float)[None],
                                             n_steps + 1, 0))
                     other_ids.append(other)
+            ahead = None
+            if weak is not None:
+                at = t0 + LOOKAHEAD_DT * np.arange(LOOKAHEAD_STEPS + 1, dtype=float)
+                ahead = sample_paths([m.paths[i]] * len(at), at, clocks)[0]
             requests.append(MpcRequest(
                 sysid=sysid, t0=float(t0), p0=p0, v0=v0, ref_pos=rp, ref_vel=rv, ref_acc=ra,
-                limits=self.plan.limits,
+                limits=limits, lookahead=ahead, lookahead_dt=LOOKAHEAD_DT,
                 neighbours=np.stack(others) if others else None,
                 neighbour_ids=np.array(other_ids, dtype=np.intp) if others else None))
         return requests
@@ -299,7 +357,7 @@ class Replanner:
         """The report's ``mpc`` object of a flight without MPC."""
         return {"enabled": False, "activations": 0, "vehicles": [],
                 "solve_ms": {"p50": None, "p95": None, "p99": None, "max": None, "solves": 0},
-                "fallbacks": 0, "unsafe": 0, "late": 0, "failed": 0}
+                "fallbacks": 0, "unsafe": 0, "late": 0, "failed": 0, "weak": {}}
 
     def report(self) -> dict[str, Any]:
         """The report's ``mpc`` object (the same keys as :meth:`off_report`)."""
@@ -318,4 +376,5 @@ class Replanner:
             "unsafe": self.stats.unsafe,
             "late": self.worker.late,
             "failed": self.worker.failed,
+            "weak": {str(s): round(a, 2) for s, a in sorted(self._weak.items())},
         }
