@@ -59,7 +59,15 @@ def test_without_mpc_the_same_push_is_flown_by_the_autopilot_alone(tmp_path: Pat
     assert _events(tmp_path, "push")[0]["system_id"] == 5
 
 
-def test_a_weak_vehicle_is_flown_safely() -> None:
-    result = dry_run(weak=((5, 0.6),))
+def test_a_weak_vehicle_is_seen_by_its_throttle_and_flown_safely(tmp_path: Path) -> None:
+    # Vehicle 1 hovers at 0.35 / 0.6 of full throttle against its fleet's 0.35: its
+    # authority is known before the show starts, and the MPC flies it while its path
+    # ahead asks more than 60 % of the limits (its first climb, 2.0 m/s: it manages 1.5).
+    result = dry_run(weak=((1, 0.6),), record_dir=tmp_path)
     assert result.error is None, result.error
     _safe(result.report)
+    mpc = result.report["mpc"]
+    assert mpc["weak"] == {"1": pytest.approx(0.6, abs=0.03)}
+    started = _events(tmp_path, "mpc_started")
+    assert started and all(e["system_id"] == 1 for e in started)
+    assert "asks more than it can fly" in started[0]["why"]

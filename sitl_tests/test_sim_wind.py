@@ -148,3 +148,33 @@ def test_a_steady_gale_beyond_the_tilt_limit_blows_the_vehicle_away() -> None:
         assert fleet.state(1).position[1] > 5.0
         vint = fleet.physics._vint[0, :2]
         assert np.linalg.norm(vint) <= fleet.physics.dyn.vel_imax + 1e-9
+
+
+def test_gusts_are_one_field_neighbours_meet_nearly_the_same_gust() -> None:
+    """``gust_std`` gusts are a wind field (GustField): each axis has the asked standard
+    deviation at any point, two points 1.7 m apart see nearly the same gust, points
+    tens of metres apart different ones, and at a point it lasts about GUST_TAU."""
+    from groundctl.sim.physics import GUST_TAU, GustField
+
+    field = GustField(2.0, 12.0, GUST_TAU, np.random.default_rng(1))
+    pts = np.array([[0.0, 0.0, 10.0], [1.7, 0.0, 10.0], [0.0, 40.0, 10.0]])
+    g = np.array([field.at(pts, t) for t in np.arange(0.0, 4000.0, 0.5)])  # (T, 3, 3)
+    assert np.allclose(g[:, 0].std(axis=0), 2.0, rtol=0.1)
+    rel = (g[:, 0] - g[:, 1]).std(axis=0)
+    assert np.all(rel < 0.4)  # independent gusts would differ by 2 sqrt(2) = 2.8 m/s
+    far = np.corrcoef(g[:, 0, 0], g[:, 2, 0])[0, 1]
+    assert abs(far) < 0.3
+    lag = int(GUST_TAU / 0.5)
+    assert 0.4 < np.corrcoef(g[:-lag, 0, 0], g[lag:, 0, 0])[0, 1] < 0.8  # exp(-1/2) = 0.61
+
+
+def test_a_fleet_in_gusts_gets_its_gusts_from_the_field() -> None:
+    homes = np.array([[0.0, 0.0, 0.0], [1.7, 0.0, 0.0]])
+    ph = FleetPhysics(homes, ARDUPILOT_DYNAMICS, np.random.default_rng(3),
+                      wind=(6.0, 0.0, 0.0), gust_std=2.0)
+    assert ph.gust_field is not None and ph.gust_field.length == pytest.approx(12.0)
+    expected = ph.gust_field.at(ph.pos.copy(), ph.t)
+    ph.step(0.01)
+    assert np.allclose(ph.gust, expected)
+    calm = FleetPhysics(homes, ARDUPILOT_DYNAMICS, np.random.default_rng(3))
+    assert calm.gust_field is None

@@ -149,13 +149,20 @@ a 10 m/s fly-by), the speed and acceleration limits within ``limit_tol`` (1 %),
 altitude and the geofence.  Every neighbour given is verified, also those
 that got no slot.  Anything else -- a start state already out of limits, an
 OSQP failure or its iteration/time cap, slack or a verification failure after
-the last pass -- gives :func:`brake_trajectory`: a straight stop at
-``max_accel`` from the current state, checked the same way but "no worse than
-now" (a limit already broken at ``t0`` must not get worse), status
-``"fallback"``, or ``"unsafe"`` if even the stop breaks a limit, so that the
-executor holds or acts (a separation that cannot be kept gets the escape
-below first).  The reason names the cause.  No unchecked trajectory
-is ever ``"solved"``.
+the last pass -- is a fallback, one of two checked candidates: the straight
+stop at ``max_accel`` from the current state (:func:`brake_trajectory`), and
+the path itself as the autopilot would take the vehicle back to it (its
+offset fading within ``PATH_SETTLE_S``), checked the same way, "no worse than
+now" (a limit already broken at ``t0`` must not get worse), except that the
+path must keep the separation outright.  A path that keeps every limit is kept
+(status ``"path"``: the executor streams it): in a moving formation a stopped
+vehicle is where the ones behind it are about to be (measured on the demo in
+6 m/s gusting wind: stops took vehicles 2.6-3.6 m off their paths, against
+0.73 m without MPC).  Otherwise the stop is flown if it keeps every limit
+(``"fallback"``), else ``"unsafe"``: nothing is flown and the executor streams
+the path and says so.  A separation that cannot be kept gets the escape below
+first.  The reason names the cause.  No unchecked trajectory is ever
+``"solved"``.
 
 Escape
 ------
@@ -169,13 +176,23 @@ those raised speeds, nothing but the separation is short, and it keeps farther
 from every neighbour than both the straight stop and the path (flown as an
 autopilot would take the vehicle back to it: its offset fading within
 ``PATH_SETTLE_S``); a stop that keeps every limit is preferred to it.  If the
-path keeps farthest, the result is ``"unsafe"`` and the executor streams the
+path keeps farthest, the result is ``"path"`` and the executor streams the
 path.  The reason gives all three distances.  Measured on the quick show with a
 4.2 m push of vehicle 1 into vehicle 8 (``bench_mpc.py flight``): 1.19 m without
 MPC; 1.27-1.30 m with MPC before the escape, 1.28-1.37 m with it (runs vary by
 the timing of the 10 Hz ticks against the push) -- the push carries the vehicle
 4.2 m in one second whatever is commanded, so the neighbour alone must make up
 the gap within its acceleration limit.
+
+Weak vehicles
+-------------
+A vehicle with less authority than its fleet
+(:mod:`groundctl.execute.authority`) gets its own, scaled limits and a
+``lookahead`` of its path (20 s): the reference it is corrected towards is then
+that path re-timed to what it can fly (:mod:`groundctl.execute.retime`: it sets
+off early and lands late, halving the largest error of simply following), not
+the path itself.  The re-timing is solved again every ``RETIME_EVERY_S``; the
+MPC, its neighbours and its verification are as for any vehicle.
 
 Many vehicles at once
 ---------------------
@@ -214,6 +231,7 @@ import osqp
 import scipy.sparse as sp
 from numpy.typing import ArrayLike, NDArray
 
+from groundctl.execute.retime import Retimed, Retimer
 from groundctl.plan.qp_build import SLACK_TOL, FixedPattern, RowBuilder, chord_normals
 from groundctl.plan.quad_qp import SEPARATION_BUFFER, chord_separation
 from groundctl.plan.verify import inside_polygon
@@ -221,7 +239,7 @@ from groundctl.show.model import Limits
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
-Status = Literal["solved", "fallback", "unsafe"]
+Status = Literal["solved", "fallback", "path", "unsafe"]
 
 #: OSQP settings of the MPC (module docstring, "Solver settings"): loose ADMM
 #: tolerances made exact by polishing, termination checked every 5 iterations so a
@@ -248,6 +266,8 @@ RECOVERY_MPS = 0.75
 #: How fast an autopilot streamed the path takes a vehicle back onto it (its offset
 #: fades as exp(-t / PATH_SETTLE_S)), s: the "keep its path" escape candidate.
 PATH_SETTLE_S = 1.0
+#: A weak vehicle's re-timed reference is solved again after this long, s.
+RETIME_EVERY_S = 1.0
 #: Below this a direction (speed, acceleration) is taken as undefined.
 _TINY = 1e-6
 
@@ -391,6 +411,13 @@ class MpcRequest:
     required with ``neighbours``."""
     a0: FloatArray | None = None
     """(3,) the vehicle's current acceleration, if known (smooths the first step)."""
+    lookahead: FloatArray | None = None
+    """(L+1, 3) the path at ``t0 + k lookahead_dt`` far beyond the horizon, for a
+    vehicle that cannot fly it as fast as it goes (``limits`` are then its own): the
+    reference becomes the path re-timed to those limits (module docstring, "Weak
+    vehicles").  None: the path as it is."""
+    lookahead_dt: float = 0.25
+    """Step of ``lookahead``, s."""
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.t0):
@@ -407,6 +434,11 @@ class MpcRequest:
         set_(self, "ref_acc", _array("ref_acc", self.ref_acc, (n, 3)))
         if self.a0 is not None:
             set_(self, "a0", _array("a0", self.a0, (3,)))
+        if self.lookahead is not None:
+            set_(self, "lookahead", _array("lookahead", self.lookahead, (None, 3)))
+            if len(self.lookahead) < 3 or not self.lookahead_dt > 0:
+                raise ValueError("`lookahead` must hold at least 3 samples and "
+                                 "`lookahead_dt` be positive")
         nb = np.empty((0, n, 3)) if self.neighbours is None else self.neighbours
         nb = _array("neighbours", nb, (None, n, 3))
         set_(self, "neighbours", nb)
@@ -446,8 +478,10 @@ class MpcResult:
     """System id of the vehicle."""
     status: Status
     """``"solved"``: the MPC's correction, verified; ``"fallback"``: a verified stop
-    (the MPC could not give one); ``"unsafe"``: the stop, which breaks a limit too
-    (the executor should hold the vehicle / act)."""
+    (the MPC could not give one); ``"path"``: neither, the vehicle's path keeps at
+    least as far from every neighbour as the stop (the executor streams the path);
+    ``"unsafe"``: the stop, which breaks a limit too, and the path no better
+    (the executor streams the path and says so)"""
     reason: str
     """Why it is not ``"solved"`` ("" when it is)."""
     t0: float
@@ -744,6 +778,11 @@ class MpcController:
         self._lin: _Plan | None = None
         self._slot_ids = np.full(self.M, -1, dtype=np.intp)
         self._start_distance: FloatArray | None = None
+        self._retimer: Retimer | None = None
+        self._retimed: Retimed | None = None
+        # The last fallback's two candidates, checked (read by the escape).
+        self._stop_check = TrajectoryCheck((), math.inf, None)
+        self._path_check = TrajectoryCheck((), math.inf, None)
 
     # -- layout -----------------------------------------------------------------------
     def _ip(self, k: IntArray, c: int | IntArray) -> IntArray:
@@ -887,6 +926,7 @@ class MpcController:
         self._last = None
         self._lin = None
         self._slot_ids[:] = -1
+        self._retimed = None
 
     def _check(self, req: MpcRequest) -> None:
         if req.sysid != self.sysid:
@@ -1084,6 +1124,8 @@ class MpcController:
     def solve(self, request: MpcRequest) -> MpcResult:
         """One tick: the verified correction, or a stop with the reason why not."""
         self._check(request)
+        if request.lookahead is not None:
+            request = self._retimed_request(request)
         start = self._clock()
         # Already inside a neighbour's separation (pushed there): not a reason to give
         # up, a reason to get out.  Anything else already broken is.
@@ -1188,19 +1230,10 @@ class MpcController:
         recovering = self._start_distance is not None
         where = f"inside a neighbour's separation: {cause}" if recovering else cause
         stop = self._fallback(req, where, start, iterations, passes, max_slack, used)
-        if stop.status == "fallback" and not recovering and \
-                stop.min_separation >= req.limits.min_separation - DIST_TOL:
-            return stop  # a stop that keeps every limit beats an escape that breaks one
-        # The path (what the executor streams when nothing else is safe), flown as the
-        # autopilot would take the vehicle back to it: its offset now fading within about
-        # a second.  Only worth leaving for something that keeps farther away.
-        fade = np.exp(-self.dt * np.arange(len(req.ref_pos)) / PATH_SETTLE_S)[:, None]
-        back_pos = req.ref_pos + (req.p0 - req.ref_pos[0]) * fade
-        back_vel = req.ref_vel + (req.v0 - req.ref_vel[0]) * fade
-        on_path = verify(back_pos, back_vel, np.diff(back_vel, axis=0) / self.dt, self.dt,
-                         req.limits, req.others, req.other_ids,
-                         substeps=self.config.substeps, limit_tol=self.config.limit_tol)
-        best_other = max(stop.min_separation, on_path.min_separation)
+        on_path = self._path_check
+        if stop.status in ("fallback", "path") and not recovering:
+            return stop  # a fallback that keeps every limit beats an escape that breaks one
+        best_other = max(self._stop_check.min_separation, on_path.min_separation)
         usable = not escape.violations or _only_separation(escape)
         if usable and check.min_separation > best_other + DIST_TOL:
             result = MpcResult(
@@ -1214,14 +1247,45 @@ class MpcController:
                 neighbours_used=used)
             self._last = result
             return result
-        if stop.status == "fallback" and stop.min_separation < on_path.min_separation:
-            # The stop breaks nothing that was not broken already, but the path keeps
-            # farther away: keep the path (the executor streams it for "unsafe").
-            stop = replace(stop, status="unsafe",
-                           reason=f"{stop.reason}; the stop keeps {stop.min_separation:.2f} m"
-                                  f", its path {on_path.min_separation:.2f} m")
-            self._last = stop
         return stop
+
+    def _retimed_request(self, req: MpcRequest) -> MpcRequest:
+        """``req`` with its reference replaced by the path re-timed to its limits (solved
+        again every ``RETIME_EVERY_S``, or when the last one no longer covers the
+        horizon); as it is if the re-timing QP fails."""
+        assert req.lookahead is not None
+        steps = len(req.lookahead) - 1
+        rt = self._retimed
+        stale = rt is None or not (rt.t0 <= req.t0 < rt.t0 + RETIME_EVERY_S) or \
+            rt.end < req.t0 + self.config.horizon_s
+        if stale:
+            if self._retimer is None or self._retimer.steps != steps or \
+                    self._retimer.dt != req.lookahead_dt:
+                self._retimer = Retimer(steps=steps, dt=req.lookahead_dt)
+            fresh = self._retimer.solve(req.t0, req.lookahead, req.p0, req.v0, req.limits)
+            rt = self._retimed = fresh if fresh is not None else rt
+        if rt is None:
+            return replace(req, lookahead=None)
+        rp, rv, ra = rt.sample(req.t0 + self.dt * np.arange(self.N + 1))
+        return replace(req, ref_pos=rp, ref_vel=rv, ref_acc=ra, lookahead=None)
+
+    def _path_back(self, req: MpcRequest) -> TrajectoryCheck:
+        """The path checked as the executor would fly it if the MPC gave nothing: the
+        autopilot takes the vehicle back onto it, its offset fading within about
+        ``PATH_SETTLE_S``."""
+        fade = np.exp(-self.dt * np.arange(len(req.ref_pos)) / PATH_SETTLE_S)[:, None]
+        back_pos = req.ref_pos + (req.p0 - req.ref_pos[0]) * fade
+        back_vel = req.ref_vel + (req.v0 - req.ref_vel[0]) * fade
+        check = verify(back_pos, back_vel, np.diff(back_vel, axis=0) / self.dt, self.dt,
+                       req.limits, req.others, req.other_ids, substeps=self.config.substeps,
+                       limit_tol=self.config.limit_tol, baseline=True)
+        if check.min_separation < req.limits.min_separation - DIST_TOL and check.ok:
+            # "No worse than now" is for the envelope (a gust's 2.6 m/s climb is not the
+            # path's doing); the separation it must keep outright.
+            check = replace(check, violations=(
+                f"separation from vehicle {check.closest} {check.min_separation:.2f} m "
+                f"(min_separation {req.limits.min_separation} m)",))
+        return check
 
     def _fallback(self, req: MpcRequest, cause: str, start: float, iterations: int = 0,
                   passes: int = 0, max_slack: float = 0.0, used: int = 0) -> MpcResult:
@@ -1229,9 +1293,18 @@ class MpcController:
         check = verify(pos, vel, acc, self.dt, req.limits, req.others, req.other_ids,
                        substeps=self.config.substeps, limit_tol=self.config.limit_tol,
                        baseline=True)
+        on_path = self._path_back(req)
+        self._stop_check, self._path_check = check, on_path
         status: Status = "fallback" if check.ok else "unsafe"
         reason = cause if check.ok else f"{cause}; the stop is unsafe too: " + \
             "; ".join(check.violations)
+        if on_path.ok:
+            # A stop in a moving formation is where the others are about to be: a path
+            # that keeps every limit (the plan kept the fleet apart) is kept instead.
+            status = "path"
+            reason = f"{cause}; its path keeps every limit" + (
+                f" ({on_path.min_separation:.2f} m from vehicle {on_path.closest})"
+                if on_path.closest is not None else "")
         result = MpcResult(
             sysid=self.sysid, status=status, reason=reason, t0=req.t0, dt=self.dt, pos=pos,
             vel=vel, acc=acc, solve_ms=1e3 * (self._clock() - start), iterations=iterations,
@@ -1263,10 +1336,10 @@ def with_predictions(request: MpcRequest, fresh: Mapping[int, MpcResult],
                      dt: float) -> MpcRequest:
     """``request`` with the neighbours in ``fresh`` predicted by those results (replaced
     where the request has them, added where it does not), sampled at its instants."""
-    # An "unsafe" result is never flown (the executor streams that vehicle's path): it
-    # must not stand for where that vehicle will be.
+    # A "path" or "unsafe" result is not flown (the executor streams that vehicle's
+    # path): it must not stand for where that vehicle will be.
     others = {int(r.sysid): r for r in fresh.values()
-              if r.sysid != request.sysid and r.status != "unsafe"}
+              if r.sysid != request.sysid and r.status in ("solved", "fallback")}
     if not others:
         return request
     times = request.t0 + dt * np.arange(len(request.ref_pos))

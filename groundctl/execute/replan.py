@@ -13,8 +13,12 @@ setpoint metres away, or fly it into a neighbour:
   drifting for a moment; :func:`error_forecast`), and a pair closer than the
   separation limit puts both under MPC.
 
+A third reason is a weak vehicle (:mod:`groundctl.execute.authority`) whose
+path over the next tens of seconds asks more than it can fly: it is under MPC
+(its path re-timed to what it can do) while that lasts.
+
 It is handed back once its error has stayed below ``release_error_m`` for
-``release_after_s`` and no conflict is predicted for it.  No activation in a
+``release_after_s`` and no conflict or demand is predicted for it.  No activation in a
 calm flight: the default trigger is about three times the calm-air RMS
 tracking error of real ArduCopter.
 """
@@ -107,12 +111,17 @@ class ReplanSupervisor:
 
     def tick(self, now: float, errors: Mapping[int, float],
              conflicts: Mapping[int, tuple[int, float]] | None = None,
-             eligible: Collection[int] | None = None) -> tuple[list[Activation], list[Release]]:
+             eligible: Collection[int] | None = None,
+             demands: Mapping[int, str] | None = None
+             ) -> tuple[list[Activation], list[Release]]:
         """One tick: ``errors`` (system id -> tracking error, m) of the vehicles flying a
         path, ``conflicts`` from :func:`predicted_conflicts`; ``eligible`` (default: those
-        with an error) may be replanned.  Returns who starts and who ends."""
+        with an error) may be replanned; ``demands``: vehicles whose path ahead asks more
+        than they can fly (system id -> what), under MPC while it does.  Returns who
+        starts and who ends."""
         cfg = self.settings
         conflicts = conflicts or {}
+        demands = demands or {}
         eligible = set(errors if eligible is None else eligible)
         started: list[Activation] = []
         ended: list[Release] = []
@@ -128,7 +137,8 @@ class ReplanSupervisor:
                 continue
             self._over[sysid] = self._over.get(sysid, 0) + 1 if e > cfg.trigger_error_m else 0
             if sysid in self.active:
-                if e <= cfg.release_error_m and sysid not in conflicts:
+                if e <= cfg.release_error_m and sysid not in conflicts and \
+                        sysid not in demands:
                     since = self._calm_since.setdefault(sysid, now)
                     if now - since >= cfg.release_after_s:
                         ended.append(Release(sysid, now - self.active.pop(sysid)))
@@ -142,6 +152,8 @@ class ReplanSupervisor:
             elif sysid in conflicts:
                 other, d = conflicts[sysid]
                 why = f"predicted within {d:.2f} m of vehicle {other}"
+            elif sysid in demands:
+                why = f"its path ahead asks more than it can fly: {demands[sysid]}"
             if why is not None:
                 self.active[sysid] = now
                 self.activations += 1

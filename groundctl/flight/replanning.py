@@ -9,10 +9,21 @@ Every tick, after the monitor has carried telemetry to the tick's instant,
    the :class:`~groundctl.execute.replan.ReplanSupervisor` decide who is under
    MPC (a confirmed deviation, or a predicted loss of separation);
 3. for those, builds one :class:`~groundctl.execute.mpc.MpcRequest` each (its
-   measured state carried to the tick grid, its path over the horizon as the
-   reference, neighbours within reach predicted by their own MPC trajectory
-   where they have one, else by their path shifted by their current error) and
-   hands the batch to the worker, if it is idle.
+   path over the horizon as the reference, neighbours within reach predicted by
+   what they are told -- their MPC trajectory, else their path -- shifted by
+   their deviation from it as it is expected to drift) and hands the batch to
+   the worker, if it is idle.  The start state is the vehicle's measured state
+   carried to the tick grid only if it is more than ``REINIT_M`` from what it
+   was told (pushed metres off: a rejoin); closer, it is the state of what it
+   was told (its MPC trajectory, or its path) at that instant, and its
+   neighbours are then given relative to its own forecast deviation from that
+   reference (the separation is between where they will be, not between
+   references: without it two references 1.5 m apart let vehicles 0.45 m off
+   them come to 1.06 m, measured with PX4 in the demo's gusts).  Started from
+   the measured state every tick, the MPC's trajectory begins where a gust has
+   just put the vehicle, so the autopilot, tracking it, no longer pushes back:
+   measured on the demo in 6 m/s gusting about 4 m/s, that let neighbours drift
+   to 1.49 m where the path alone kept 1.62 m.
 
 The stream then sends a vehicle under MPC its last accepted trajectory
 (:meth:`overrides`), sampled at its own lead.  The guard still judges every
@@ -34,6 +45,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from groundctl.execute.authority import AuthorityEstimator, beyond, scaled_limits
 from groundctl.execute.mpc import MpcConfig, MpcRequest, MpcResult
 from groundctl.execute.paths import Path, PathClocks, sample_paths
 from groundctl.execute.replan import (
@@ -44,7 +56,7 @@ from groundctl.execute.replan import (
 )
 from groundctl.flight.mpcworker import MpcWorker
 from groundctl.plan.plan import Plan
-from groundctl.show.model import MpcSettings
+from groundctl.show.model import Limits, MpcSettings
 
 FloatArray = NDArray[np.float64]
 
@@ -52,6 +64,28 @@ FloatArray = NDArray[np.float64]
 STALE_S = 1.0
 #: Instants over the horizon at which conflicts are predicted (every half second).
 CONFLICT_SAMPLES = 7
+#: A weak vehicle's look ahead along its path: samples and their step (20 s).
+LOOKAHEAD_STEPS = 80
+LOOKAHEAD_DT = 0.25
+#: A vehicle within this of what it is told (its MPC trajectory, else its path) is
+#: replanned from that reference's state, farther off from its measured state, m.
+REINIT_M = 1.0
+
+
+def _within(vel: FloatArray, limits: Limits) -> bool:
+    """Whether velocity ``vel`` (3,) keeps the speed limits (what a start state must)."""
+    return bool(np.hypot(vel[0], vel[1]) <= limits.max_speed_h
+                and -limits.max_speed_down <= vel[2] <= limits.max_speed_up)
+
+
+def _clip_speed(vel: FloatArray, limits: Limits) -> FloatArray:
+    """``vel`` (3,) with its horizontal speed and vertical rate brought within the limits."""
+    out = np.array(vel, dtype=float)
+    vh = float(np.hypot(out[0], out[1]))
+    if vh > limits.max_speed_h:
+        out[:2] *= limits.max_speed_h / vh
+    out[2] = min(max(out[2], -limits.max_speed_down), limits.max_speed_up)
+    return out
 
 
 @dataclass
@@ -80,6 +114,10 @@ class _Measured:
     """(n, 3) position minus path position now."""
     error_rate: FloatArray
     """(n, 3) velocity minus path velocity now."""
+    dev: FloatArray
+    """(n, 3) position minus what it is commanded now (its MPC trajectory, or its path)."""
+    dev_rate: FloatArray
+    """(n, 3) velocity minus the commanded velocity now."""
 
 
 Event = tuple[str, str, dict[str, Any]]
@@ -101,6 +139,9 @@ class Replanner:
         self.results: dict[int, MpcResult] = {}
         """The trajectory each vehicle under MPC flies now (accepted, or the stop)."""
         self._status: dict[int, str] = {}
+        self.authority = AuthorityEstimator()
+        """Every vehicle's thrust authority from its hover throttle."""
+        self._weak: dict[int, float] = {}
 
     # -- life cycle -------------------------------------------------------------------
     def start(self) -> None:
@@ -136,10 +177,12 @@ class Replanner:
     # -- the tick ---------------------------------------------------------------------
     def tick(self, now: float, paths: Mapping[int, Path], clocks: PathClocks,
              positions: Mapping[int, FloatArray], velocities: Mapping[int, FloatArray],
-             obstacles: Mapping[int, FloatArray]) -> list[Event]:
+             obstacles: Mapping[int, FloatArray],
+             throttles: Mapping[int, float] | None = None) -> list[Event]:
         """One tick; ``paths`` of the vehicles flying one (eligible for MPC) with telemetry
         ``positions`` / ``velocities`` (show frame, carried to ``now``); ``obstacles`` are
-        the other vehicles in the air (descending, say), predicted where they are.
+        the other vehicles in the air (descending, say), predicted where they are;
+        ``throttles`` their last VFR_HUD throttle, % (their authority).
         Returns the events to log."""
         events: list[Event] = []
         if self.worker.hung():
@@ -155,17 +198,29 @@ class Replanner:
         else:
             plist = [paths[s] for s in ids]
             here = np.array([positions[s] for s in ids])
-            on_path, path_vel, _ = sample_paths(plist, np.full(len(ids), now), clocks)
+            on_path, path_vel, path_acc = sample_paths(plist, np.full(len(ids), now), clocks)
+            for i, sysid in enumerate(ids):
+                thr = (throttles or {}).get(sysid)
+                if thr is not None:
+                    self.authority.sample(now, sysid, thr, path_acc[i])
+            demands = self._demands(ids, plist, clocks, now)
             vel = np.array([velocities.get(s, path_vel[i]) for i, s in enumerate(ids)])
-            m = _Measured(ids, plist, here, here - on_path, vel - path_vel)
+            dev, dev_rate = here - on_path, vel - path_vel
+            for i, sysid in enumerate(ids):
+                res = self._fresh(sysid, now)
+                if res is not None:
+                    p_now, v_now, _ = res.sample(now)
+                    dev[i], dev_rate[i] = here[i] - p_now, vel[i] - v_now
+            m = _Measured(ids, plist, here, here - on_path, vel - path_vel, dev, dev_rate)
             norms = np.linalg.norm(m.error, axis=1)
             errors = {s: float(e) for s, e in zip(ids, norms, strict=True)}
             offsets = np.linspace(0.0, self.config.horizon_s, CONFLICT_SAMPLES)
-            future = self._future(m, now + offsets, clocks, velocities, now)
+            future = self._future(m, now + offsets, clocks, now)
             conflicts = predicted_conflicts(ids, future, np.zeros((len(ids), 3)),
                                             self.plan.limits.min_separation) \
                 if len(ids) > 1 else {}
-            started, ended = self.supervisor.tick(now, errors, conflicts, eligible=ids)
+            started, ended = self.supervisor.tick(now, errors, conflicts, eligible=ids,
+                                                  demands=demands)
         for a in started:
             events.append(self._started(a))
         for r in ended:
@@ -195,14 +250,14 @@ class Replanner:
                 continue
             if res.status != "solved":
                 self.stats.fallbacks += 1
-            if res.status == "unsafe":
-                self.stats.unsafe += 1
-                self.results.pop(sysid, None)  # never flown: its path is streamed instead
+            if res.status in ("path", "unsafe"):
+                self.stats.unsafe += res.status == "unsafe"
+                self.results.pop(sysid, None)  # not flown: its path is streamed instead
             else:
                 self.results[sysid] = res
             if res.status != self._status.get(sysid, "solved") and res.status != "solved":
-                what = ("stopping it" if res.status == "fallback"
-                        else "keeping its path (even the stop is unsafe)")
+                what = {"fallback": "stopping it", "path": "keeping its path"}.get(
+                    res.status, "keeping its path (even the stop is unsafe)")
                 events.append(("mpc_fallback", f"vehicle {sysid}: MPC {res.reason}; {what}",
                                {"system_id": sysid, "status": res.status,
                                 "reason": res.reason}))
@@ -210,7 +265,7 @@ class Replanner:
         return events
 
     def _future(self, m: _Measured, times: FloatArray, clocks: PathClocks,
-                velocities: Mapping[int, FloatArray], now: float) -> FloatArray:
+                now: float) -> FloatArray:
         """(n, K, 3) where each flying vehicle is expected at ``times``: what it is
         commanded (its path, or its MPC trajectory) plus its deviation from that, now and
         as it is expected to drift (:func:`~groundctl.execute.replan.error_forecast`).
@@ -222,17 +277,28 @@ class Replanner:
         rep = [p for p in m.paths for _ in range(k)]
         pos, _, _ = sample_paths(rep, np.tile(times, n), clocks)
         pos = pos.reshape(n, k, 3)
-        dev, rate = m.error.copy(), m.error_rate.copy()
         for i, sysid in enumerate(m.ids):
             res = self._fresh(sysid, now)
             if res is not None:
                 pos[i] = np.asarray(res.sample(times)[0])
-                p_now, v_now, _ = res.sample(now)
-                dev[i] = m.here[i] - p_now
-                vel = velocities.get(sysid)
-                rate[i] = (np.zeros(3) if vel is None
-                           else np.asarray(vel, dtype=float) - np.asarray(v_now))
-        return np.asarray(pos + error_forecast(dev, rate, np.maximum(times - now, 0.0)))
+        return np.asarray(pos + error_forecast(m.dev, m.dev_rate, np.maximum(times - now, 0.0)))
+
+    def _demands(self, ids: Sequence[int], plist: Sequence[Path], clocks: PathClocks,
+                 now: float) -> dict[int, str]:
+        """Weak vehicles whose path over the look ahead asks more than their own limits:
+        system id -> what (for the trigger); their authorities are kept for the requests."""
+        self._weak = {s: a for s, a in self.authority.authority().items() if a < 1.0}
+        out: dict[int, str] = {}
+        times = now + LOOKAHEAD_DT * np.arange(LOOKAHEAD_STEPS + 1, dtype=float)
+        for sysid, path in zip(ids, plist, strict=True):
+            a = self._weak.get(sysid)
+            if a is None:
+                continue
+            _, vel, acc = sample_paths([path] * len(times), times, clocks)
+            what = beyond(scaled_limits(self.plan.limits, a), vel, acc)
+            if what is not None:
+                out[sysid] = f"{what}, at {a:.0%} of its fleet's thrust"
+        return out
 
     def _requests(self, now: float, active: Sequence[int], m: _Measured, clocks: PathClocks,
                   velocities: Mapping[int, FloatArray],
@@ -244,7 +310,7 @@ class Replanner:
         # Everyone's prediction over the horizon: path + error as it is expected to drift
         # (the trigger's forecast), or their MPC trajectory.
         ids, here = m.ids, m.here
-        future = self._future(m, times, clocks, velocities, now)
+        future = self._future(m, times, clocks, now)
         row = {s: i for i, s in enumerate(ids)}
         reach = cfg.reach_m + 2.0 * cfg.horizon_s * self.plan.limits.max_speed_h
         dist = np.linalg.norm(here[None, :, :] - here[[row[s] for s in active]][:, None, :],
@@ -256,19 +322,42 @@ class Replanner:
             p0 = here[i] + v0 * (t0 - now)
             rep = [m.paths[i]] * (n_steps + 1)
             rp, rv, ra = sample_paths(rep, times, clocks)
+            # Within REINIT_M of what it is told, it is replanned from there (module
+            # docstring): the autopilot keeps fighting the gust, as on its path.
+            res = self._fresh(sysid, now)
+            told_p, told_v = (rp[0], rv[0]) if res is None else \
+                (np.asarray(res.sample(t0)[0]), np.asarray(res.sample(t0)[1]))
+            weak = self._weak.get(sysid)
+            limits = self.plan.limits if weak is None else scaled_limits(self.plan.limits, weak)
+            own = np.zeros((n_steps + 1, 3))
+            if np.linalg.norm(p0 - told_p) <= REINIT_M and _within(told_v, limits):
+                p0, v0 = told_p, told_v
+                # It flies its reference offset by its deviation, drifting as forecast:
+                # the separation is between where the vehicles will be, so the others are
+                # given relative to that (its reference keeps clear of them shifted back).
+                own = error_forecast(m.dev[i:i + 1], m.dev_rate[i:i + 1],
+                                     np.maximum(times - now, 0.0))[0]
+            elif weak is not None:
+                # Its limits are an estimate (its share of the fleet's thrust): measured a
+                # little faster, it is planned from the fastest it is taken to manage.
+                v0 = _clip_speed(v0, limits)
             others, other_ids = [], []
             for j in map(int, np.flatnonzero(dist[a_i] <= reach)):
                 if ids[j] != sysid:
-                    others.append(future[j])
+                    others.append(future[j] - own)
                     other_ids.append(ids[j])
             for other, where in obstacles.items():
                 if other not in row and np.linalg.norm(where - here[i]) <= reach:
                     others.append(np.repeat(np.asarray(where, dtype=float)[None],
-                                            n_steps + 1, 0))
+                                            n_steps + 1, 0) - own)
                     other_ids.append(other)
+            ahead = None
+            if weak is not None:
+                at = t0 + LOOKAHEAD_DT * np.arange(LOOKAHEAD_STEPS + 1, dtype=float)
+                ahead = sample_paths([m.paths[i]] * len(at), at, clocks)[0]
             requests.append(MpcRequest(
                 sysid=sysid, t0=float(t0), p0=p0, v0=v0, ref_pos=rp, ref_vel=rv, ref_acc=ra,
-                limits=self.plan.limits,
+                limits=limits, lookahead=ahead, lookahead_dt=LOOKAHEAD_DT,
                 neighbours=np.stack(others) if others else None,
                 neighbour_ids=np.array(other_ids, dtype=np.intp) if others else None))
         return requests
@@ -278,7 +367,7 @@ class Replanner:
         """The report's ``mpc`` object of a flight without MPC."""
         return {"enabled": False, "activations": 0, "vehicles": [],
                 "solve_ms": {"p50": None, "p95": None, "p99": None, "max": None, "solves": 0},
-                "fallbacks": 0, "unsafe": 0, "late": 0, "failed": 0}
+                "fallbacks": 0, "unsafe": 0, "late": 0, "failed": 0, "weak": {}}
 
     def report(self) -> dict[str, Any]:
         """The report's ``mpc`` object (the same keys as :meth:`off_report`)."""
@@ -297,4 +386,5 @@ class Replanner:
             "unsafe": self.stats.unsafe,
             "late": self.worker.late,
             "failed": self.worker.failed,
+            "weak": {str(s): round(a, 2) for s, a in sorted(self._weak.items())},
         }

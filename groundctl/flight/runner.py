@@ -808,7 +808,15 @@ class ShowRunner:
 
     def _replan_tick(self, seq: ShowSequence, req: StreamRequest, now: float) -> None:
         """MPC: who is replanned this tick, and their next batch (see flight.replanning)."""
-        if self.replanner is None or self.monitor is None or seq.started_at is None:
+        if self.replanner is None or self.monitor is None:
+            return
+        if seq.started_at is None:
+            # Hovering at the take-off altitude before the show: each one's hover throttle
+            # (its authority) is known before its path asks anything of it.
+            for sysid, v in seq.vehicles.items():
+                thr = self.link.vehicles[sysid].throttle_pct
+                if v.phase is VehiclePhase.READY and thr is not None:
+                    self.replanner.authority.sample(now, sysid, thr, np.zeros(3))
             return
         last = self.monitor.last_positions
         if last is None or last[0] != now:
@@ -826,8 +834,11 @@ class ShowRunner:
                 velocities[sysid] = ned_vel_to_show(self.plan.origin, np.array(vel))
         obstacles = {s: p for s, p in positions.items() if s not in eligible
                      and s in seq.vehicles and p[2] > AIRBORNE_M}
+        throttles = {s: t for s in eligible
+                     if (t := self.link.vehicles[s].throttle_pct) is not None}
         for event, text, fields in self.replanner.tick(now, eligible, req.clocks(self.plan),
-                                                       positions, velocities, obstacles):
+                                                       positions, velocities, obstacles,
+                                                       throttles):
             self._say(text, event, **fields)
 
     def _link_delays(self, now: float) -> dict[int, float | None]:

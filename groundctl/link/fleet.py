@@ -63,6 +63,7 @@ DEFAULT_STREAMS: dict[int, float] = {
     mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 5.0,
     mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
     mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
+    mavlink.MAVLINK_MSG_ID_VFR_HUD: 4.0,  # throttle: each vehicle's thrust authority
 }
 
 

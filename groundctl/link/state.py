@@ -140,6 +140,9 @@ class VehicleState:
     """Remaining battery, percent (SYS_STATUS or BATTERY_STATUS)."""
     battery_voltage_v: float | None = None
     """Battery voltage, volts."""
+    throttle_pct: float | None = None
+    """VFR_HUD.throttle: the motors' output, percent (what it hovers at says how much
+    thrust it has left: :mod:`groundctl.execute.authority`)."""
     prearm_ok: bool | None = None
     """SYS_STATUS pre-arm check bit: True passing, False failing, None not reported."""
     gps_fix_type: int | None = None
@@ -759,6 +762,11 @@ def _param_value(state: VehicleState, msg: Any, now: float,
         state.params[name] = float(msg.param_value)
 
 
+def _vfr_hud(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
+    if 0 <= msg.throttle <= 100:
+        state.throttle_pct = float(msg.throttle)
+
+
 def _ack(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
     state.acks.append(msg)
 
@@ -782,4 +790,5 @@ _HANDLERS = {
     "COMMAND_ACK": _ack,
     "TIMESYNC": _timesync,
     "PARAM_VALUE": _param_value,
+    "VFR_HUD": _vfr_hud,
 }

@@ -154,12 +154,28 @@ def attitude(v: Vehicle, now: float) -> Msg:
                                             v.heading.rate)
 
 
+#: Throttle a healthy simulated vehicle hovers at (ArduCopter's MOT_THST_HOVER default
+#: 0.35), as a fraction of full thrust.
+HOVER_THROTTLE = 0.35
+
+
+def throttle_pct(v: Vehicle) -> int:
+    """VFR_HUD.throttle of a flying vehicle, %: the thrust it makes (gravity plus its
+    acceleration) over the thrust it can make.  A weak motor or battery (authority
+    below 1) hovers higher, which is how a ground station sees it before it falls
+    behind (ArduCopter reports its motor output here, and learns a higher
+    MOT_THST_HOVER)."""
+    a = v.ph.acc[v.i]
+    thrust = float(np.linalg.norm(a + np.array([0.0, 0.0, GRAVITY]))) / GRAVITY
+    return int(min(100, round(100 * HOVER_THROTTLE * thrust / float(v.ph.authority[v.i]))))
+
+
 def vfr_hud(v: Vehicle, now: float) -> Msg:
     """VFR_HUD: speeds, heading, throttle, altitude AMSL, climb."""
     _pos, vel = _est(v)
     ground = float(np.hypot(vel[0], vel[1]))
     alt = float(_geodetic(v)[2])
-    throttle = 50 if v.flying else 0
+    throttle = throttle_pct(v) if v.flying else 0
     heading = int(_heading_deg(v)) % 360
     return mavlink.MAVLink_vfr_hud_message(ground, ground, heading, throttle, alt,
                                            float(vel[2]))
