@@ -26,6 +26,9 @@ def test_a_seeded_fuzz_during_a_dry_run_crashes_nothing_and_changes_no_state() -
     if r.raw:  # forged sources arrived as the vehicles and were caught as such
         assert r.airborne > 0 and r.link["link_conflicts"] > 0
         assert all(n > 0 for n in r.conflicts.values()), r.conflicts
+        # ... and each vehicle's count is in its report line.
+        per = {v["system_id"]: v["link_conflicts"] for v in r.report["vehicles"]}
+        assert sum(per.values()) > 0 and all(n >= 0 for n in per.values()), per
 
 
 def test_the_fuzz_sends_to_loopback_only() -> None:

@@ -82,6 +82,9 @@ def flight_report(runner: ShowRunner, error: str | None = None,
             "loss_ratio": _r(state.loss_ratio, 4) if state is not None else None,
             "rtt_ms": _r(state.rtt_s * 1000, 1) if state and state.rtt_s is not None else None,
             "bad_packets": state.bad_packets if state is not None else 0,
+            "link_conflicts": state.link_conflicts if state is not None else 0,
+            "last_conflict": state.last_conflict if state is not None else None,
+            "bad_signatures": state.bad_signatures if state is not None else 0,
         })
     landed = seq is not None and bool(flown) and all(
         v.phase is VehiclePhase.LANDED for v in flown.values())
