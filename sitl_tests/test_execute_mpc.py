@@ -344,3 +344,38 @@ def test_a_neighbour_without_a_slot_is_still_verified() -> None:
     assert r.status == "fallback"
     assert r.reason.startswith("verification after 1 passes: separation from vehicle 5 ")
     assert r.neighbours_used == 0 and r.min_separation >= LIMITS.min_separation
+
+
+def test_fresh_neighbours_are_given_relative_to_the_requests_own_deviation() -> None:
+    """A vehicle replanned from its reference flies it offset by its own deviation: the
+    fresh result of an earlier vehicle replaces that one's prediction as its result
+    plus its own deviation, minus this vehicle's, like every other neighbour."""
+    from groundctl.execute.mpc import with_predictions
+
+    path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))
+    other = line((0.0, 4.0, 10.0), (3.0, 0.0, 0.0))
+    mine = np.tile([0.0, 0.3, 0.0], (N + 1, 1))
+    theirs = np.tile([0.0, -0.2, 0.0], (N + 1, 1))
+    ahead = MpcController(2).solve(request(2, 0.0, (0.0, 4.0, 10.0), (3.0, 0.0, 0.0), other))
+    req = request(5, 0.0, (0.0, 0.0, 10.0), (3.0, 0.0, 0.0), path, [other], [2], own=mine)
+    got = with_predictions(req, {2: ahead}, DT, {2: theirs, 5: mine})
+    expect = ahead.sample(req.t0 + DT * np.arange(N + 1))[0] + theirs - mine
+    assert np.allclose(got.others[0], expect)
+    plain = with_predictions(request(5, 0.0, (0.0, 0.0, 10.0), (3.0, 0.0, 0.0), path,
+                                     [other], [2]), {2: ahead}, DT)
+    assert np.allclose(plain.others[0], ahead.sample(req.t0 + DT * np.arange(N + 1))[0])
+
+
+def test_a_weak_vehicle_never_gets_back_a_path_it_cannot_fly() -> None:
+    """A weak vehicle's QP tracks its re-timed path; when it falls back, the path the
+    executor would stream is its plan, checked against its own (smaller) limits."""
+    from dataclasses import replace
+
+    weak = replace(LIMITS, max_speed_h=2.0)
+    path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))  # 3 m/s: more than it can fly
+    ahead = path(0.25 * np.arange(81))[0]
+    # Measured above its limits: no correction is tried, a fallback is chosen.
+    r = MpcController(1).solve(request(1, 0.0, (0.0, 0.0, 10.0), (2.5, 0.0, 0.0), path,
+                                       limits=weak, lookahead=ahead))
+    assert r.reason.startswith("start state: horizontal speed 2.50 m/s")
+    assert r.status != "path"

@@ -58,8 +58,11 @@ class AuthorityEstimator:
 
     def sample(self, now: float, sysid: int, throttle_pct: float,
                path_acc: np.ndarray) -> None:
-        """One VFR_HUD throttle reading of a flying vehicle, with its path's acceleration
-        (show frame, m/s^2) at that instant."""
+        """One VFR_HUD throttle reading of a flying vehicle, received at ``now`` (a
+        reading already sampled at that time is not counted again), with its path's
+        acceleration (show frame, m/s^2) at that instant."""
+        if self._at.get(sysid) == now:
+            return
         acc = np.asarray(path_acc, dtype=float)
         if not (0 < throttle_pct <= 100) or float(np.linalg.norm(acc)) > self.max_accel:
             return

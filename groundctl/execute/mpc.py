@@ -171,18 +171,19 @@ the way, or the vehicle pushed inside one's limit), up to ``passes`` more QPs
 are solved, from that pass's solution on, with the speed limits raised by ``ESCAPE_SPEED_MARGIN``
 (20 %: the show's limits are planning limits, and an autopilot asked for a
 little more clamps to its own rather than failing), the acceleration limit
-unchanged.  Its solution is flown as a ``"fallback"`` only if, checked against
-those raised speeds, nothing but the separation is short, and it keeps farther
-from every neighbour than both the straight stop and the path (flown as an
-autopilot would take the vehicle back to it: its offset fading within
-``PATH_SETTLE_S``); a stop that keeps every limit is preferred to it.  If the
-path keeps farthest, the result is ``"path"`` and the executor streams the
-path.  The reason gives all three distances.  Measured on the quick show with a
-4.2 m push of vehicle 1 into vehicle 8 (``bench_mpc.py flight``): 1.19 m without
-MPC; 1.27-1.30 m with MPC before the escape, 1.28-1.37 m with it (runs vary by
-the timing of the 10 Hz ticks against the push) -- the push carries the vehicle
-4.2 m in one second whatever is commanded, so the neighbour alone must make up
-the gap within its acceleration limit.
+unchanged.  A fallback that keeps every limit (the path, or the stop: above)
+is preferred to it, unless the vehicle starts inside a neighbour's limit.  Its
+solution is flown as a ``"fallback"`` only if, checked against those raised
+speeds, nothing but the separation is short, and it keeps farther from every
+neighbour than both the straight stop and the path (flown as an autopilot
+would take the vehicle back to it); otherwise the stop if it keeps farther
+than the path, else ``"unsafe"`` (the executor streams the path).  The reason
+gives the distances.  Measured on the quick show with a 4.2 m push of vehicle
+1 into vehicle 8 (``bench_mpc.py flight --scenarios shove``): 1.19 m without
+MPC; 1.27-1.40 m with it (runs vary by the timing of the 10 Hz ticks against
+the push) -- the push carries the vehicle 4.2 m in one second whatever is
+commanded, so the neighbour alone must make up the gap within its
+acceleration limit.
 
 Weak vehicles
 -------------
@@ -411,6 +412,11 @@ class MpcRequest:
     required with ``neighbours``."""
     a0: FloatArray | None = None
     """(3,) the vehicle's current acceleration, if known (smooths the first step)."""
+    own: FloatArray | None = None
+    """(N+1, 3) how far the vehicle is expected to fly from the trajectory it is given
+    (its deviation now, drifting as forecast), when it is replanned from its reference
+    rather than from where it is: ``neighbours`` are then given relative to it (minus
+    it), and :func:`with_predictions` shifts fresh results the same way.  None: zeros."""
     lookahead: FloatArray | None = None
     """(L+1, 3) the path at ``t0 + k lookahead_dt`` far beyond the horizon, for a
     vehicle that cannot fly it as fast as it goes (``limits`` are then its own): the
@@ -434,6 +440,8 @@ class MpcRequest:
         set_(self, "ref_acc", _array("ref_acc", self.ref_acc, (n, 3)))
         if self.a0 is not None:
             set_(self, "a0", _array("a0", self.a0, (3,)))
+        if self.own is not None:
+            set_(self, "own", _array("own", self.own, (n, 3)))
         if self.lookahead is not None:
             set_(self, "lookahead", _array("lookahead", self.lookahead, (None, 3)))
             if len(self.lookahead) < 3 or not self.lookahead_dt > 0:
@@ -478,10 +486,11 @@ class MpcResult:
     """System id of the vehicle."""
     status: Status
     """``"solved"``: the MPC's correction, verified; ``"fallback"``: a verified stop
-    (the MPC could not give one); ``"path"``: neither, the vehicle's path keeps at
-    least as far from every neighbour as the stop (the executor streams the path);
-    ``"unsafe"``: the stop, which breaks a limit too, and the path no better
-    (the executor streams the path and says so)"""
+    (the MPC could not give one), or the escape; ``"path"``: neither, the path the
+    executor streams keeps every limit (it streams it); ``"unsafe"``: nothing
+    found keeps every limit, and the path is no worse than the rest (the executor
+    streams it and says so).  The trajectory of a ``"path"`` or ``"unsafe"``
+    result is the stop that was checked, never flown"""
     reason: str
     """Why it is not ``"solved"`` ("" when it is)."""
     t0: float
@@ -780,6 +789,7 @@ class MpcController:
         self._start_distance: FloatArray | None = None
         self._retimer: Retimer | None = None
         self._retimed: Retimed | None = None
+        self._streamed: MpcRequest | None = None
         # The last fallback's two candidates, checked (read by the escape).
         self._stop_check = TrajectoryCheck((), math.inf, None)
         self._path_check = TrajectoryCheck((), math.inf, None)
@@ -1124,6 +1134,9 @@ class MpcController:
     def solve(self, request: MpcRequest) -> MpcResult:
         """One tick: the verified correction, or a stop with the reason why not."""
         self._check(request)
+        # The path the executor streams when the MPC gives nothing: a weak vehicle's
+        # is its plan, not the re-timed reference the QP tracks.
+        self._streamed = request
         if request.lookahead is not None:
             request = self._retimed_request(request)
         start = self._clock()
@@ -1247,6 +1260,14 @@ class MpcController:
                 neighbours_used=used)
             self._last = result
             return result
+        if stop.status == "fallback" and \
+                on_path.min_separation > self._stop_check.min_separation + DIST_TOL:
+            # The stop breaks nothing new but the path keeps farther away: the path.
+            stop = replace(stop, status="unsafe",
+                           reason=f"{stop.reason}; the stop keeps "
+                                  f"{self._stop_check.min_separation:.2f} m, its path "
+                                  f"{on_path.min_separation:.2f} m")
+            self._last = None
         return stop
 
     def _retimed_request(self, req: MpcRequest) -> MpcRequest:
@@ -1271,14 +1292,21 @@ class MpcController:
 
     def _path_back(self, req: MpcRequest) -> TrajectoryCheck:
         """The path checked as the executor would fly it if the MPC gave nothing: the
-        autopilot takes the vehicle back onto it, its offset fading within about
-        ``PATH_SETTLE_S``."""
-        fade = np.exp(-self.dt * np.arange(len(req.ref_pos)) / PATH_SETTLE_S)[:, None]
-        back_pos = req.ref_pos + (req.p0 - req.ref_pos[0]) * fade
-        back_vel = req.ref_vel + (req.v0 - req.ref_vel[0]) * fade
+        autopilot takes the vehicle back onto it, its offset decaying critically damped
+        with time constant ``PATH_SETTLE_S`` (position and velocity consistent)."""
+        tau = PATH_SETTLE_S
+        t = (self.dt * np.arange(len(req.ref_pos)))[:, None]
+        e0, de0 = req.p0 - req.ref_pos[0], req.v0 - req.ref_vel[0]
+        c = de0 + e0 / tau  # critically damped: e = (e0 + c t) exp(-t / tau)
+        fade = np.exp(-t / tau)
+        back_pos = req.ref_pos + (e0 + c * t) * fade
+        back_vel = req.ref_vel + (c - (e0 + c * t) / tau) * fade
+        # The autopilot brings it back within its own acceleration limit: what is judged
+        # here is where the path takes it (separation, speeds, altitude, fence).
         check = verify(back_pos, back_vel, np.diff(back_vel, axis=0) / self.dt, self.dt,
-                       req.limits, req.others, req.other_ids, substeps=self.config.substeps,
-                       limit_tol=self.config.limit_tol, baseline=True)
+                       replace(req.limits, max_accel=math.inf), req.others, req.other_ids,
+                       substeps=self.config.substeps, limit_tol=self.config.limit_tol,
+                       baseline=True)
         if check.min_separation < req.limits.min_separation - DIST_TOL and check.ok:
             # "No worse than now" is for the envelope (a gust's 2.6 m/s climb is not the
             # path's doing); the separation it must keep outright.
@@ -1293,7 +1321,8 @@ class MpcController:
         check = verify(pos, vel, acc, self.dt, req.limits, req.others, req.other_ids,
                        substeps=self.config.substeps, limit_tol=self.config.limit_tol,
                        baseline=True)
-        on_path = self._path_back(req)
+        streamed = req if self._streamed is None else self._streamed
+        on_path = self._path_back(replace(streamed, p0=req.p0, v0=req.v0, lookahead=None))
         self._stop_check, self._path_check = check, on_path
         status: Status = "fallback" if check.ok else "unsafe"
         reason = cause if check.ok else f"{cause}; the stop is unsafe too: " + \
@@ -1310,7 +1339,9 @@ class MpcController:
             vel=vel, acc=acc, solve_ms=1e3 * (self._clock() - start), iterations=iterations,
             passes=passes, max_slack=max_slack, min_separation=check.min_separation,
             closest=check.closest, neighbours_used=used)
-        self._last = result
+        # Only what is flown is the vehicle's last trajectory (its acceleration smooths
+        # the next solve's first step).
+        self._last = result if status == "fallback" else None
         return result
 
 
@@ -1333,9 +1364,15 @@ def _only_separation(check: TrajectoryCheck) -> bool:
 
 
 def with_predictions(request: MpcRequest, fresh: Mapping[int, MpcResult],
-                     dt: float) -> MpcRequest:
+                     dt: float, owns: Mapping[int, FloatArray | None] | None = None
+                     ) -> MpcRequest:
     """``request`` with the neighbours in ``fresh`` predicted by those results (replaced
-    where the request has them, added where it does not), sampled at its instants."""
+    where the request has them, added where it does not), sampled at its instants.
+
+    ``owns`` (system id -> :attr:`MpcRequest.own`) says how far each vehicle is expected
+    to fly from its result: a neighbour is where its result plus its own deviation puts
+    it, given relative to this request's own deviation, like the request's other
+    neighbours."""
     # A "path" or "unsafe" result is not flown (the executor streams that vehicle's
     # path): it must not stand for where that vehicle will be.
     others = {int(r.sysid): r for r in fresh.values()
@@ -1347,8 +1384,11 @@ def with_predictions(request: MpcRequest, fresh: Mapping[int, MpcResult],
     ids = list(request.other_ids)
     extra = []
     extra_ids = []
+    mine = 0.0 if request.own is None else request.own
     for sid, res in others.items():
         traj, _, _ = res.sample(times)
+        theirs = (owns or {}).get(sid)
+        traj = traj + (0.0 if theirs is None else theirs) - mine
         if sid in ids:
             nb[ids.index(sid)] = traj
         else:
@@ -1380,10 +1420,11 @@ def solve_in_priority(controllers: Mapping[int, MpcController],
     if missing:
         raise ValueError(f"`controllers` has no controller for vehicle {missing[0]}")
     fresh: dict[int, MpcResult] = {}
+    owns = {r.sysid: r.own for r in ordered}
     start = clock()
     for req in ordered:
         if clock() - start > budget_s:
             break
         ctrl = controllers[req.sysid]
-        fresh[req.sysid] = ctrl.solve(with_predictions(req, fresh, ctrl.config.dt))
+        fresh[req.sysid] = ctrl.solve(with_predictions(req, fresh, ctrl.config.dt, owns))
     return fresh

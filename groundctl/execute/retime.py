@@ -89,7 +89,8 @@ class Retimer:
     """One vehicle's re-timing QP, built once (see the module docstring)."""
 
     def __init__(self, steps: int = 80, dt: float = 0.25, faces: int = 8,
-                 minmax_weight: float = 200.0, accel_weight: float = 0.05) -> None:
+                 minmax_weight: float = 200.0, accel_weight: float = 0.05,
+                 osqp_settings: dict[str, float | int | bool] | None = None) -> None:
         if steps < 2 or not dt > 0 or faces < 4:
             raise ValueError("`steps` must be at least 2, `dt` positive, `faces` at least 4")
         self.steps, self.dt, self.faces = steps, dt, faces
@@ -157,7 +158,8 @@ class Retimer:
         self.q = np.zeros(self.nx)
         self.q[self.oS] = minmax_weight
         self.solver = osqp.OSQP()
-        self.solver.setup(self.P, self.q, self.A, self.l, self.u, **RETIME_OSQP)
+        settings = RETIME_OSQP if osqp_settings is None else osqp_settings
+        self.solver.setup(self.P, self.q, self.A, self.l, self.u, **settings)
         self._last: Retimed | None = None
 
     def solve(self, t0: float, path_pos: FloatArray, p0: FloatArray, v0: FloatArray,

@@ -31,9 +31,9 @@ drone against its path: the plan is what keeps the fleet apart, and an MPC
 trajectory starts where the vehicle is, so a drone blown far off would never
 look off against it.  A trajectory older than
 ``STALE_S`` (the worker fell behind) is dropped and the vehicle gets its path
-again.  A ``fallback`` (the verified stop) is flown like a solution; an
-``unsafe`` result is never flown: the vehicle keeps its path, and a notice says
-so.  Nothing here blocks: solves run in :mod:`groundctl.flight.mpcworker`.
+again.  A ``fallback`` (the verified stop, or an escape) is flown like a
+solution; a ``path`` or ``unsafe`` result is never flown: the vehicle keeps its
+path, and a notice says so.  Nothing here blocks: solves run in :mod:`groundctl.flight.mpcworker`.
 """
 
 from __future__ import annotations
@@ -178,11 +178,12 @@ class Replanner:
     def tick(self, now: float, paths: Mapping[int, Path], clocks: PathClocks,
              positions: Mapping[int, FloatArray], velocities: Mapping[int, FloatArray],
              obstacles: Mapping[int, FloatArray],
-             throttles: Mapping[int, float] | None = None) -> list[Event]:
+             throttles: Mapping[int, tuple[float, float]] | None = None) -> list[Event]:
         """One tick; ``paths`` of the vehicles flying one (eligible for MPC) with telemetry
         ``positions`` / ``velocities`` (show frame, carried to ``now``); ``obstacles`` are
         the other vehicles in the air (descending, say), predicted where they are;
-        ``throttles`` their last VFR_HUD throttle, % (their authority).
+        ``throttles`` their last VFR_HUD throttle, % and when it came (their authority;
+        not sampled while under MPC: their acceleration is not their path's then).
         Returns the events to log."""
         events: list[Event] = []
         if self.worker.hung():
@@ -201,8 +202,8 @@ class Replanner:
             on_path, path_vel, path_acc = sample_paths(plist, np.full(len(ids), now), clocks)
             for i, sysid in enumerate(ids):
                 thr = (throttles or {}).get(sysid)
-                if thr is not None:
-                    self.authority.sample(now, sysid, thr, path_acc[i])
+                if thr is not None and sysid not in self.supervisor.active:
+                    self.authority.sample(thr[1], sysid, thr[0], path_acc[i])
             demands = self._demands(ids, plist, clocks, now)
             vel = np.array([velocities.get(s, path_vel[i]) for i, s in enumerate(ids)])
             dev, dev_rate = here - on_path, vel - path_vel
@@ -256,8 +257,10 @@ class Replanner:
             else:
                 self.results[sysid] = res
             if res.status != self._status.get(sysid, "solved") and res.status != "solved":
-                what = {"fallback": "stopping it", "path": "keeping its path"}.get(
-                    res.status, "keeping its path (even the stop is unsafe)")
+                escaping = "best escape" in res.reason
+                what = {"fallback": "flying the escape" if escaping else "stopping it",
+                        "path": "keeping its path"}.get(
+                    res.status, "keeping its path (nothing safer was found)")
                 events.append(("mpc_fallback", f"vehicle {sysid}: MPC {res.reason}; {what}",
                                {"system_id": sysid, "status": res.status,
                                 "reason": res.reason}))
@@ -358,6 +361,7 @@ class Replanner:
             requests.append(MpcRequest(
                 sysid=sysid, t0=float(t0), p0=p0, v0=v0, ref_pos=rp, ref_vel=rv, ref_acc=ra,
                 limits=limits, lookahead=ahead, lookahead_dt=LOOKAHEAD_DT,
+                own=own if np.any(own) else None,
                 neighbours=np.stack(others) if others else None,
                 neighbour_ids=np.array(other_ids, dtype=np.intp) if others else None))
         return requests

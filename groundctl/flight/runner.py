@@ -814,9 +814,11 @@ class ShowRunner:
             # Hovering at the take-off altitude before the show: each one's hover throttle
             # (its authority) is known before its path asks anything of it.
             for sysid, v in seq.vehicles.items():
-                thr = self.link.vehicles[sysid].throttle_pct
-                if v.phase is VehiclePhase.READY and thr is not None:
-                    self.replanner.authority.sample(now, sysid, thr, np.zeros(3))
+                st = self.link.vehicles[sysid]
+                if v.phase is VehiclePhase.READY and st.throttle_pct is not None \
+                        and st.throttle_at is not None:
+                    self.replanner.authority.sample(st.throttle_at, sysid, st.throttle_pct,
+                                                    np.zeros(3))
             return
         last = self.monitor.last_positions
         if last is None or last[0] != now:
@@ -834,8 +836,9 @@ class ShowRunner:
                 velocities[sysid] = ned_vel_to_show(self.plan.origin, np.array(vel))
         obstacles = {s: p for s, p in positions.items() if s not in eligible
                      and s in seq.vehicles and p[2] > AIRBORNE_M}
-        throttles = {s: t for s in eligible
-                     if (t := self.link.vehicles[s].throttle_pct) is not None}
+        throttles = {s: (st.throttle_pct, st.throttle_at) for s in eligible
+                     if (st := self.link.vehicles[s]).throttle_pct is not None
+                     and st.throttle_at is not None}
         for event, text, fields in self.replanner.tick(now, eligible, req.clocks(self.plan),
                                                        positions, velocities, obstacles,
                                                        throttles):

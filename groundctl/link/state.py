@@ -143,6 +143,8 @@ class VehicleState:
     throttle_pct: float | None = None
     """VFR_HUD.throttle: the motors' output, percent (what it hovers at says how much
     thrust it has left: :mod:`groundctl.execute.authority`)."""
+    throttle_at: float | None = None
+    """Our time of that VFR_HUD."""
     prearm_ok: bool | None = None
     """SYS_STATUS pre-arm check bit: True passing, False failing, None not reported."""
     gps_fix_type: int | None = None
@@ -765,6 +767,7 @@ def _param_value(state: VehicleState, msg: Any, now: float,
 def _vfr_hud(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
     if 0 <= msg.throttle <= 100:
         state.throttle_pct = float(msg.throttle)
+        state.throttle_at = now
 
 
 def _ack(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
