@@ -173,13 +173,17 @@ def test_a_dodge_that_needs_a_little_more_speed_is_flown_as_an_escape() -> None:
     # limit, the escape (speeds up to 20 % over) keeps the separation.
     from dataclasses import replace
 
-    from groundctl.execute.mpc import ESCAPE_SPEED_MARGIN
+    from groundctl.execute.mpc import ESCAPE_SPEED_MARGIN, MPC_OSQP_SETTINGS
 
     limits = replace(LIMITS, max_speed_h=1.0)
     hover = line((0.0, 0.0, 10.0), (0.0, 0.0, 0.0))
     ram = line((5.0, 0.3, 10.0), (-4.0, 0.0, 0.0))
-    r = MpcController(1).solve(request(1, 0.0, (0.0, 0.0, 10.0), (0.0, 0.0, 0.0), hover,
-                                       [ram], [9], limits=limits))
+    # Six QPs: without OSQP's per-pass wall-time cap, so that a busy machine cannot
+    # turn the escape into a stop (the cap is the flight's, not the geometry's).
+    untimed = MpcConfig(osqp_settings={k: v for k, v in MPC_OSQP_SETTINGS.items()
+                                       if k != "time_limit"})
+    r = MpcController(1, untimed).solve(request(1, 0.0, (0.0, 0.0, 10.0), (0.0, 0.0, 0.0),
+                                                hover, [ram], [9], limits=limits))
     assert r.status == "fallback", r.reason
     assert "best escape found keeps" in r.reason and "its path 0.30 m" in r.reason
     check_limits(r, replace(limits, max_speed_h=1.0 + ESCAPE_SPEED_MARGIN))
