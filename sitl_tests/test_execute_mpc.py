@@ -9,6 +9,7 @@ sampled, against the neighbours' true trajectories.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -27,7 +28,10 @@ from groundctl.execute.mpc import (
 from groundctl.show.model import Limits
 
 LIMITS = Limits()  # 5 m/s, 3 m/s^2, 1.5 m separation, 2-120 m altitude
-CFG = MpcConfig()
+#: The MPC as flown, without OSQP's per-pass wall-time cap: what these tests judge is
+#: the geometry, which a busy machine must not change (the cap is the flight's).
+CFG = MpcConfig(osqp_settings={k: v for k, v in MpcConfig().osqp_settings.items()
+                               if k != "time_limit"})
 N, DT = CFG.steps, CFG.dt
 Path = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
@@ -70,7 +74,7 @@ def check_limits(result: MpcResult, limits: Limits = LIMITS) -> None:
 
 def test_rejoin_from_lateral_offset_on_a_moving_path() -> None:
     path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))
-    ctrl = MpcController(1)
+    ctrl = MpcController(1, CFG)
     r = ctrl.solve(request(1, 0.0, (0.0, 3.0, 10.0), (3.0, 0.0, 0.0), path))
     assert r.status == "solved", r.reason
     check_limits(r)
@@ -91,7 +95,7 @@ def test_rejoin_from_lateral_offset_on_a_moving_path() -> None:
 def closed_loop_separation(path: Path, others: list[Path], start, seconds: float
                            ) -> tuple[float, list[MpcResult]]:
     """Fly ``seconds`` of MPC ticks; the smallest distance to any neighbour while flying."""
-    ctrl = MpcController(1)
+    ctrl = MpcController(1, CFG)
     t = 0.0
     p, v = np.asarray(start, dtype=float), path(np.array(0.0))[1]
     worst = np.inf
@@ -138,7 +142,7 @@ def test_start_inside_a_neighbours_separation_opens_the_gap() -> None:
     keeps it, never closer than where it started."""
     path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))
     close = line((0.0, 1.0, 10.0), (3.0, 0.0, 0.0))
-    r = MpcController(1).solve(request(1, 0.0, (0.0, 0.0, 10.0), (3.0, 0.0, 0.0), path,
+    r = MpcController(1, CFG).solve(request(1, 0.0, (0.0, 0.0, 10.0), (3.0, 0.0, 0.0), path,
                                        [close], [7]))
     assert r.status in ("solved", "fallback"), r.reason
     gap = np.linalg.norm(r.pos[:, :2] - close(r.times)[0][:, :2], axis=1)
@@ -150,7 +154,7 @@ def test_start_above_max_speed_keeps_its_path_when_the_path_is_safe() -> None:
     # Nothing near: the autopilot slowing it back onto its path is no worse than now,
     # and better than stopping in the formation.
     path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))
-    r = MpcController(1).solve(request(1, 0.0, (0.0, 0.0, 10.0), (6.0, 0.0, 0.0), path))
+    r = MpcController(1, CFG).solve(request(1, 0.0, (0.0, 0.0, 10.0), (6.0, 0.0, 0.0), path))
     assert r.status == "path"
     assert r.reason == ("start state: horizontal speed 6.00 m/s above max_speed_h 5.0 m/s; "
                         "its path keeps every limit")
@@ -160,7 +164,7 @@ def test_a_neighbour_closing_too_fast_leaves_an_unsafe_stop() -> None:
     path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))
     # Head-on at 10 m/s closing, 4 m away: nothing within 3 m/s^2 can avoid it.
     ram = line((4.0, 0.0, 10.0), (-7.0, 0.0, 0.0))
-    r = MpcController(1).solve(request(1, 0.0, (0.0, 0.0, 10.0), (3.0, 0.0, 0.0), path,
+    r = MpcController(1, CFG).solve(request(1, 0.0, (0.0, 0.0, 10.0), (3.0, 0.0, 0.0), path,
                                        [ram], [9]))
     assert r.status == "unsafe"
     assert "separation slack" in r.reason and "the stop is unsafe too" in r.reason
@@ -198,7 +202,7 @@ def test_warm_start_cuts_the_iterations() -> None:
     path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))
     others = [line((0.0, dy, 10.0 + dz), (3.0, 0.0, 0.0)) for dy, dz in
               ((4, 0), (-4, 0), (0, 4), (0, -4))]
-    ctrl = MpcController(1)
+    ctrl = MpcController(1, CFG)
     first = ctrl.solve(request(1, 0.0, (0.0, 2.0, 11.0), (3.0, 0.0, 0.0), path, others))
     p, v, _ = first.sample(DT)
     second = ctrl.solve(request(1, DT, p, v, path, others))
@@ -211,7 +215,7 @@ def test_warm_start_cuts_the_iterations() -> None:
 
 def test_the_qp_is_built_once_whatever_the_neighbour_count() -> None:
     path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))
-    ctrl = MpcController(1)
+    ctrl = MpcController(1, CFG)
     solver, shape, nnz = ctrl.solver, ctrl._pattern.matrix.shape, ctrl._pattern.matrix.nnz
     t, p, v = 0.0, np.array([0.0, 1.0, 10.0]), np.array([3.0, 0.0, 0.0])
     rng = np.random.default_rng(3)
@@ -235,7 +239,7 @@ def test_head_on_replanning_in_priority_keeps_separation() -> None:
              2: line((8.0, -1.0, 10.0), (-3.0, 0.0, 0.0))}
     state = {1: (np.array([-8.0, 0.0, 10.0]), np.array([3.0, 0.0, 0.0])),
              2: (np.array([8.0, 0.0, 10.0]), np.array([-3.0, 0.0, 0.0]))}
-    ctrls = {s: MpcController(s) for s in paths}
+    ctrls = {s: MpcController(s, CFG) for s in paths}
     last: dict[int, MpcResult] = {}
     t, worst = 0.0, np.inf
     times_of = lambda t0: t0 + DT * np.arange(N + 1)  # noqa: E731
@@ -270,7 +274,7 @@ def test_a_convex_geofence_is_kept() -> None:
     limits = Limits(geofence=fence)
     path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))
     # 1 m from the fence edge and drifting towards it at 1.5 m/s.
-    r = MpcController(1).solve(request(1, 0.0, (0.0, 0.5, 10.0), (3.0, 1.5, 0.0), path,
+    r = MpcController(1, CFG).solve(request(1, 0.0, (0.0, 0.5, 10.0), (3.0, 1.5, 0.0), path,
                                        limits=limits))
     assert r.status == "solved", r.reason
     ts = np.linspace(r.t0, r.end, 1001)
@@ -284,7 +288,7 @@ def test_a_convex_geofence_is_kept() -> None:
 
 def test_sample_holds_the_final_velocity_past_the_horizon() -> None:
     path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))
-    r = MpcController(1).solve(request(1, 5.0, path(np.array(5.0))[0], (3.0, 0.0, 0.0), path))
+    r = MpcController(1, CFG).solve(request(1, 5.0, path(np.array(5.0))[0], (3.0, 0.0, 0.0), path))
     p, v, a = r.sample(r.end + 1.0)
     assert np.allclose(v, r.vel[-1]) and np.allclose(a, 0.0)
     assert np.allclose(p, r.pos[-1] + r.vel[-1])
@@ -334,14 +338,14 @@ def test_a_request_that_does_not_fit_the_controller_is_refused() -> None:
     req = MpcRequest(1, 0.0, rp[0], rv[0], rp, rv, ra, LIMITS)
     with pytest.raises(ValueError, match="`ref_pos` holds 21 samples but the controller plans "
                                          "30 steps"):
-        MpcController(1).solve(req)
+        MpcController(1, CFG).solve(req)
     with pytest.raises(ValueError, match=r"`request.sysid` is 1"):
         MpcController(2, MpcConfig(steps=20)).solve(req)
 
 
 def test_a_neighbour_without_a_slot_is_still_verified() -> None:
     # No slots at all: the QP flies straight through the neighbour, the verifier refuses.
-    ctrl = MpcController(1, MpcConfig(max_neighbours=0, passes=1))
+    ctrl = MpcController(1, replace(CFG, max_neighbours=0, passes=1))
     path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))
     r = ctrl.solve(request(1, 0.0, (0.0, 0.0, 10.0), (3.0, 0.0, 0.0), path,
                            [line((6.0, 0.0, 10.0), (0.0, 0.0, 0.0))], [5]))
@@ -360,7 +364,7 @@ def test_fresh_neighbours_are_given_relative_to_the_requests_own_deviation() -> 
     other = line((0.0, 4.0, 10.0), (3.0, 0.0, 0.0))
     mine = np.tile([0.0, 0.3, 0.0], (N + 1, 1))
     theirs = np.tile([0.0, -0.2, 0.0], (N + 1, 1))
-    ahead = MpcController(2).solve(request(2, 0.0, (0.0, 4.0, 10.0), (3.0, 0.0, 0.0), other))
+    ahead = MpcController(2, CFG).solve(request(2, 0.0, (0.0, 4.0, 10.0), (3.0, 0.0, 0.0), other))
     req = request(5, 0.0, (0.0, 0.0, 10.0), (3.0, 0.0, 0.0), path, [other], [2], own=mine)
     got = with_predictions(req, {2: ahead}, DT, {2: theirs, 5: mine})
     expect = ahead.sample(req.t0 + DT * np.arange(N + 1))[0] + theirs - mine
@@ -379,7 +383,7 @@ def test_a_weak_vehicle_never_gets_back_a_path_it_cannot_fly() -> None:
     path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))  # 3 m/s: more than it can fly
     ahead = path(0.25 * np.arange(81))[0]
     # Measured above its limits: no correction is tried, a fallback is chosen.
-    r = MpcController(1).solve(request(1, 0.0, (0.0, 0.0, 10.0), (2.5, 0.0, 0.0), path,
+    r = MpcController(1, CFG).solve(request(1, 0.0, (0.0, 0.0, 10.0), (2.5, 0.0, 0.0), path,
                                        limits=weak, lookahead=ahead))
     assert r.reason.startswith("start state: horizontal speed 2.50 m/s")
     assert r.status != "path"
