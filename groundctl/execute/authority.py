@@ -20,7 +20,7 @@ enough to make a typical value (their median), clipped to [``floor``, 1], and
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -90,10 +90,7 @@ class AuthorityEstimator:
 
 def scaled_limits(limits: Limits, authority: float) -> Limits:
     """``limits`` with the speeds and the acceleration scaled by ``authority``."""
-    return replace(limits, max_speed_h=limits.max_speed_h * authority,
-                   max_speed_up=limits.max_speed_up * authority,
-                   max_speed_down=limits.max_speed_down * authority,
-                   max_accel=limits.max_accel * authority)
+    return limits.scaled(authority, authority)
 
 
 def beyond(limits: Limits, vel: np.ndarray, acc: np.ndarray, tol: float = 0.02) -> str | None:

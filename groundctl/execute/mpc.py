@@ -1352,10 +1352,7 @@ ESCAPE_SPEED_MARGIN = 0.2
 
 def escape_limits(limits: Limits) -> Limits:
     """``limits`` with the speeds raised by :data:`ESCAPE_SPEED_MARGIN`."""
-    k = 1.0 + ESCAPE_SPEED_MARGIN
-    return replace(limits, max_speed_h=limits.max_speed_h * k,
-                   max_speed_up=limits.max_speed_up * k,
-                   max_speed_down=limits.max_speed_down * k)
+    return limits.scaled(1.0 + ESCAPE_SPEED_MARGIN)
 
 
 def _only_separation(check: TrajectoryCheck) -> bool:

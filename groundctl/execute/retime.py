@@ -85,6 +85,18 @@ class Retimed:
                 np.where(past, self.vel[-1], vel), np.where(past, 0.0, a))
 
 
+def clip_speed(vel: ArrayLike, limits: Limits, h_scale: float = 1.0) -> FloatArray:
+    """``vel`` (3,) with its horizontal speed within ``h_scale`` times the limit and its
+    vertical rate within the climb and descent limits."""
+    out = np.array(vel, dtype=float)
+    vh_max = limits.max_speed_h * h_scale
+    vh = float(np.hypot(out[0], out[1]))
+    if vh > vh_max:
+        out[:2] *= vh_max / vh
+    out[2] = min(max(out[2], -limits.max_speed_down), limits.max_speed_up)
+    return out
+
+
 class Retimer:
     """One vehicle's re-timing QP, built once (see the module docstring)."""
 
@@ -176,12 +188,7 @@ class Retimer:
         self.q[: self.oV] = -2.0 * dt * rel.ravel()
         # Start within the limits (a start beyond them has no solution at all): the
         # horizontal speed inside the face polygon, the vertical rate inside its bounds.
-        start_v = np.array(v0, dtype=float)
-        vh_max = limits.max_speed_h * math.cos(math.pi / self.faces)
-        vh = float(np.hypot(start_v[0], start_v[1]))
-        if vh > vh_max:
-            start_v[:2] *= vh_max / vh
-        start_v[2] = min(max(start_v[2], -limits.max_speed_down), limits.max_speed_up)
+        start_v = clip_speed(v0, limits, math.cos(math.pi / self.faces))
         self.l[self.r_start] = self.u[self.r_start] = np.concatenate([np.zeros(3), start_v])
         self.u[self.r_hi] = rel.ravel()
         self.l[self.r_lo] = rel.ravel()

@@ -54,6 +54,7 @@ from groundctl.execute.replan import (
     error_forecast,
     predicted_conflicts,
 )
+from groundctl.execute.retime import clip_speed
 from groundctl.flight.mpcworker import MpcWorker
 from groundctl.plan.plan import Plan
 from groundctl.show.model import Limits, MpcSettings
@@ -76,16 +77,6 @@ def _within(vel: FloatArray, limits: Limits) -> bool:
     """Whether velocity ``vel`` (3,) keeps the speed limits (what a start state must)."""
     return bool(np.hypot(vel[0], vel[1]) <= limits.max_speed_h
                 and -limits.max_speed_down <= vel[2] <= limits.max_speed_up)
-
-
-def _clip_speed(vel: FloatArray, limits: Limits) -> FloatArray:
-    """``vel`` (3,) with its horizontal speed and vertical rate brought within the limits."""
-    out = np.array(vel, dtype=float)
-    vh = float(np.hypot(out[0], out[1]))
-    if vh > limits.max_speed_h:
-        out[:2] *= limits.max_speed_h / vh
-    out[2] = min(max(out[2], -limits.max_speed_down), limits.max_speed_up)
-    return out
 
 
 @dataclass
@@ -112,8 +103,6 @@ class _Measured:
     """(n, 3) telemetry positions carried to now."""
     error: FloatArray
     """(n, 3) position minus path position now."""
-    error_rate: FloatArray
-    """(n, 3) velocity minus path velocity now."""
     dev: FloatArray
     """(n, 3) position minus what it is commanded now (its MPC trajectory, or its path)."""
     dev_rate: FloatArray
@@ -204,6 +193,7 @@ class Replanner:
                 thr = (throttles or {}).get(sysid)
                 if thr is not None and sysid not in self.supervisor.active:
                     self.authority.sample(thr[1], sysid, thr[0], path_acc[i])
+            self._weak = {s: a for s, a in self.authority.authority().items() if a < 1.0}
             demands = self._demands(ids, plist, clocks, now)
             vel = np.array([velocities.get(s, path_vel[i]) for i, s in enumerate(ids)])
             dev, dev_rate = here - on_path, vel - path_vel
@@ -212,7 +202,7 @@ class Replanner:
                 if res is not None:
                     p_now, v_now, _ = res.sample(now)
                     dev[i], dev_rate[i] = here[i] - p_now, vel[i] - v_now
-            m = _Measured(ids, plist, here, here - on_path, vel - path_vel, dev, dev_rate)
+            m = _Measured(ids, plist, here, here - on_path, dev, dev_rate)
             norms = np.linalg.norm(m.error, axis=1)
             errors = {s: float(e) for s, e in zip(ids, norms, strict=True)}
             offsets = np.linspace(0.0, self.config.horizon_s, CONFLICT_SAMPLES)
@@ -289,8 +279,7 @@ class Replanner:
     def _demands(self, ids: Sequence[int], plist: Sequence[Path], clocks: PathClocks,
                  now: float) -> dict[int, str]:
         """Weak vehicles whose path over the look ahead asks more than their own limits:
-        system id -> what (for the trigger); their authorities are kept for the requests."""
-        self._weak = {s: a for s, a in self.authority.authority().items() if a < 1.0}
+        system id -> what (for the trigger)."""
         out: dict[int, str] = {}
         times = now + LOOKAHEAD_DT * np.arange(LOOKAHEAD_STEPS + 1, dtype=float)
         for sysid, path in zip(ids, plist, strict=True):
@@ -328,8 +317,7 @@ class Replanner:
             # Within REINIT_M of what it is told, it is replanned from there (module
             # docstring): the autopilot keeps fighting the gust, as on its path.
             res = self._fresh(sysid, now)
-            told_p, told_v = (rp[0], rv[0]) if res is None else \
-                (np.asarray(res.sample(t0)[0]), np.asarray(res.sample(t0)[1]))
+            told_p, told_v = (rp[0], rv[0]) if res is None else res.sample(t0)[:2]
             weak = self._weak.get(sysid)
             limits = self.plan.limits if weak is None else scaled_limits(self.plan.limits, weak)
             own = np.zeros((n_steps + 1, 3))
@@ -343,7 +331,7 @@ class Replanner:
             elif weak is not None:
                 # Its limits are an estimate (its share of the fleet's thrust): measured a
                 # little faster, it is planned from the fastest it is taken to manage.
-                v0 = _clip_speed(v0, limits)
+                v0 = clip_speed(v0, limits)
             others, other_ids = [], []
             for j in map(int, np.flatnonzero(dist[a_i] <= reach)):
                 if ids[j] != sysid:

@@ -11,7 +11,7 @@ executor) works in this frame; the link layer converts to each vehicle's own NED
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -60,6 +60,14 @@ class Limits:
     max_flight_time: float = 900.0
     """The battery's endurance: the climb, every transition and hold, and the descent
     must fit in it, s."""
+
+    def scaled(self, speed: float, accel: float = 1.0) -> Limits:
+        """These limits with the three speeds scaled by ``speed`` and the acceleration
+        by ``accel`` (a weak vehicle's own envelope, the MPC's escape margin)."""
+        return replace(self, max_speed_h=self.max_speed_h * speed,
+                       max_speed_up=self.max_speed_up * speed,
+                       max_speed_down=self.max_speed_down * speed,
+                       max_accel=self.max_accel * accel)
 
 
 @dataclass(frozen=True)
