@@ -15,8 +15,10 @@ The tree::
     │   └── VehicleLost                 a vehicle stopped talking
     ├── PreflightFailed                 pre-flight checks did not pass (failures)
     ├── FlightError                     the flight could not go on (reason)
-    │   └── PlanningTimeout             a plan not ready by its deadline (what, deadline_s)
-    └── SimulatorError                  the built-in simulator was misused
+    │   ├── PlanningTimeout             a plan not ready by its deadline (what, deadline_s)
+    │   └── NoGo                        the operator did not give the go (the console)
+    ├── SimulatorError                  the built-in simulator was misused
+    └── ConsoleUnavailable              --console without a terminal (or with --json)
 
 Third-party errors (OSError from sockets, ValueError from TOML, OSQP statuses)
 are translated at the boundary with ``raise Ours(...) from exc``.  The CLI
@@ -214,7 +216,23 @@ class PlanningTimeout(FlightError):
         super().__init__(f"{what} took longer than its {shown} s deadline")
 
 
+class NoGo(FlightError):
+    """The operator answered the pre-flight go / no-go with no-go: nothing was armed."""
+
+    exit_code = EXIT_ABORTED
+
+    def __init__(self, reason: str = "no-go: the operator did not give the go; "
+                                     "nothing was armed") -> None:
+        super().__init__(reason)
+
+
 class SimulatorError(GroundctlError):
     """The built-in simulator was given something it cannot do."""
+
+    exit_code = EXIT_USAGE
+
+
+class ConsoleUnavailable(GroundctlError):
+    """``--console`` asked for where it cannot be drawn (no terminal, or ``--json``)."""
 
     exit_code = EXIT_USAGE

@@ -230,6 +230,28 @@ class PreflightReport:
                      + ", ".join(map(str, sorted(self.extra))))
         return line
 
+    def failing_by_check(self, excluded: Collection[int] = (), most: int = 4) -> list[str]:
+        """One line per failing check, fleet-wide, with the vehicles grouped by what it
+        says: ``gps: no GPS_RAW_INT yet (12, 40)``; at most ``most`` different details
+        each (then "and N more vehicles").  For a terminal that must not get a line per
+        vehicle."""
+        by_check: dict[str, dict[str, list[int]]] = {}
+        for sysid in sorted(self.results):
+            if sysid in excluded:
+                continue
+            for r in self.results[sysid]:
+                if not r.ok:
+                    by_check.setdefault(r.name, {}).setdefault(r.detail, []).append(sysid)
+        out = []
+        for name, details in by_check.items():
+            shown = list(details.items())[:most]
+            parts = [f"{detail} ({', '.join(map(str, ids))})" for detail, ids in shown]
+            rest = sum(len(ids) for _, ids in list(details.items())[most:])
+            if rest:
+                parts.append(f"and {rest} more vehicle{'s' if rest > 1 else ''}")
+            out.append(f"  {name}: " + "; ".join(parts))
+        return out
+
     def failing_lines(self, excluded: Collection[int] = ()) -> list[str]:
         """The lines of the vehicles that fail a check (the others are ready)."""
         return [line for line in self.lines(excluded) if "NOT READY" in line]

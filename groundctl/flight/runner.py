@@ -26,8 +26,8 @@ import asyncio
 import contextlib
 import logging
 import math
-from collections.abc import Callable, Collection, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Awaitable, Callable, Collection, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -40,6 +40,7 @@ from groundctl.errors import (
     FlightError,
     GroundctlError,
     LinkError,
+    NoGo,
     PlanningTimeout,
     PreflightFailed,
 )
@@ -224,7 +225,9 @@ class ShowRunner:
     def __init__(self, plan: Plan, link: FleetLink, clock: Clock,
                  config: RunnerConfig | None = None, *, events: EventSink | None = None,
                  notify: Callable[[str], None] | None = None,
-                 expected_ids: Collection[int] | None = None) -> None:
+                 expected_ids: Collection[int] | None = None,
+                 confirm_go: Callable[[PreflightReport], Awaitable[bool]] | None = None
+                 ) -> None:
         self.plan = plan
         self.link = link
         self.clock = clock
@@ -269,6 +272,12 @@ class ShowRunner:
         self._lead_at: float | None = None
         self._late_suspects: set[int] = set()
         self._delays: tuple[float, dict[int, float | None]] | None = None
+        self.confirm_go = confirm_go
+        """The operator's go gate (the console): awaited with the pre-flight report once
+        every check passed, before anything is armed; False is a no-go.  None: the show
+        arms as soon as the pre-flight passes."""
+        self.awaiting_go = False
+        """True while :attr:`confirm_go` is being awaited."""
 
     # -- reporting -------------------------------------------------------------------
     def _say(self, text: str, event: str = "notice", **fields: Any) -> None:
@@ -340,6 +349,7 @@ class ShowRunner:
         last_lines: list[str] = []
         next_progress = start + cfg.progress_every_s
         while True:
+            cfg = self.config  # the operator may exclude a vehicle meanwhile (the console)
             now = self.clock.now()
             fleet = self._fleet()
             def due(sysid: int, what: str, every: float, now: float = now) -> bool:
@@ -386,13 +396,13 @@ class ShowRunner:
                         permanent.setdefault(sysid, []).append(str(r))
             if permanent:
                 self._say("pre-flight refused: " + report.summary(cfg.excluded) + "\n"
-                          + "\n".join(report.failing_lines(cfg.excluded)), "preflight_failed",
+                          + "\n".join(report.failing_by_check(cfg.excluded)), "preflight_failed",
                           failures=permanent)
                 raise PreflightFailed(permanent)
             if now - start >= cfg.preflight_timeout_s:
                 if failures:
                     self._say("pre-flight timed out: " + report.summary(cfg.excluded) + "\n"
-                              + "\n".join(report.failing_lines(cfg.excluded)),
+                              + "\n".join(report.failing_by_check(cfg.excluded)),
                               "preflight_failed", failures=failures)
                     raise PreflightFailed(failures)
                 raise FlightError(f"pre-flight: no vehicle for track(s) {missing} after "
@@ -1076,6 +1086,8 @@ class ShowRunner:
         try:
             await self.connect()
             await self.preflight()
+            if self.confirm_go is not None:
+                await self._go_gate()
             await self.fly()
         except asyncio.CancelledError:
             task = asyncio.current_task()
@@ -1092,6 +1104,66 @@ class ShowRunner:
                 self.replanner.close()
                 self.mpc_summary = self.replanner.report()
                 self.replanner = None
+
+    # -- the operator's go gate and pre-flight exclusion (the console) -----------------
+    async def _go_gate(self) -> None:
+        """Wait for the operator's go (:attr:`confirm_go`), keeping the pre-flight report
+        fresh meanwhile; then the checks once more, as they stand now, before arming."""
+        assert self.confirm_go is not None and self.preflight_report is not None
+        self._say("pre-flight passed: waiting for the operator's go", "go_waiting")
+        decision = asyncio.ensure_future(self.confirm_go(self.preflight_report))
+        self.awaiting_go = True
+        try:
+            while not decision.done():
+                await asyncio.wait([decision], timeout=max(self.clock.wall_interval(0.5),
+                                                           0.001))
+                if not decision.done() and self.assignment is not None:
+                    self.assignment = self._assign()
+                    self.preflight_report = run_preflight(self._fleet(), self.assignment,
+                                                          self.clock.now(),
+                                                          self.config.thresholds)
+        finally:
+            self.awaiting_go = False
+            if not decision.done():
+                decision.cancel()
+        if not decision.result():
+            if self.events is not None:
+                self.events.emit("operator", command="no-go")
+            raise NoGo()
+        if self.events is not None:
+            self.events.emit("operator", command="go")
+        # What was shown may be a moment old, and exclusions may have changed: the checks
+        # (and the exclusion safety check) once more, as they stand now.
+        await self.preflight()
+
+    def exclude(self, sysid: int) -> None:
+        """Keep ``sysid`` on the ground (before arming only).  Refused with a FlightError
+        when the show is already flying, the vehicle is not in it, or the others would
+        pass too close to it on its slot (:func:`remaining_plan_conflicts`)."""
+        if self.sequence is not None:
+            raise FlightError(f"exclude {sysid}: the show is already armed; land it instead")
+        if self.assignment is None or sysid not in self.assignment.tracks:
+            raise FlightError(f"exclude {sysid}: not a vehicle of this show "
+                              "(no track assigned)")
+        if sysid in self.config.excluded:
+            raise FlightError(f"exclude {sysid}: already excluded")
+        excluded = self.config.excluded | {sysid}
+        tracks = {t for s, t in self.assignment.tracks.items() if s in excluded}
+        conflicts = remaining_plan_conflicts(self.plan, tracks)
+        if conflicts:
+            raise FlightError(f"exclude {sysid}: the rest of the show would be unsafe: "
+                              f"{conflicts[0]}")
+        self.config = replace(self.config, excluded=frozenset(excluded))
+        self._say(f"vehicle {sysid} excluded by the operator: it stays on the ground",
+                  "operator", command=f"exclude {sysid}", system_id=sysid)
+
+    def commanded_now(self) -> tuple[float, dict[int, NDArray[np.float64]]] | None:
+        """(the last tick's time, where its paths put every streamed vehicle then, show
+        frame): what the guard measures tracking errors against.  For the console."""
+        if self.sequence is None or self._request is None:
+            return None
+        at, req = self._request
+        return at, self.sequence.commanded_all(req, at)
 
     # -- operator ---------------------------------------------------------------------
     def _operator(self, name: str, call: Callable[[float], list[Action]]) -> None:
