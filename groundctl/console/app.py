@@ -1,0 +1,449 @@
+"""The operator console (Textual): renders :class:`~groundctl.console.model.ConsoleView`.
+
+The widgets hold no flight state: every refresh (at most :data:`REFRESH_HZ`)
+asks the model for a view at the flight clock's time and renders what
+changed; keys and the command line go to the
+:class:`~groundctl.console.commands.Controller`.  The app runs in the same
+event loop as the runner: a refresh is a few milliseconds of work between two
+ticks, and the fleet table is updated cell by cell (only the cells whose text
+changed), never rebuilt.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from typing import Any, ClassVar
+
+from rich.text import Text
+from textual.app import App, ComposeResult
+from textual.binding import Binding, BindingType
+from textual.containers import Horizontal, Vertical
+from textual.widgets import ContentSwitcher, DataTable, Footer, Input, RichLog, Static
+from textual.widgets.data_table import CellDoesNotExist, RowDoesNotExist
+
+from groundctl.console.commands import Controller
+from groundctl.console.feed import Entry, EventFeed
+from groundctl.console.model import (
+    COLUMNS,
+    SORTS,
+    ConsoleModel,
+    ConsoleView,
+    Header,
+    PreflightView,
+    Severity,
+    VehicleRow,
+)
+
+#: Refreshes per second at most: an operator reads no faster, and every refresh is
+#: time the control loop's interpreter is not ticking.
+REFRESH_HZ = 5.0
+_SEVERITY_STYLE: dict[Severity, str] = {"ok": "green", "warn": "bold yellow",
+                                        "bad": "bold white on red", "off": "grey50"}
+_CHECK_STYLE = {"pass": "green", "fail": "bold white on red", "wait": "yellow"}
+_CHECK_TEXT = {"pass": "ok", "fail": "FAIL", "wait": "wait"}
+_STATUS_STYLE = {"ready": "green", "waiting": "yellow", "failed": "bold white on red",
+                 "excluded": "grey50"}
+#: Columns whose text is coloured by the row's severity.
+_SEVERITY_COLUMNS = frozenset({"sysid", "phase", "alarm"})
+
+
+def progress_bar(fraction: float, width: int = 30) -> str:
+    """``[██████░░░░]``: ``fraction`` of ``width`` cells filled."""
+    filled = round(min(max(fraction, 0.0), 1.0) * width)
+    return "[" + "█" * filled + "░" * (width - filled) + "]"
+
+
+def header_text(h: Header) -> Text:
+    """The header's three lines."""
+    t = Text()
+    phase_style = {"holding": "bold black on yellow", "landing": "bold black on cyan",
+                   "done": "bold black on green", "show": "bold black on green"}.get(
+        h.phase, "bold black on white")
+    t.append(f" {h.show} ", "bold")
+    t.append(f" {h.phase.upper()} ", phase_style)
+    if h.detail:
+        t.append(f"  {h.detail}")
+    t.append("\n")
+    if h.show_time_s is None:
+        t.append(f"show clock  -  / {h.duration_s:.0f} s {progress_bar(0.0)}")
+    else:
+        t.append(f"show clock {h.show_time_s:6.1f} / {h.duration_s:.0f} s "
+                 f"{progress_bar(h.progress)} {h.progress:4.0%}")
+    t.append(f"   now: {h.formation or '-'}")
+    if h.next_formation:
+        t.append(f"   next: {h.next_formation}"
+                 + (f" in {h.next_in_s:.1f} s" if h.next_in_s is not None else ""))
+    t.append("\n")
+    t.append("worst error ")
+    t.append("-" if h.worst_error_m is None else
+             f"{h.worst_error_m:.2f} m (#{h.worst_error_sysid})",
+             "bold yellow" if (h.worst_error_m or 0.0) > 0.4 else "")
+    t.append("   min separation ")
+    sep = "-" if h.min_separation_m is None else f"{h.min_separation_m:.2f} m" + (
+        f" ({h.min_separation_pair[0]}-{h.min_separation_pair[1]})"
+        if h.min_separation_pair else "")
+    t.append(sep, _SEVERITY_STYLE[h.separation_severity])
+    t.append(f" limit {h.separation_limit_m:.2f} m   link ")
+    t.append(h.link, _SEVERITY_STYLE[h.link_severity])
+    return t
+
+
+def _cell(row: VehicleRow, key: str, text: str) -> Text:
+    if key == "led":
+        return Text("    ", style=f"on {text}") if text else Text("-")
+    if key in _SEVERITY_COLUMNS:
+        return Text(text, _SEVERITY_STYLE[row.severity])
+    return Text(text)
+
+
+class ConsoleApp(App[None]):
+    """The operator console; see the module docstring."""
+
+    TITLE = "groundctl console"
+    CSS = """
+    #header { height: 3; background: $boost; }
+    #main { height: 1fr; }
+    #views { width: 1fr; }
+    #side { width: 64; }
+    #detail { height: 14; border: round $primary; }
+    #log { height: 1fr; border: round $primary; }
+    #go { height: 2; }
+    #cell { height: 2; }
+    #prompt { height: 1; background: $warning 30%; }
+    #cmd { height: 3; }
+    """
+    BINDINGS: ClassVar[list[BindingType]] = [
+        Binding("ctrl+c", "quit_show", "quit", priority=True, show=False),
+        Binding("ctrl+q", "quit_show", "quit", priority=True, show=False),
+        Binding("q", "quit_show", "quit"),
+        Binding("h", "hold", "hold"),
+        Binding("r", "resume", "resume"),
+        Binding("a", "land_all", "land all"),
+        Binding("l", "land_one", "land sel."),
+        Binding("d", "land_here", "land here"),
+        Binding("k", "kill", "kill sel."),
+        Binding("x", "exclude", "exclude"),
+        Binding("g", "go", "go"),
+        Binding("p", "problems", "problems"),
+        Binding("s", "sort", "sort"),
+        Binding("f", "log_filter", "log sel."),
+        Binding("v", "view", "view"),
+        Binding("colon", "command_line", "command"),
+        Binding("escape", "escape", "cancel", show=False),
+    ]
+
+    def __init__(self, model: ConsoleModel, controller: Controller, feed: EventFeed, *,
+                 linger_s: float = 2.0) -> None:
+        super().__init__()
+        self.model = model
+        self.controller = controller
+        self.feed = feed
+        self.linger_s = linger_s
+        """Wall seconds the final screen stays up once the flight is over."""
+        self.problems_only = False
+        self.sort_order = "sysid"
+        self.refreshes = 0
+        """Refreshes rendered (tests and benchmarks read it)."""
+        self.last_view: ConsoleView | None = None
+        self._fleet_cells: dict[int, dict[str, str]] = {}
+        self._fleet_severity: dict[int, Severity] = {}
+        self._fleet_order: list[int] = []
+        self._check_cells: dict[int, tuple[str, ...]] = {}
+        self._check_columns: tuple[str, ...] = ()
+        self._log_seq = 0
+        self._log_filter: int | None = None
+        self._switched = False
+        self._task_factory: Any = None
+        self._over = False
+        self._mounted = False
+        self._pending_outcome: str | None = None
+
+    # -- layout -----------------------------------------------------------------------
+    def compose(self) -> ComposeResult:
+        yield Static(id="header")
+        with Horizontal(id="main"):
+            with ContentSwitcher(initial="preflight", id="views"):
+                with Vertical(id="preflight"):
+                    yield Static(id="go")
+                    yield DataTable(id="checks", cursor_type="cell", zebra_stripes=True)
+                    yield Static(id="cell")
+                yield DataTable(id="fleet", cursor_type="row", zebra_stripes=True)
+            with Vertical(id="side"):
+                yield Static(id="detail")
+                yield RichLog(id="log", max_lines=2000, wrap=False, markup=False)
+        yield Static(id="prompt")
+        yield Input(id="cmd", placeholder="command (: to type, help for the list)")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        # Textual (on Python 3.12+) makes the loop's tasks eager; the runner's were
+        # written for ordinary ones (a task registered after create_task returns).
+        loop = asyncio.get_running_loop()
+        if self._task_factory is not None and loop.get_task_factory() is not \
+                self._task_factory[0]:
+            loop.set_task_factory(self._task_factory[0])
+        fleet = self.query_one("#fleet", DataTable)
+        for key, title, width in COLUMNS:
+            fleet.add_column(title, key=key, width=width)
+        self.set_interval(1.0 / REFRESH_HZ, self.refresh_view)
+        self.refresh_view()
+        self.query_one("#checks", DataTable).focus()
+        self._mounted = True
+        if self._pending_outcome is not None:
+            self.flight_over(self._pending_outcome)
+
+    def remember_task_factory(self) -> None:
+        """Called before the app starts: the loop's task factory to restore."""
+        self._task_factory = (asyncio.get_running_loop().get_task_factory(),)
+
+    # -- rendering --------------------------------------------------------------------
+    def refresh_view(self) -> None:
+        """One refresh: a view from the model, rendered where it changed."""
+        try:
+            view = self.model.view(self.model.now(), self.selected())
+            self.last_view = view
+            self.query_one("#header", Static).update(header_text(view.header))
+            if view.armed and not self._switched:
+                self._switched = True  # armed: the fleet is what matters from now on
+                self.query_one("#views", ContentSwitcher).current = "fleet"
+                self.query_one("#fleet", DataTable).focus()
+            self._render_fleet(view)
+            if view.preflight is not None:
+                self._render_checks(view.preflight)
+            self._render_detail(view)
+            self._render_log()
+            q = self.controller.question
+            self.query_one("#prompt", Static).update(
+                Text(q.prompt, "bold") if q is not None else Text(""))
+            self.refreshes += 1
+        except Exception as exc:  # a rendering bug must never take the flight with it
+            self.log.error(f"console refresh failed: {exc!r}")
+            with contextlib.suppress(Exception):
+                self.query_one("#prompt", Static).update(f"console refresh failed: {exc!r}")
+
+    def _visible(self, row: VehicleRow) -> bool:
+        return not self.problems_only or row.severity in ("warn", "bad")
+
+    def _render_fleet(self, view: ConsoleView) -> None:
+        table = self.query_one("#fleet", DataTable)
+        rows = {r.sysid: r for r in view.rows if self._visible(r)}
+        for sysid in [s for s in self._fleet_cells if s not in rows]:
+            with contextlib.suppress(RowDoesNotExist):
+                table.remove_row(str(sysid))
+            self._fleet_cells.pop(sysid)
+            self._fleet_severity.pop(sysid, None)
+        for sysid, row in rows.items():
+            cells = row.cells()
+            old = self._fleet_cells.get(sysid)
+            if old is None:
+                table.add_row(*(_cell(row, k, cells[k]) for k, _, _ in COLUMNS), key=str(sysid))
+            else:
+                recolour = self._fleet_severity.get(sysid) != row.severity
+                for key, _, _ in COLUMNS:
+                    if cells[key] != old[key] or (recolour and key in _SEVERITY_COLUMNS):
+                        with contextlib.suppress(CellDoesNotExist):
+                            table.update_cell(str(sysid), key, _cell(row, key, cells[key]))
+            self._fleet_cells[sysid] = cells
+            self._fleet_severity[sysid] = row.severity
+        order = [r.sysid for r in sorted(rows.values(),
+                                         key=lambda r: r.sort_key(self.sort_order))]
+        if order != self._fleet_order:
+            rank = {s: i for i, s in enumerate(order)}
+            table.sort(key=lambda r: rank.get(int(r[0].plain), 0))
+            self._fleet_order = order
+
+    def _render_checks(self, pre: PreflightView) -> None:
+        table = self.query_one("#checks", DataTable)
+        go = Text(pre.go_line, "bold green" if pre.go else "bold red")
+        for line in pre.ignored[:1]:
+            go.append(f"\n{line}" + (f" (and {len(pre.ignored) - 1} more)"
+                                     if len(pre.ignored) > 1 else ""), "grey50")
+        self.query_one("#go", Static).update(go)
+        if pre.checks != self._check_columns:
+            table.clear(columns=True)
+            table.add_column("id", key="sysid")
+            table.add_column("trk", key="track")
+            table.add_column("status", key="status")
+            for name in pre.checks:
+                table.add_column(name, key=name)
+            self._check_columns = pre.checks
+            self._check_cells.clear()
+        keys = ("sysid", "track", "status", *pre.checks)
+        for row in pre.rows:
+            texts = (str(row.sysid), "-" if row.track is None else str(row.track),
+                     row.status, *(c.state for c in row.cells))
+            cells = [Text(texts[0]), Text(texts[1]),
+                     Text(row.status, _STATUS_STYLE.get(row.status, ""))]
+            cells += [Text(_CHECK_TEXT[c.state], "grey50" if row.excluded
+                           else _CHECK_STYLE[c.state]) for c in row.cells]
+            old = self._check_cells.get(row.sysid)
+            if old is None:
+                table.add_row(*cells, key=str(row.sysid))
+            else:
+                for i, key in enumerate(keys):
+                    if i < len(texts) and i < len(old) and texts[i] != old[i]:
+                        with contextlib.suppress(CellDoesNotExist):
+                            table.update_cell(str(row.sysid), key, cells[i])
+            self._check_cells[row.sysid] = texts
+        # The reason of the selected cell.
+        reason = Text("")
+        if table.row_count and pre.rows:
+            by_id = {row.sysid: row for row in pre.rows}
+            with contextlib.suppress(CellDoesNotExist, ValueError, KeyError, IndexError):
+                cell_key = table.coordinate_to_cell_key(table.cursor_coordinate)
+                row = by_id[int(str(cell_key.row_key.value))]
+                col = str(cell_key.column_key.value)
+                if col in pre.checks:
+                    cell = row.cells[pre.checks.index(col)]
+                    reason = Text(f"vehicle {row.sysid} {cell.name}: {cell.detail}",
+                                  _CHECK_STYLE[cell.state])
+                else:
+                    failing = [x for x in row.cells if x.state != "pass"]
+                    reason = Text(f"vehicle {row.sysid}: " + ("; ".join(
+                        f"{x.name}: {x.detail}" for x in failing) or "every check passed"))
+        self.query_one("#cell", Static).update(reason)
+
+    def _render_detail(self, view: ConsoleView) -> None:
+        box = self.query_one("#detail", Static)
+        if view.detail is None:
+            box.update("select a vehicle (arrow keys)")
+        else:
+            box.update(Text("\n".join(view.detail.lines)))
+
+    def _render_log(self) -> None:
+        log = self.query_one("#log", RichLog)
+        wanted = self.controller.log_filter
+        if wanted != self._log_filter:
+            self._log_filter = wanted
+            log.clear()
+            self._log_seq = 0
+            log.write(Text("log: " + ("fleet-wide" if wanted is None else
+                                      f"vehicle {wanted} only (f again: fleet-wide)"),
+                           "bold"))
+        for entry in self.feed.lines(wanted, after=self._log_seq, most=300):
+            log.write(_log_line(entry))
+        self._log_seq = self.feed.last_seq
+
+    # -- selection --------------------------------------------------------------------
+    def selected(self) -> int | None:
+        """The system id under the cursor of the view shown (None: no row)."""
+        try:
+            switcher = self.query_one("#views", ContentSwitcher)
+            table = self.query_one("#fleet" if switcher.current == "fleet" else "#checks",
+                                   DataTable)
+            if not table.row_count:
+                return None
+            key = table.coordinate_to_cell_key(table.cursor_coordinate)
+            return int(str(key.row_key.value))
+        except Exception:  # no table yet, an empty one, a row just removed
+            return None
+
+    # -- actions ----------------------------------------------------------------------
+    def _after(self) -> None:
+        if self.controller.question is not None:
+            self.query_one("#cmd", Input).focus()
+        self.refresh_view()
+
+    def action_hold(self) -> None:
+        self.controller.hold()
+        self._after()
+
+    def action_resume(self) -> None:
+        self.controller.resume()
+        self._after()
+
+    def action_land_all(self) -> None:
+        self.controller.land_all()
+        self._after()
+
+    def action_land_one(self) -> None:
+        self.controller.land_one(self.selected())
+        self._after()
+
+    def action_land_here(self) -> None:
+        self.controller.land_here(self.selected())
+        self._after()
+
+    def action_kill(self) -> None:
+        self.controller.kill(self.selected())
+        self._after()
+
+    def action_exclude(self) -> None:
+        self.controller.exclude(self.selected())
+        self._after()
+
+    def action_go(self) -> None:
+        self.controller.go()
+        self._after()
+
+    def action_quit_show(self) -> None:
+        if self._over:
+            self.exit()
+            return
+        self.controller.quit()
+        self._after()
+
+    def action_problems(self) -> None:
+        self.problems_only = not self.problems_only
+        self.feed.console("fleet table: " + ("problems only" if self.problems_only
+                                             else "every vehicle"))
+        self.refresh_view()
+
+    def action_sort(self) -> None:
+        self.sort_order = SORTS[(SORTS.index(self.sort_order) + 1) % len(SORTS)]
+        self.feed.console(f"fleet table sorted by {self.sort_order}")
+        self.refresh_view()
+
+    def action_log_filter(self) -> None:
+        sysid = self.selected()
+        self.controller.log_filter = None if self.controller.log_filter is not None \
+            else sysid
+        self.refresh_view()
+
+    def action_view(self) -> None:
+        switcher = self.query_one("#views", ContentSwitcher)
+        switcher.current = "preflight" if switcher.current == "fleet" else "fleet"
+        self.query_one("#fleet" if switcher.current == "fleet" else "#checks",
+                       DataTable).focus()
+        self.refresh_view()
+
+    def action_command_line(self) -> None:
+        self.query_one("#cmd", Input).focus()
+
+    def action_escape(self) -> None:
+        self.controller.cancel()
+        self.query_one("#cmd", Input).value = ""
+        self._focus_table()
+        self.refresh_view()
+
+    def _focus_table(self) -> None:
+        switcher = self.query_one("#views", ContentSwitcher)
+        self.query_one("#fleet" if switcher.current == "fleet" else "#checks",
+                       DataTable).focus()
+
+    def on_input_submitted(self, event: Input.Submitted) -> None:
+        text = event.value
+        event.input.value = ""
+        self.controller.line(text)
+        if self.controller.question is None:
+            self._focus_table()
+        self.refresh_view()
+
+    # -- the end ----------------------------------------------------------------------
+    def flight_over(self, outcome: str) -> None:
+        """The flight is over: show it, then close after :attr:`linger_s`."""
+        if not self._mounted:
+            self._pending_outcome = outcome  # over before the app came up
+            return
+        self._over = True
+        self.model.outcome = outcome
+        self.refresh_view()
+        self.set_timer(max(self.linger_s, 0.01), self.exit)
+
+
+def _log_line(e: Entry) -> Text:
+    style = {"console": "cyan", "vehicle_lost": "bold red", "fleet_silent": "bold red",
+             "error": "bold red", "signal": "bold yellow"}.get(e.kind, "")
+    who = f"#{e.sysid:<3} " if e.sysid is not None else "     "
+    return Text(f"{e.t:7.1f} {who}{e.text}", style)
