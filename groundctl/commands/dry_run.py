@@ -4,8 +4,15 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+from dataclasses import replace
 from pathlib import Path
 
+from groundctl.commands.console_mode import (
+    add_console_options,
+    console_config,
+    console_wanted,
+    outcome,
+)
 from groundctl.commands.flying import (
     BUNDLED_DEMO,
     Interrupts,
@@ -18,6 +25,7 @@ from groundctl.commands.flying import (
 )
 from groundctl.commands.options import non_negative, positive, probability, push, weak, wind
 from groundctl.errors import GroundctlError
+from groundctl.flight.runner import ShowRunner
 from groundctl.link.flavours import Flavour
 from groundctl.sim.config import PROFILE_NAMES
 
@@ -62,6 +70,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--no-record", action="store_true", help="record nothing")
     add_plan_options(p)
     add_runner_options(p)
+    add_console_options(p)
     p.set_defaults(func=run)
 
 
@@ -69,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
     from groundctl.flight.dryrun import DryRunOptions, Push, fly_dry_run
     from groundctl.record.recording import default_directory
 
+    console = console_wanted(args)
     plan = plan_for(args)
     record = None if args.no_record \
         else (args.record or default_directory(plan.show_name, "dry-run"))
@@ -81,19 +91,40 @@ def run(args: argparse.Namespace) -> int:
         weak=tuple(w for group in args.weak for w in group), profile=args.profile)
     notify = say(args.quiet)
     interrupts = Interrupts(notify)
+    on_runner = interrupts.attach
+
+    # -- the console (issue 12): the same flight, its lines and hooks to the console --
+    session = None
+    if console:
+        from groundctl.console.session import ConsoleSession
+        options = replace(options, runner=console_config(options.runner))
+        session = ConsoleSession(interrupts.stop, show=plan.show_name,
+                                 duration_s=plan.duration,
+                                 separation_limit_m=plan.limits.min_separation,
+                                 go_gate=not args.go)
+        notify = session.notify
+
+        def on_runner(runner: ShowRunner) -> None:
+            interrupts.attach(runner)
+            session.attach(runner)
+    # ----------------------------------------------------------------------------------
 
     async def main() -> tuple[dict[str, object], GroundctlError | None, bool]:
         interrupts.install()
         try:
-            result = await fly_dry_run(plan, options, notify=notify,
-                                       on_runner=interrupts.attach)
+            result = await fly_dry_run(plan, options, notify=notify, on_runner=on_runner)
         finally:
             interrupts.uninstall()
         return result.report, result.error, result.flown
 
-    notify(f"dry-run of {plan.show_name}: {plan.drones} simulated {args.autopilot} vehicles "
-           f"on 127.0.0.1, speed x{args.speed:g}")
-    report, error, flown = asyncio.run(main())
+    say(args.quiet)(f"dry-run of {plan.show_name}: {plan.drones} simulated {args.autopilot} "
+                    f"vehicles on 127.0.0.1, speed x{args.speed:g}")
+    if session is not None:
+        from groundctl.console.session import run_with_console
+        report, error, flown = asyncio.run(run_with_console(
+            session, main(), lambda r: outcome(r[0])))
+    else:
+        report, error, flown = asyncio.run(main())
     if error is not None and not flown:
         raise error  # nothing flew: one line and the error's exit code
     return finish(report, args, interrupts.aborted)

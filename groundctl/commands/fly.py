@@ -14,6 +14,12 @@ from pathlib import Path
 from typing import Any
 
 from groundctl.clock import ScaledClock
+from groundctl.commands.console_mode import (
+    add_console_options,
+    console_config,
+    console_wanted,
+    outcome,
+)
 from groundctl.commands.flying import (
     Interrupts,
     add_plan_options,
@@ -65,10 +71,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    help="wait this long for every vehicle's HEARTBEAT (default 30)")
     add_plan_options(p)
     add_runner_options(p)
+    add_console_options(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    console = console_wanted(args)
     fleet: FleetFile | None = load_fleet_file(args.fleet) if args.fleet is not None else None
     plan = plan_for(args)
     if fleet is not None and fleet.tracks:
@@ -85,6 +93,18 @@ def run(args: argparse.Namespace) -> int:
     config = replace(config, connect_timeout_s=args.connect_timeout)
     ids = list(fleet.system_ids) if fleet is not None else None
 
+    # -- the console (issue 12): the runner's lines, events and go gate to the console --
+    session = None
+    if console:
+        from groundctl.console.session import ConsoleSession
+        config = console_config(config)
+        session = ConsoleSession(interrupts.stop, show=plan.show_name,
+                                 duration_s=plan.duration,
+                                 separation_limit_m=plan.limits.min_separation,
+                                 go_gate=not args.go)
+        notify = session.notify
+    # ----------------------------------------------------------------------------------
+
     async def main() -> tuple[dict[str, Any], GroundctlError | None, bool]:
         events = recording.events
         link = FleetLink(args.connect, clock=clock,
@@ -96,8 +116,11 @@ def run(args: argparse.Namespace) -> int:
         interrupts.attach(runner)
         interrupts.install()
         error: GroundctlError | None = None
-        status = asyncio.create_task(_status(runner, args.quiet))
-        commands = asyncio.create_task(read_operator_commands(runner, say(False)))
+        if session is not None:
+            session.attach(runner)  # the console owns the terminal: no status lines, no stdin
+        status = asyncio.create_task(_status(runner, args.quiet or session is not None))
+        commands = asyncio.create_task(read_operator_commands(runner, say(False))
+                                       if session is None else asyncio.sleep(0))
         try:
             await link.start()
             notify(f"listening on {args.connect[0]}:{args.connect[1]} for "
@@ -116,7 +139,12 @@ def run(args: argparse.Namespace) -> int:
             recording.finish(report)
         return report, error, runner.sequence is not None
 
-    report, error, flown = asyncio.run(main())
+    if session is not None:
+        from groundctl.console.session import run_with_console
+        report, error, flown = asyncio.run(run_with_console(
+            session, main(), lambda r: outcome(r[0])))
+    else:
+        report, error, flown = asyncio.run(main())
     if error is not None and not flown:
         raise error
     return finish(report, args, interrupts.aborted)

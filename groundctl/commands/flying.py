@@ -180,6 +180,10 @@ class Interrupts:
                 loop.remove_signal_handler(sig)
         self._installed.clear()
 
+    def stop(self, label: str) -> None:
+        """The operator asked to stop (the console's quit): exactly as a signal."""
+        self._on_signal(label)
+
     def _on_signal(self, label: str) -> None:
         self.presses += 1
         self.aborted = True

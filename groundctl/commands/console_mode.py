@@ -1,0 +1,66 @@
+"""The console's side of ``groundctl dry-run`` and ``groundctl fly``: its options and when
+it opens.
+
+The console opens when stdout and stdin are terminals, unless ``--no-console``
+or ``--json``; ``--console`` asks for it (and needs a terminal).  With the
+console the show arms only on the operator's go (``--go`` skips the gate, for
+scripts), and a pre-flight check that waiting cannot fix (a low battery, a
+vehicle off its slot) does not end the pre-flight early: the operator decides
+(exclude the vehicle, or quit) until ``--preflight-timeout``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from dataclasses import replace
+from typing import Any
+
+from groundctl.errors import ConsoleUnavailable
+from groundctl.flight.runner import RunnerConfig
+
+
+def add_console_options(p: argparse.ArgumentParser) -> None:
+    """``--console / --no-console`` and ``--go``."""
+    p.add_argument("--console", action=argparse.BooleanOptionalAction, default=None,
+                   help="the operator console (default: on when stdout and stdin are "
+                        "terminals and not --json)")
+    p.add_argument("--go", action="store_true",
+                   help="with the console: arm as soon as the pre-flight passes, without "
+                        "waiting for the operator's go")
+
+
+def console_wanted(args: argparse.Namespace) -> bool:
+    """Whether this run opens the console (see the module docstring)."""
+    if args.json:
+        if args.console:
+            raise ConsoleUnavailable("--console and --json cannot go together: --json "
+                                     "prints one JSON object and no console")
+        return False
+    terminal = _isatty(sys.stdout) and _isatty(sys.stdin)
+    if args.console and not terminal:
+        raise ConsoleUnavailable("--console needs stdout and stdin to be a terminal "
+                                 "(--no-console for scripts)")
+    return terminal if args.console is None else bool(args.console)
+
+
+def console_config(config: RunnerConfig) -> RunnerConfig:
+    """The runner's settings under the console: the operator, not a 3 s timer, decides
+    about a check waiting cannot fix."""
+    return replace(config, settle_s=max(config.settle_s, config.preflight_timeout_s))
+
+
+def outcome(report: dict[str, Any]) -> str:
+    """The console's last line: how the flight ended."""
+    reasons = report.get("unsafe_reasons") or []
+    if report.get("safe"):
+        return "SAFE: every vehicle is down (closing the console)"
+    return "NOT SAFE: " + (str(reasons[0]) if reasons else "see the report") + \
+        " (closing the console)"
+
+
+def _isatty(stream: Any) -> bool:
+    try:
+        return bool(stream is not None and stream.isatty())
+    except (AttributeError, ValueError, OSError):
+        return False
