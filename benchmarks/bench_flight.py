@@ -1,7 +1,7 @@
 """Executor benchmarks: the demo show flown by the dry-run, and the executor's load.
 
     .venv/bin/python benchmarks/bench_flight.py demo --speed 2          # both flavours
-    .venv/bin/python benchmarks/bench_flight.py load --sizes 100 200 254
+    .venv/bin/python benchmarks/bench_flight.py load --sizes 100 200 254 [--console off on]
     .venv/bin/python benchmarks/bench_flight.py overload [--speeds 2 4 6] [--hog-speeds 2]
     .venv/bin/python benchmarks/bench_flight.py tracking [--shows quick demo] [--leads auto 0 150]
 
@@ -18,7 +18,10 @@ phase: the executor process's CPU share of one core (its own CPU time, not
 the simulator's), the lateness of each tick's last setpoint against its
 scheduled instant on the show clock (p50 / p99 / max; target p99 < 20 ms),
 and the per-vehicle cost, from which the largest fleet one core sustains is
-extrapolated (the dry-run's system ids stop at 254).
+extrapolated (the dry-run's system ids stop at 254).  ``--console off on`` flies each
+size without and with the operator console in the executor's event loop (drawn on
+stderr when it is a terminal, else headless: laid out and rendered but not written)
+and adds the console's refresh time (p99, view model and widget updates).
 
 ``overload`` flies the demo at ``--speeds`` (faster than real time loads the
 ground station and the simulator alike) and at ``--hog-speeds`` beside two
@@ -43,6 +46,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
+import sys
 import time
 from pathlib import Path
 
@@ -80,13 +84,19 @@ def drift_plan(n: int, seconds: float, spacing: float = 3.0) -> Plan:
                 formations=(FormationWindow(1, "drift", 0.0, 0.0, seconds, up),))
 
 
-async def _load_run(n: int, seconds: float) -> dict[str, float]:
+async def _load_run(n: int, seconds: float, console: bool = False) -> dict[str, float]:
     plan = drift_plan(n, seconds)
     marks: dict[str, tuple[float, float, int]] = {}
     holder: list[ShowRunner] = []
+    session = None
+    if console:  # the operator console in the same loop, drawn on stderr if a terminal
+        from groundctl.console.session import ConsoleSession
+        session = ConsoleSession(lambda label: None, go_gate=False, linger_s=0.0)
 
     def hook(runner: ShowRunner) -> None:
         holder.append(runner)
+        if session is not None:
+            session.attach(runner)
         inner = runner.on_tick
 
         def on_tick(now: float, show_time: float) -> None:
@@ -105,29 +115,51 @@ async def _load_run(n: int, seconds: float) -> dict[str, float]:
 
     options = DryRunOptions(speed=1.0, ekf_origin_delay_s=1.0, ready_delay_s=2.0,
                             runner=RunnerConfig(preflight_timeout_s=60.0))
-    result = await fly_dry_run(plan, options, on_runner=hook)
+    flight = fly_dry_run(plan, options, on_runner=hook,
+                         notify=None if session is None else session.notify)
+    if session is None:
+        result = await flight
+    else:
+        from groundctl.console.session import run_with_console
+        result = await run_with_console(session, flight, lambda r: "done",
+                                        headless=not sys.stderr.isatty(), size=(200, 60))
     runner = holder[0]
     if "start" not in marks or "end" not in marks:
         raise SystemExit(f"{n} vehicles: the show never ran ({result.error})")
     (w0, c0, k0), (w1, c1, k1) = marks["start"], marks["end"]
     late = np.array(runner.lateness_s[k0:k1]) * 1000.0
-    return {"n": n, "cpu_share": (c1 - c0) / (w1 - w0), "p50": float(np.percentile(late, 50)),
+    refresh = np.array(session.app.refresh_s) * 1000.0 if session is not None \
+        else np.zeros(1)
+    return {"n": n, "console": console, "refreshes": len(refresh) if console else 0,
+            "refresh_p99": float(np.percentile(refresh, 99)),
+            "cpu_share": (c1 - c0) / (w1 - w0), "p50": float(np.percentile(late, 50)),
             "p99": float(np.percentile(late, 99)), "max": float(late.max()),
             "ticks": len(late), "overruns": runner.overruns,
             "safe": bool(result.report.get("safe"))}
 
 
-def bench_load(sizes: list[int], seconds: float) -> None:
+def bench_load(sizes: list[int], seconds: float, consoles: list[str] | None = None,
+               repeat: int = 1) -> None:
     print(f"executor load: vehicles streamed at 10 Hz for {seconds:.0f} s of show, real time")
-    print(f"{'vehicles':>8} {'CPU':>6} {'ms/veh/s':>8} {'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} "
-          f"{'ticks':>6} {'safe':>5}")
+    modes = consoles or ["off"]
+    if "on" in modes:
+        print("console: " + ("drawn on this terminal (stderr)" if sys.stderr.isatty() else
+                             "headless (stderr is not a terminal: laid out and rendered, "
+                             "not written)"))
+    print(f"{'vehicles':>8} {'console':>7} {'CPU':>6} {'ms/veh/s':>8} {'p50 ms':>7} "
+          f"{'p99 ms':>7} {'max ms':>7} {'ticks':>6} {'safe':>5} {'refresh p99 ms':>14}")
     per_vehicle = []
     for n in sizes:
-        r = asyncio.run(_load_run(n, seconds))
-        cost = r["cpu_share"] / n * 1000.0
-        per_vehicle.append(cost)
-        print(f"{n:>8} {r['cpu_share']:>6.1%} {cost:>8.2f} {r['p50']:>7.2f} {r['p99']:>7.2f} "
-              f"{r['max']:>7.2f} {r['ticks']:>6} {r['safe']!s:>5}", flush=True)
+        for _ in range(repeat):  # on and off alternate: the machine's load drifts
+            for mode in modes:
+                r = asyncio.run(_load_run(n, seconds, console=mode == "on"))
+                cost = r["cpu_share"] / n * 1000.0
+                per_vehicle.append(cost)
+                refresh = f"{r['refresh_p99']:.2f} ({r['refreshes']})" if r["console"] \
+                    else "-"
+                print(f"{n:>8} {mode:>7} {r['cpu_share']:>6.1%} {cost:>8.2f} {r['p50']:>7.2f} "
+                      f"{r['p99']:>7.2f} {r['max']:>7.2f} {r['ticks']:>6} {r['safe']!s:>5} "
+                      f"{refresh:>14}", flush=True)
     cost = per_vehicle[-1]
     print(f"largest fleet one core sustains (extrapolated from {sizes[-1]} vehicles): "
           f"~{int(1000.0 / cost)} vehicles at 10 Hz")
@@ -246,6 +278,9 @@ def main() -> None:
     ld = sub.add_parser("load")
     ld.add_argument("--sizes", type=int, nargs="+", default=[100, 200, 254])
     ld.add_argument("--seconds", type=float, default=30.0)
+    ld.add_argument("--console", nargs="+", choices=["off", "on"], default=["off"],
+                    help="fly with the operator console off, on, or both (alternating)")
+    ld.add_argument("--repeat", type=int, default=1, help="runs of each console mode")
     o = sub.add_parser("overload")
     o.add_argument("--speeds", type=float, nargs="*", default=[2.0, 4.0, 6.0])
     o.add_argument("--hog-speeds", type=float, nargs="*", default=[2.0],
@@ -266,7 +301,7 @@ def main() -> None:
         flavours = list(Flavour) if args.autopilot == "both" else [Flavour(args.autopilot)]
         bench_demo(args.speed, flavours)
     else:
-        bench_load(args.sizes, args.seconds)
+        bench_load(args.sizes, args.seconds, args.console, args.repeat)
 
 
 if __name__ == "__main__":

@@ -13,13 +13,15 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import time
+from collections import deque
 from typing import Any, ClassVar
 
 from rich.text import Text
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical
-from textual.widgets import ContentSwitcher, DataTable, Footer, Input, RichLog, Static
+from textual.widgets import ContentSwitcher, DataTable, Input, RichLog, Static
 from textual.widgets.data_table import CellDoesNotExist, RowDoesNotExist
 
 from groundctl.console.commands import Controller
@@ -44,6 +46,12 @@ _CHECK_STYLE = {"pass": "green", "fail": "bold white on red", "wait": "yellow"}
 _CHECK_TEXT = {"pass": "ok", "fail": "FAIL", "wait": "wait"}
 _STATUS_STYLE = {"ready": "green", "waiting": "yellow", "failed": "bold white on red",
                  "excluded": "grey50"}
+#: The keys line at the bottom.
+KEYS = Text.assemble(*(x for key, what in (
+    ("h", "hold"), ("r", "resume"), ("a", "land all"), ("l", "land sel."),
+    ("d", "land here"), ("k", "kill sel."), ("x", "exclude"), ("g", "go"), ("q", "quit"),
+    ("p", "problems"), ("s", "sort"), ("f", "log sel."), ("v", "view"), (":", "command"),
+    ("esc", "cancel")) for x in ((f" {key} ", "bold reverse"), (f" {what} ", ""))))
 #: Columns whose text is coloured by the row's severity.
 _SEVERITY_COLUMNS = frozenset({"sysid", "phase", "alarm"})
 
@@ -112,6 +120,7 @@ class ConsoleApp(App[None]):
     #cell { height: 2; }
     #prompt { height: 1; background: $warning 30%; }
     #cmd { height: 3; }
+    #keys { height: 1; }
     """
     BINDINGS: ClassVar[list[BindingType]] = [
         Binding("ctrl+c", "quit_show", "quit", priority=True, show=False),
@@ -145,6 +154,9 @@ class ConsoleApp(App[None]):
         self.sort_order = "sysid"
         self.refreshes = 0
         """Refreshes rendered (tests and benchmarks read it)."""
+        self.refresh_s: deque[float] = deque(maxlen=10_000)
+        """How long each of the last refreshes took (view model and widget updates; the
+        screen itself is drawn afterwards by Textual), s."""
         self.last_view: ConsoleView | None = None
         self._fleet_cells: dict[int, dict[str, str]] = {}
         self._fleet_severity: dict[int, Severity] = {}
@@ -158,6 +170,9 @@ class ConsoleApp(App[None]):
         self._over = False
         self._mounted = False
         self._pending_outcome: str | None = None
+        self._shown: dict[str, Any] = {}
+        self._last_refresh = -1e9
+        self._tick_queued = False
 
     # -- layout -----------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -174,7 +189,9 @@ class ConsoleApp(App[None]):
                 yield RichLog(id="log", max_lines=2000, wrap=False, markup=False)
         yield Static(id="prompt")
         yield Input(id="cmd", placeholder="command (: to type, help for the list)")
-        yield Footer()
+        # A fixed line, not Textual's Footer: the Footer rebuilds itself on every focus
+        # change (tens of milliseconds of the control loop's interpreter).
+        yield Static(KEYS, id="keys")
 
     def on_mount(self) -> None:
         # Textual (on Python 3.12+) makes the loop's tasks eager; the runner's were
@@ -186,7 +203,7 @@ class ConsoleApp(App[None]):
         fleet = self.query_one("#fleet", DataTable)
         for key, title, width in COLUMNS:
             fleet.add_column(title, key=key, width=width)
-        self.set_interval(1.0 / REFRESH_HZ, self.refresh_view)
+        self.set_interval(1.0 / REFRESH_HZ, self._idle_refresh)
         self.refresh_view()
         self.query_one("#checks", DataTable).focus()
         self._mounted = True
@@ -198,12 +215,39 @@ class ConsoleApp(App[None]):
         self._task_factory = (asyncio.get_running_loop().get_task_factory(),)
 
     # -- rendering --------------------------------------------------------------------
+    def tick(self) -> None:
+        """Called by the runner right after each tick's setpoints left (its ``on_tick``):
+        a refresh now, at most :data:`REFRESH_HZ`, lands in the idle part of the tick's
+        period instead of on a setpoint's instant."""
+        if self._mounted and not self._tick_queued \
+                and time.monotonic() - self._last_refresh >= 0.95 / REFRESH_HZ:
+            self._tick_queued = True
+            self.call_next(self._tick_refresh)  # on the app's own message pump
+
+    def _tick_refresh(self) -> None:
+        self._tick_queued = False
+        self.refresh_view()
+
+    def _idle_refresh(self) -> None:
+        # The timer refreshes only while no tick does (connecting, pre-flight, a stall).
+        if time.monotonic() - self._last_refresh >= 2.5 / REFRESH_HZ:
+            self.refresh_view()
+
+    def _set(self, widget_id: str, content: Text) -> None:
+        """A Static's content, only when it changed, and without a layout pass (their
+        sizes are fixed by the CSS)."""
+        if self._shown.get(widget_id) != content:
+            self._shown[widget_id] = content
+            self.query_one(f"#{widget_id}", Static).update(content, layout=False)
+
     def refresh_view(self) -> None:
         """One refresh: a view from the model, rendered where it changed."""
+        started = time.perf_counter()
+        self._last_refresh = time.monotonic()
         try:
             view = self.model.view(self.model.now(), self.selected())
             self.last_view = view
-            self.query_one("#header", Static).update(header_text(view.header))
+            self._set("header", header_text(view.header))
             if view.armed and not self._switched:
                 self._switched = True  # armed: the fleet is what matters from now on
                 self.query_one("#views", ContentSwitcher).current = "fleet"
@@ -214,9 +258,9 @@ class ConsoleApp(App[None]):
             self._render_detail(view)
             self._render_log()
             q = self.controller.question
-            self.query_one("#prompt", Static).update(
-                Text(q.prompt, "bold") if q is not None else Text(""))
+            self._set("prompt", Text(q.prompt, "bold") if q is not None else Text(""))
             self.refreshes += 1
+            self.refresh_s.append(time.perf_counter() - started)
         except Exception as exc:  # a rendering bug must never take the flight with it
             self.log.error(f"console refresh failed: {exc!r}")
             with contextlib.suppress(Exception):
@@ -259,7 +303,7 @@ class ConsoleApp(App[None]):
         for line in pre.ignored[:1]:
             go.append(f"\n{line}" + (f" (and {len(pre.ignored) - 1} more)"
                                      if len(pre.ignored) > 1 else ""), "grey50")
-        self.query_one("#go", Static).update(go)
+        self._set("go", go)
         if pre.checks != self._check_columns:
             table.clear(columns=True)
             table.add_column("id", key="sysid")
@@ -302,14 +346,13 @@ class ConsoleApp(App[None]):
                     failing = [x for x in row.cells if x.state != "pass"]
                     reason = Text(f"vehicle {row.sysid}: " + ("; ".join(
                         f"{x.name}: {x.detail}" for x in failing) or "every check passed"))
-        self.query_one("#cell", Static).update(reason)
+        self._set("cell", reason)
 
     def _render_detail(self, view: ConsoleView) -> None:
-        box = self.query_one("#detail", Static)
         if view.detail is None:
-            box.update("select a vehicle (arrow keys)")
+            self._set("detail", Text("select a vehicle (arrow keys)"))
         else:
-            box.update(Text("\n".join(view.detail.lines)))
+            self._set("detail", Text("\n".join(view.detail.lines)))
 
     def _render_log(self) -> None:
         log = self.query_one("#log", RichLog)

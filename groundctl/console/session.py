@@ -63,6 +63,18 @@ class ConsoleSession:
         self.feed.now = runner.clock.now
         runner.notify = self.notify
         runner.confirm_go = self.gate
+        inner_tick = runner.on_tick  # the dry-run's truth probe: chained, not replaced
+
+        def on_tick(now: float, show_time: float) -> None:
+            if inner_tick is not None:
+                inner_tick(now, show_time)
+            if self.alive:
+                try:
+                    self.app.tick()
+                except Exception:  # the console must never stop the control loop
+                    self.alive = False
+
+        runner.on_tick = on_tick
         self.controller.target = runner
         self.model.attach(runner)
 
@@ -105,7 +117,7 @@ async def run_with_console(session: ConsoleSession, flight: Awaitable[T],
         return result
     finally:
         if not app_task.done():
-            app.flight_over(text)
+            app.call_later(app.flight_over, text)  # in the app's context
             try:
                 await asyncio.wait_for(asyncio.shield(app_task), app.linger_s + 10.0)
             except TimeoutError:

@@ -1,0 +1,244 @@
+"""The console's pure parts without a terminal: view model, controller, event feed, and the
+plain mode's fleet-wide pre-flight lines."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from console_fixtures import fabricated_runner, grid_plan, refresh_preflight
+
+from groundctl.console.commands import Controller, GoGate
+from groundctl.console.feed import EventFeed
+from groundctl.console.model import ConsoleModel
+from groundctl.errors import FlightError
+
+NOW = 100.0
+
+
+class Sink:
+    """Records what is emitted (the recording's stand-in)."""
+
+    def __init__(self) -> None:
+        self.events: list[tuple[str, dict[str, Any]]] = []
+
+    def emit(self, event: str, /, **fields: Any) -> None:
+        self.events.append((event, fields))
+
+
+class Target:
+    """A console target that records the calls it gets (a runner's operator methods)."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[Any, ...]] = []
+        self.sequence: object | None = object()  # armed
+
+    def hold(self) -> None:
+        self.calls.append(("hold",))
+
+    def resume(self) -> None:
+        self.calls.append(("resume",))
+
+    def land_all(self) -> None:
+        self.calls.append(("land_all",))
+
+    def land_one(self, sysid: int) -> None:
+        self.calls.append(("land_one", sysid))
+
+    def land_here(self, sysid: int) -> None:
+        self.calls.append(("land_here", sysid))
+
+    def kill(self, sysid: int, confirm: bool = False) -> None:
+        self.calls.append(("kill", sysid, confirm))
+
+    def exclude(self, sysid: int) -> None:
+        raise FlightError(f"exclude {sysid}: the show is already armed; land it instead")
+
+    def status_line(self) -> str:
+        return "show t=1.0/30 s"
+
+
+def controller() -> tuple[Controller, Target, EventFeed, Sink, list[str]]:
+    sink = Sink()
+    feed = EventFeed(sink)
+    stops: list[str] = []
+    c = Controller(feed, stops.append, GoGate())
+    target = Target()
+    c.target = target
+    return c, target, feed, sink, stops
+
+
+def said(feed: EventFeed) -> list[str]:
+    return [e.text for e in feed.lines()]
+
+
+def test_preflight_view_has_every_check_of_every_vehicle_and_a_go_line() -> None:
+    plan = grid_plan(9)
+    runner = fabricated_runner(plan)
+    runner.link.vehicles[4].battery_remaining_pct = 35.0   # cannot be fixed by waiting
+    runner.link.vehicles[7].gps_fix_type = 1               # may come by waiting
+    runner.link.vehicles[8].gps_fix_type = None
+    refresh_preflight(runner, NOW)
+    model = ConsoleModel()
+    model.attach(runner)
+    view = model.view(NOW, selected=4)
+    pre = view.preflight
+    assert pre is not None
+    assert pre.checks == ("heartbeat", "gps", "position", "battery", "slot", "link",
+                          "autopilot")
+    assert len(pre.rows) == 9 and all(len(r.cells) == 7 for r in pre.rows)
+    cells = {r.sysid: {c.name: c for c in r.cells} for r in pre.rows}
+    assert cells[4]["battery"].state == "fail"
+    assert cells[4]["battery"].detail == "35 % (minimum 60 %)"
+    assert cells[7]["gps"].state == "wait" and cells[8]["gps"].state == "wait"
+    assert cells[1]["gps"].state == "pass"
+    statuses = {r.sysid: r.status for r in pre.rows}
+    assert statuses[4] == "failed" and statuses[7] == "waiting" and statuses[1] == "ready"
+    assert not pre.go
+    assert pre.go_line == "NO-GO: 6/9 ready, waiting for 3: battery (4), gps (7, 8)"
+    assert view.header.phase == "pre-flight"
+    assert view.detail is not None and "check battery: 35 % (minimum 60 %)" in view.detail.lines
+    row4 = next(r for r in view.rows if r.sysid == 4)
+    assert row4.severity == "bad" and row4.alarm == "waiting: battery"
+
+
+def test_go_line_once_every_vehicle_passes_and_exclusion_counts() -> None:
+    plan = grid_plan(9)
+    runner = fabricated_runner(plan)
+    runner.awaiting_go = True
+    model = ConsoleModel()
+    model.attach(runner)
+    pre = model.view(NOW).preflight
+    assert pre is not None and pre.go
+    assert pre.go_line == "GO: 9/9 ready; press g to arm and fly"
+    runner.link.vehicles[5].battery_remaining_pct = 10.0
+    refresh_preflight(runner, NOW)
+    runner.exclude(5)  # a corner of a 3 x 3 grid on the ground: clear of the others
+    pre = model.view(NOW).preflight
+    assert pre is not None and pre.go
+    assert pre.go_line.startswith("GO: 8/8 ready (1 excluded)")
+    row5 = next(r for r in model.view(NOW).rows if r.sysid == 5)
+    assert row5.phase == "excluded" and row5.severity == "off"
+    with pytest.raises(FlightError, match="already excluded"):
+        runner.exclude(5)
+    with pytest.raises(FlightError, match="not a vehicle of this show"):
+        runner.exclude(77)
+
+
+def test_header_before_the_runner_and_the_link_summary() -> None:
+    model = ConsoleModel("quick", 33.0, 1.5)
+    view = model.view(0.0)
+    assert view.header.phase == "connecting" and view.rows == () and view.preflight is None
+    plan = grid_plan(4)
+    runner = fabricated_runner(plan, n=3)  # one of four never heard
+    model.attach(runner)
+    view = model.view(NOW)
+    assert view.header.link.startswith("3/4 heard")
+    assert view.header.link_severity == "warn"
+    assert [r.sysid for r in view.rows] == [1, 2, 3, 4]
+    unheard = view.rows[3]
+    assert unheard.phase == "unheard" and unheard.alarm == "not heard"
+    assert view.header.next_formation == "line" and view.header.show_time_s is None
+    cells = view.rows[0].cells()
+    assert cells["battery"] == "95%" and cells["gps"] == "3D/14" and cells["rtt"] == "4"
+
+
+def test_controller_confirms_land_all_and_kill_and_reports_bad_input() -> None:
+    c, target, feed, sink, _ = controller()
+    c.line("hold")
+    c.line("resume")
+    assert target.calls == [("hold",), ("resume",)]
+    c.land_all()
+    assert c.question is not None and target.calls[-1] == ("resume",)
+    c.line("n")
+    assert ("land_all",) not in target.calls and "land-all: cancelled" in said(feed)
+    c.line("land")
+    c.line("y")
+    assert target.calls[-1] == ("land_all",)
+    c.kill(12)
+    c.line("13")  # the wrong id cancels
+    assert not any(call[0] == "kill" for call in target.calls)
+    assert "kill 12: cancelled (typed '13', not 12)" in said(feed)
+    c.line("kill 12")
+    c.line("12")
+    assert target.calls[-1] == ("kill", 12, True)
+    c.land_one(None)
+    assert said(feed)[-1].startswith("land: select a vehicle")
+    for bad, message in [("fly away", "unknown command 'fly'"),
+                         ("land-here", "land-here needs a system id"),
+                         ("kill abc", "kill: 'abc' is not a system id (1-255)"),
+                         ("land 300", "land: '300' is not a system id (1-255)"),
+                         ("hold now", "hold: too many arguments 'now'")]:
+        c.line(bad)
+        assert said(feed)[-1].startswith(message), (bad, said(feed)[-1])
+    c.line("exclude 3")  # the runner refuses: said, not raised
+    assert said(feed)[-1] == ("exclude 3: exclude 3: the show is already armed; "
+                              "land it instead")
+    steps = [(f["action"], f["step"]) for e, f in sink.events if e == "console"]
+    assert ("land-all", "cancelled") in steps and ("kill", "confirmed") in steps
+    assert ("fly", "bad_input") in steps and ("exclude 3", "refused") in steps
+
+
+def test_quit_asks_then_stops_like_ctrl_c_and_go_answers_the_gate() -> None:
+    import asyncio
+
+    c, _, feed, _, stops = controller()
+    c.quit()
+    assert c.question is not None and "land every vehicle first" in c.question.prompt
+    c.line("no")
+    assert stops == []
+    c.quit()
+    c.line("y")
+    assert stops == ["quit (console)"]
+    c.quit()
+    assert c.question is not None and "ABANDON" in c.question.prompt
+    c.cancel()
+
+    async def gate() -> bool:
+        assert c.gate is not None
+        waiting = asyncio.ensure_future(c.gate(None))  # type: ignore[arg-type]
+        await asyncio.sleep(0)
+        c.go()
+        c.line("y")
+        return await waiting
+
+    c.go()
+    assert said(feed)[-1] == "go: not waiting for a go"
+    assert asyncio.run(gate()) is True
+
+
+def test_feed_passes_every_event_on_and_splits_fleet_and_vehicle_lines() -> None:
+    sink = Sink()
+    feed = EventFeed(sink)
+    feed.emit("mode_changed", system_id=3, mode="GUIDED")
+    feed.emit("sequence", text="vehicle 3 landed", system_id=3, kind="landed")
+    feed.notice("8 vehicles (2-9): landed")
+    feed.emit("vehicle_lost", system_id=5, silent_for_s=3.1)
+    feed.emit("preflight", lines=["vehicle 1: ready"])
+    feed.emit("link_started", address="127.0.0.1:1")
+    assert [e for e, _ in sink.events] == ["mode_changed", "sequence", "vehicle_lost",
+                                          "preflight", "link_started"]
+    assert [e.text for e in feed.lines()] == ["8 vehicles (2-9): landed",
+                                              "vehicle lost: silent_for_s=3.1"]
+    assert [e.text for e in feed.lines(3)] == ["mode changed: mode=GUIDED",
+                                               "vehicle 3 landed"]
+    assert [e.text for e in feed.lines(after=feed.last_seq - 1)] == \
+        ["vehicle lost: silent_for_s=3.1"]
+
+
+def test_plain_preflight_refusal_is_one_line_per_check_not_per_vehicle() -> None:
+    plan = grid_plan(64)
+    runner = fabricated_runner(plan)
+    for sysid in (12, 40):
+        runner.link.vehicles[sysid].gps_fix_type = None
+    for sysid in range(20, 30):
+        runner.link.vehicles[sysid].battery_remaining_pct = 30.0 + sysid
+    refresh_preflight(runner, NOW)
+    report = runner.preflight_report
+    assert report is not None
+    assert report.summary() == ("52/64 ready, waiting for 12: gps (12, 40), battery (20, 21, "
+                                "22, 23, 24, 25, 26, 27, 28, 29)")
+    lines = report.failing_by_check()
+    assert lines == ["  gps: no GPS_RAW_INT yet (12, 40)",
+                     "  battery: 50 % (minimum 60 %) (20); 51 % (minimum 60 %) (21); "
+                     "52 % (minimum 60 %) (22); 53 % (minimum 60 %) (23); and 6 more vehicles"]
