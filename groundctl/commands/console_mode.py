@@ -1,7 +1,8 @@
 """The console's side of ``groundctl dry-run`` and ``groundctl fly``: its options and when
 it opens.
 
-The console opens when stdout and stdin are terminals, unless ``--no-console``
+The console opens when stdout, stdin and stderr are terminals (Textual draws on
+stderr), unless ``--no-console``
 or ``--json``; ``--console`` asks for it (and needs a terminal).  With the
 console the show arms only on the operator's go (``--go`` skips the gate, for
 scripts), and a pre-flight check that waiting cannot fix (a low battery, a
@@ -37,9 +38,10 @@ def console_wanted(args: argparse.Namespace) -> bool:
             raise ConsoleUnavailable("--console and --json cannot go together: --json "
                                      "prints one JSON object and no console")
         return False
-    terminal = _isatty(sys.stdout) and _isatty(sys.stdin)
+    # Textual draws on stderr and reads stdin; the report follows on stdout.
+    terminal = _isatty(sys.stdout) and _isatty(sys.stdin) and _isatty(sys.__stderr__)
     if args.console and not terminal:
-        raise ConsoleUnavailable("--console needs stdout and stdin to be a terminal "
+        raise ConsoleUnavailable("--console needs stdin, stdout and stderr to be a terminal "
                                  "(--no-console for scripts)")
     return terminal if args.console is None else bool(args.console)
 

@@ -1143,8 +1143,10 @@ class ShowRunner:
         if self.sequence is not None:
             raise FlightError(f"exclude {sysid}: the show is already armed; land it instead")
         if self.assignment is None or sysid not in self.assignment.tracks:
-            raise FlightError(f"exclude {sysid}: not a vehicle of this show "
-                              "(no track assigned)")
+            heard = sysid in self.link.vehicles
+            raise FlightError(f"exclude {sysid}: " + (
+                "no track assigned to it yet (it is not known on a takeoff slot); wait for "
+                "its position" if heard else "not a vehicle of this show"))
         if sysid in self.config.excluded:
             raise FlightError(f"exclude {sysid}: already excluded")
         excluded = self.config.excluded | {sysid}
