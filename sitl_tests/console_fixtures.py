@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -76,7 +77,7 @@ def fabricated_runner(plan: Plan, n: int | None = None, now: float = 100.0,
     """A runner expecting the plan's vehicles (ids 1..drones) whose link knows ``n`` of them,
     ready (ids 1..n on tracks 0..n-1), and whose pre-flight checks ran once, at ``now``."""
     n = plan.drones if n is None else n
-    clock = ScaledClock(1.0)
+    clock = ScaledClock(1.0, epoch=time.monotonic() - now)  # reads ``now`` at the start
     ids = range(1, plan.drones + 1)
     link = FleetLink(("127.0.0.1", 0), clock=clock, expected_ids=ids)
     runner = ShowRunner(plan, link, clock, config or RunnerConfig(), expected_ids=ids)

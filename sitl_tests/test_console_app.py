@@ -242,7 +242,7 @@ def test_fleet_table_of_200_vehicles_updates_in_place_and_bad_input_is_reported(
             app.refresh_view()
             assert str(fleet.get_cell("150", "battery")) == "12%"
             assert list(fleet.rows) == keys_before  # updated in place, not rebuilt
-            assert "waiting: battery" in str(fleet.get_cell("150", "alarm"))
+            assert "failed: battery" in str(fleet.get_cell("150", "alarm"))
             await keys(pilot, "p")  # problems only
             assert sorted(int(str(k.value)) for k in fleet.rows) == [7, 150]
             await keys(pilot, "p", "s")  # everyone again, sorted by problems first

@@ -99,7 +99,7 @@ def test_preflight_view_has_every_check_of_every_vehicle_and_a_go_line() -> None
     assert view.header.phase == "pre-flight"
     assert view.detail is not None and "check battery: 35 % (minimum 60 %)" in view.detail.lines
     row4 = next(r for r in view.rows if r.sysid == 4)
-    assert row4.severity == "bad" and row4.alarm == "waiting: battery"
+    assert row4.severity == "bad" and row4.alarm == "failed: battery"
 
 
 def test_go_line_once_every_vehicle_passes_and_exclusion_counts() -> None:

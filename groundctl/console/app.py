@@ -245,7 +245,9 @@ class ConsoleApp(App[None]):
         started = time.perf_counter()
         self._last_refresh = time.monotonic()
         try:
-            view = self.model.view(self.model.now(), self.selected())
+            switcher = self.query_one("#views", ContentSwitcher)
+            view = self.model.view(self.model.now(), self.selected(),
+                                   preflight=switcher.current == "preflight")
             self.last_view = view
             self._set("header", header_text(view.header))
             if view.armed and not self._switched:
@@ -270,6 +272,9 @@ class ConsoleApp(App[None]):
         return not self.problems_only or row.severity in ("warn", "bad")
 
     def _render_fleet(self, view: ConsoleView) -> None:
+        """Rows added and removed as the filter says; cells updated where their text (or
+        the row's colour) changed, for the rows on screen only (a row scrolled into view
+        is brought up to date by the next refresh)."""
         table = self.query_one("#fleet", DataTable)
         rows = {r.sysid: r for r in view.rows if self._visible(r)}
         for sysid in [s for s in self._fleet_cells if s not in rows]:
@@ -277,12 +282,18 @@ class ConsoleApp(App[None]):
                 table.remove_row(str(sysid))
             self._fleet_cells.pop(sysid)
             self._fleet_severity.pop(sysid, None)
+        top = int(table.scroll_offset.y)
+        bottom = top + max(table.size.height, 1)
         for sysid, row in rows.items():
-            cells = row.cells()
             old = self._fleet_cells.get(sysid)
             if old is None:
+                cells = row.cells()
                 table.add_row(*(_cell(row, k, cells[k]) for k, _, _ in COLUMNS), key=str(sysid))
             else:
+                index = table.get_row_index(str(sysid))
+                if not top - 2 <= index <= bottom + 2:
+                    continue  # off screen: stale until it is scrolled into view
+                cells = row.cells()
                 recolour = self._fleet_severity.get(sysid) != row.severity
                 for key, _, _ in COLUMNS:
                     if cells[key] != old[key] or (recolour and key in _SEVERITY_COLUMNS):

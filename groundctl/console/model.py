@@ -209,7 +209,7 @@ class ConsoleView:
     rows: tuple[VehicleRow, ...]
     """Fleet table rows in system id order."""
     preflight: PreflightView | None
-    """The pre-flight grid (None until the first checks ran)."""
+    """The pre-flight grid (None until the first checks ran, or not asked for)."""
     detail: Detail | None
     """The selected vehicle (None: none selected)."""
     armed: bool
@@ -244,8 +244,10 @@ class ConsoleModel:
         return self.runner.clock.now() if self.runner is not None else 0.0
 
     # -- the view -----------------------------------------------------------------
-    def view(self, now: float, selected: int | None = None) -> ConsoleView:
-        """Everything on the screen at ``now`` (the flight's clock)."""
+    def view(self, now: float, selected: int | None = None,
+             preflight: bool = True) -> ConsoleView:
+        """Everything on the screen at ``now`` (the flight's clock); the pre-flight grid
+        only if ``preflight`` (it is not shown)."""
         runner = self.runner
         if runner is None:
             header = Header(self._show, "done" if self.outcome else "connecting",
@@ -257,7 +259,8 @@ class ConsoleModel:
         rows = tuple(self._row(runner, s, errors.get(s), leds, now)
                      for s in self._sysids(runner))
         header = self._header(runner, now, errors)
-        pre = self._preflight(runner) if runner.preflight_report is not None else None
+        pre = self._preflight(runner) if preflight and runner.preflight_report is not None \
+            else None
         detail = self._detail(runner, selected, errors, now) if selected is not None else None
         return ConsoleView(header, rows, pre, detail, runner.sequence is not None)
 
@@ -409,10 +412,13 @@ class ConsoleModel:
         if run is None and runner.preflight_report is not None:
             results = runner.preflight_report.results.get(sysid, [])
             failed = [r for r in results if not r.ok]
-            if failed:
-                (bad if any(_check_state(r.name, r.detail) == "fail" for r in failed)
-                 else warn).append("waiting: " + ", ".join(r.name for r in failed))
-            elif sysid in runner.preflight_report.extra:
+            hard = [r.name for r in failed if _check_state(r.name, r.detail) == "fail"]
+            soft = [r.name for r in failed if r.name not in hard]
+            if hard:
+                bad.append("failed: " + ", ".join(hard))
+            if soft:
+                warn.append("waiting: " + ", ".join(soft))
+            if not failed and sysid in runner.preflight_report.extra:
                 return "not in the show (ignored)", "off"
         if state.loss_ratio > LOSSY:
             warn.append(f"loss {state.loss_ratio:.0%}")
