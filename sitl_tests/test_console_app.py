@@ -22,6 +22,7 @@ from groundctl.commands.console_mode import console_config
 from groundctl.commands.flying import Interrupts
 from groundctl.console.app import ConsoleApp
 from groundctl.console.session import ConsoleSession
+from groundctl.console.table import FleetTable
 from groundctl.errors import NoGo
 from groundctl.execute.preflight import remaining_plan_conflicts
 from groundctl.execute.sequence import VehiclePhase
@@ -105,7 +106,7 @@ def test_quick_show_flown_through_the_console_to_the_end(tmp_path: Path) -> None
         await keys(pilot, "g")
         await keys(pilot, "y", "enter")
         await until(runner, lambda: show_time(runner) > 4.0, 90.0)
-        fleet = pilot.app.query_one("#fleet", DataTable)
+        fleet = pilot.app.query_one("#fleet", FleetTable)
         assert fleet.row_count == 9
         seen["fleet"] = shot(session.app, "fleet")
         seq = runner.sequence
@@ -118,7 +119,8 @@ def test_quick_show_flown_through_the_console_to_the_end(tmp_path: Path) -> None
         await keys(pilot, "r")
         assert "operator" not in seq.holds
         fleet.focus()
-        fleet.move_cursor(row=8)  # sysid order: vehicle 9
+        fleet.move_cursor(8)  # sysid order: vehicle 9
+        assert fleet.selected == 9
         await keys(pilot, "l")
         await until(runner, lambda: seq.vehicles[9].phase is not VehiclePhase.SHOW, 30.0)
         await keys(pilot, "f")  # the log of vehicle 9 only
@@ -156,9 +158,9 @@ def test_kill_needs_the_system_id_and_quit_lands_everyone_like_ctrl_c(tmp_path: 
         seq = runner.sequence
         assert seq is not None
         await pilot.pause(0.3)
-        fleet = pilot.app.query_one("#fleet", DataTable)
+        fleet = pilot.app.query_one("#fleet", FleetTable)
         fleet.focus()
-        fleet.move_cursor(row=0)
+        fleet.move_cursor(0)
         await keys(pilot, "k")
         await keys(pilot, "2", "enter")  # not its id: cancelled
         assert seq.vehicles[1].phase is not VehiclePhase.KILLED
@@ -233,21 +235,23 @@ def test_fleet_table_of_200_vehicles_updates_in_place_and_bad_input_is_reported(
         async with app.run_test(size=SIZE) as pilot:
             await keys(pilot, "v")  # the fleet view
             await pilot.pause(0.2)
-            fleet = app.query_one("#fleet", DataTable)
+            fleet = app.query_one("#fleet", FleetTable)
             assert fleet.row_count == 200
-            keys_before = list(fleet.rows)
+            order = fleet.order
             runner.link.vehicles[150].battery_remaining_pct = 12.0
             runner.link.vehicles[7].gps_fix_type = 1
             refresh_preflight(runner, 100.0)
             app.refresh_view()
-            assert str(fleet.get_cell("150", "battery")) == "12%"
-            assert list(fleet.rows) == keys_before  # updated in place, not rebuilt
-            assert "failed: battery" in str(fleet.get_cell("150", "alarm"))
+            assert fleet.cell(150, "battery") == "12%"
+            assert fleet.order == order
+            assert "failed: battery" in fleet.cell(150, "alarm")
+            runner.link.vehicles[33].battery_remaining_pct = 80.0
+            assert fleet.set_rows(app.model.view(app.model.now()).rows) == 1  # one row rebuilt
             await keys(pilot, "p")  # problems only
-            assert sorted(int(str(k.value)) for k in fleet.rows) == [7, 150]
+            assert sorted(fleet.order) == [7, 150]
             await keys(pilot, "p", "s")  # everyone again, sorted by problems first
             assert fleet.row_count == 200
-            assert [str(fleet.get_row_at(i)[0]) for i in range(2)] == ["150", "7"]
+            assert fleet.order[:2] == [150, 7]
             shot(app, "fleet-200")
             await keys(pilot, "colon")
             for ch in "fly away":

@@ -21,8 +21,9 @@ from rich.text import Text
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical
+from textual.widget import Widget
 from textual.widgets import ContentSwitcher, DataTable, Input, RichLog, Static
-from textual.widgets.data_table import CellDoesNotExist, RowDoesNotExist
+from textual.widgets.data_table import CellDoesNotExist
 
 from groundctl.console.commands import Controller
 from groundctl.console.feed import Entry, EventFeed
@@ -36,6 +37,7 @@ from groundctl.console.model import (
     Severity,
     VehicleRow,
 )
+from groundctl.console.table import FleetTable
 
 #: Refreshes per second at most: an operator reads no faster, and every refresh is
 #: time the control loop's interpreter is not ticking.
@@ -52,8 +54,6 @@ KEYS = Text.assemble(*(x for key, what in (
     ("d", "land here"), ("k", "kill sel."), ("x", "exclude"), ("g", "go"), ("q", "quit"),
     ("p", "problems"), ("s", "sort"), ("f", "log sel."), ("v", "view"), (":", "command"),
     ("esc", "cancel")) for x in ((f" {key} ", "bold reverse"), (f" {what} ", ""))))
-#: Columns whose text is coloured by the row's severity.
-_SEVERITY_COLUMNS = frozenset({"sysid", "phase", "alarm"})
 
 
 def progress_bar(fraction: float, width: int = 30) -> str:
@@ -95,14 +95,6 @@ def header_text(h: Header) -> Text:
     t.append(f" limit {h.separation_limit_m:.2f} m   link ")
     t.append(h.link, _SEVERITY_STYLE[h.link_severity])
     return t
-
-
-def _cell(row: VehicleRow, key: str, text: str) -> Text:
-    if key == "led":
-        return Text("    ", style=f"on {text}") if text else Text("-")
-    if key in _SEVERITY_COLUMNS:
-        return Text(text, _SEVERITY_STYLE[row.severity])
-    return Text(text)
 
 
 class ConsoleApp(App[None]):
@@ -158,9 +150,6 @@ class ConsoleApp(App[None]):
         """How long each of the last refreshes took (view model and widget updates; the
         screen itself is drawn afterwards by Textual), s."""
         self.last_view: ConsoleView | None = None
-        self._fleet_cells: dict[int, dict[str, str]] = {}
-        self._fleet_severity: dict[int, Severity] = {}
-        self._fleet_order: list[int] = []
         self._check_cells: dict[int, tuple[str, ...]] = {}
         self._check_columns: tuple[str, ...] = ()
         self._log_seq = 0
@@ -183,7 +172,7 @@ class ConsoleApp(App[None]):
                     yield Static(id="go")
                     yield DataTable(id="checks", cursor_type="cell", zebra_stripes=True)
                     yield Static(id="cell")
-                yield DataTable(id="fleet", cursor_type="row", zebra_stripes=True)
+                yield FleetTable(COLUMNS, id="fleet")
             with Vertical(id="side"):
                 yield Static(id="detail")
                 yield RichLog(id="log", max_lines=2000, wrap=False, markup=False)
@@ -200,9 +189,6 @@ class ConsoleApp(App[None]):
         if self._task_factory is not None and loop.get_task_factory() is not \
                 self._task_factory[0]:
             loop.set_task_factory(self._task_factory[0])
-        fleet = self.query_one("#fleet", DataTable)
-        for key, title, width in COLUMNS:
-            fleet.add_column(title, key=key, width=width)
         self.set_interval(1.0 / REFRESH_HZ, self._idle_refresh)
         self.refresh_view()
         self.query_one("#checks", DataTable).focus()
@@ -253,7 +239,7 @@ class ConsoleApp(App[None]):
             if view.armed and not self._switched:
                 self._switched = True  # armed: the fleet is what matters from now on
                 self.query_one("#views", ContentSwitcher).current = "fleet"
-                self.query_one("#fleet", DataTable).focus()
+                self.query_one("#fleet", FleetTable).focus()
             self._render_fleet(view)
             if view.preflight is not None:
                 self._render_checks(view.preflight)
@@ -272,41 +258,9 @@ class ConsoleApp(App[None]):
         return not self.problems_only or row.severity in ("warn", "bad")
 
     def _render_fleet(self, view: ConsoleView) -> None:
-        """Rows added and removed as the filter says; cells updated where their text (or
-        the row's colour) changed, for the rows on screen only (a row scrolled into view
-        is brought up to date by the next refresh)."""
-        table = self.query_one("#fleet", DataTable)
-        rows = {r.sysid: r for r in view.rows if self._visible(r)}
-        for sysid in [s for s in self._fleet_cells if s not in rows]:
-            with contextlib.suppress(RowDoesNotExist):
-                table.remove_row(str(sysid))
-            self._fleet_cells.pop(sysid)
-            self._fleet_severity.pop(sysid, None)
-        top = int(table.scroll_offset.y)
-        bottom = top + max(table.size.height, 1)
-        for sysid, row in rows.items():
-            old = self._fleet_cells.get(sysid)
-            if old is None:
-                cells = row.cells()
-                table.add_row(*(_cell(row, k, cells[k]) for k, _, _ in COLUMNS), key=str(sysid))
-            else:
-                index = table.get_row_index(str(sysid))
-                if not top - 2 <= index <= bottom + 2:
-                    continue  # off screen: stale until it is scrolled into view
-                cells = row.cells()
-                recolour = self._fleet_severity.get(sysid) != row.severity
-                for key, _, _ in COLUMNS:
-                    if cells[key] != old[key] or (recolour and key in _SEVERITY_COLUMNS):
-                        with contextlib.suppress(CellDoesNotExist):
-                            table.update_cell(str(sysid), key, _cell(row, key, cells[key]))
-            self._fleet_cells[sysid] = cells
-            self._fleet_severity[sysid] = row.severity
-        order = [r.sysid for r in sorted(rows.values(),
-                                         key=lambda r: r.sort_key(self.sort_order))]
-        if order != self._fleet_order:
-            rank = {s: i for i, s in enumerate(order)}
-            table.sort(key=lambda r: rank.get(int(r[0].plain), 0))
-            self._fleet_order = order
+        rows = sorted((r for r in view.rows if self._visible(r)),
+                      key=lambda r: r.sort_key(self.sort_order))
+        self.query_one("#fleet", FleetTable).set_rows(rows)
 
     def _render_checks(self, pre: PreflightView) -> None:
         table = self.query_one("#checks", DataTable)
@@ -384,8 +338,9 @@ class ConsoleApp(App[None]):
         """The system id under the cursor of the view shown (None: no row)."""
         try:
             switcher = self.query_one("#views", ContentSwitcher)
-            table = self.query_one("#fleet" if switcher.current == "fleet" else "#checks",
-                                   DataTable)
+            if switcher.current == "fleet":
+                return self.query_one("#fleet", FleetTable).selected
+            table = self.query_one("#checks", DataTable)
             if not table.row_count:
                 return None
             key = table.coordinate_to_cell_key(table.cursor_coordinate)
@@ -458,8 +413,7 @@ class ConsoleApp(App[None]):
     def action_view(self) -> None:
         switcher = self.query_one("#views", ContentSwitcher)
         switcher.current = "preflight" if switcher.current == "fleet" else "fleet"
-        self.query_one("#fleet" if switcher.current == "fleet" else "#checks",
-                       DataTable).focus()
+        self._focus_table()
         self.refresh_view()
 
     def action_command_line(self) -> None:
@@ -473,8 +427,9 @@ class ConsoleApp(App[None]):
 
     def _focus_table(self) -> None:
         switcher = self.query_one("#views", ContentSwitcher)
-        self.query_one("#fleet" if switcher.current == "fleet" else "#checks",
-                       DataTable).focus()
+        widget: Widget = self.query_one("#fleet", FleetTable) if switcher.current == "fleet" \
+            else self.query_one("#checks", DataTable)
+        widget.focus()
 
     def on_input_submitted(self, event: Input.Submitted) -> None:
         text = event.value
