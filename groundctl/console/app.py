@@ -329,8 +329,10 @@ class ConsoleApp(App[None]):
             log.write(Text("log: " + ("fleet-wide" if wanted is None else
                                       f"vehicle {wanted} only (f again: fleet-wide)"),
                            "bold"))
-        for entry in self.feed.lines(wanted, after=self._log_seq, most=300):
-            log.write(_log_line(entry))
+        entries = self.feed.lines(wanted, after=self._log_seq, most=300)
+        if entries:  # one write per refresh: each write costs a scroll and a layout
+            text = Text("\n").join(_log_line(e) for e in entries)
+            log.write(text)
         self._log_seq = self.feed.last_seq
 
     # -- selection --------------------------------------------------------------------

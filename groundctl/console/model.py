@@ -404,7 +404,7 @@ class ConsoleModel:
         rec = runner.records.get(sysid)
         if rec is not None and rec.late:
             warn.append("late")
-        if runner.replanner is not None and sysid in runner.replanner.active:
+        if runner.replanner is not None and sysid in runner.replanner.supervisor.active:
             warn.append("MPC")
         if rec is not None and rec.last_refusal and run is not None \
                 and run.phase not in (VehiclePhase.LANDED,):
@@ -420,8 +420,9 @@ class ConsoleModel:
                 warn.append("waiting: " + ", ".join(soft))
             if not failed and sysid in runner.preflight_report.extra:
                 return "not in the show (ignored)", "off"
-        if state.loss_ratio > LOSSY:
-            warn.append(f"loss {state.loss_ratio:.0%}")
+        loss = state.loss_ratio
+        if loss > LOSSY:
+            warn.append(f"loss {loss:.0%}")
         if state.link_conflicts and run is not None:
             warn.append(f"{state.link_conflicts} link conflicts")
         if bad:
@@ -573,7 +574,7 @@ def _link_summary(runner: ShowRunner, now: float) -> tuple[str, Severity]:
     heard = sum(1 for s in states.values() if s.silent_for(now) < 2.0)
     lost = sum(1 for s in states.values() if s.lost)
     losses = [s.loss_ratio for s in states.values()]
-    rtts = [s.rtt_s for s in states.values() if s.rtt_s is not None]
+    rtts = [r for r in (s.rtt_s for s in states.values()) if r is not None]
     text = f"{heard}/{expected} heard"
     if lost:
         text += f", {lost} lost"

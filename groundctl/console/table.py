@@ -112,16 +112,30 @@ class FleetTable(ScrollView, can_focus=True):
         return len(changed)
 
     def _strip(self, cells: dict[str, str], severity: Severity) -> Strip:
-        segments = []
+        # Neighbouring cells of one style are one segment: fewer objects per row.
+        segments: list[Segment] = []
+        run: list[str] = []
+        run_style = _PLAIN
+        colour = _SEVERITY[severity]
         for key, _, width in self.columns:
             text = cells[key]
             if key == "led":
-                segments.append(Segment(" " * (width - 1), Style(bgcolor=text) if text
-                                        else _PLAIN))
-                segments.append(Segment("  "))
-                continue
-            style = _SEVERITY[severity] if key in COLOURED else _PLAIN
-            segments.append(Segment(self._fit(text, width), style))
+                piece, style = " " * (width - 1), Style(bgcolor=text) if text else _PLAIN
+            else:
+                piece = text[:width].ljust(width)
+                style = colour if key in COLOURED else _PLAIN
+            if style is not run_style and run:
+                segments.append(Segment("".join(run), run_style))
+                run = []
+            run_style = style
+            run.append(piece)
+            if key == "led":  # the gap after a swatch is not coloured
+                segments.append(Segment("".join(run), run_style))
+                run, run_style = [" "], _PLAIN
+            else:
+                run.append(" ")
+        if run:
+            segments.append(Segment("".join(run), run_style))
         return Strip(segments, self._width)
 
     @staticmethod
