@@ -129,7 +129,9 @@ class Controller:
         try:
             call(self.target)
         except GroundctlError as exc:  # the runner refused: said, never raised
-            self.say(f"{what}: {exc}", sysid, step="refused", action=what)
+            text = str(exc)
+            self.say(text if text.startswith(what) else f"{what}: {text}", sysid,
+                     step="refused", action=what)
             return
         self.say(f"{what}: sent", sysid, step="done", action=what)
 
