@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
 import time
 from collections import deque
 from typing import Any, ClassVar
@@ -240,6 +241,10 @@ class ConsoleApp(App[None]):
                 self._switched = True  # armed: the fleet is what matters from now on
                 self.query_one("#views", ContentSwitcher).current = "fleet"
                 self.query_one("#fleet", FleetTable).focus()
+                # Everything built so far (plan, fleet state, widgets) lives to the end:
+                # out of the collector's sight, the garbage of the refreshes costs
+                # short young-generation collections, not full ones mid-show.
+                gc.freeze()
             self._render_fleet(view)
             if view.preflight is not None:
                 self._render_checks(view.preflight)
