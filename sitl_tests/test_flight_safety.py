@@ -62,6 +62,29 @@ def test_a_stall_of_the_ground_station_holds_the_show_and_blames_no_vehicle(
     assert result.report["max_tracking_error_m"] < 1.0
 
 
+def test_a_loop_that_stalls_tick_after_tick_still_streams_so_px4_stays_in_offboard(
+        tmp_path: Path) -> None:
+    """Every tick starts later than the stall threshold for 4 s (a machine starved of CPU).
+    The show holds, and setpoints still go out on every tick: a PX4 vehicle without them
+    for COM_OF_LOSS_T (1 s) would drop into its offboard-loss failsafe, hold and land
+    where it is, in the middle of the formation."""
+    async def starve(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 10.0)
+        start = runner.clock.now()
+        while runner.clock.now() - start < 4.0:
+            _block_loop(runner, 0.4)  # over the 0.3 s stall threshold, under 1 s
+            await asyncio.sleep(runner.clock.wall_interval(0.05))
+
+    result = dry_run(tmp_path, flavour=Flavour.PX4, during=starve)
+    _assert_safe(result.report)
+    assert "stall" in {e["reason"] for e in _events(tmp_path, "show_held")}
+    left = [(e["system_id"], e["new"]) for e in _events(tmp_path, "mode_changed")
+            if e["old"] == "OFFBOARD" and e["new"] != "AUTO.LAND"]
+    assert left == []  # nobody left OFFBOARD but to land at the end
+    assert _events(tmp_path, "sequence") and not [
+        e for e in _events(tmp_path, "sequence") if e.get("kind") in ("retaking", "stranded")]
+
+
 def test_a_way_out_requested_while_the_ground_station_is_overloaded(tmp_path: Path) -> None:
     seen: dict[str, object] = {}
 

@@ -1241,7 +1241,10 @@ class ShowSequence:
                            f"back in {state.mode} after its link-loss failsafe")]
         if v.phase in _STREAMED and state.mode is not None \
                 and state.mode not in (_FLIGHT_MODE[v.flavour], "UNKNOWN"):
-            if self._link_failsafe(v, state, now):
+            if (v.retaking is not None and state.mode in _LINK_FAILSAFE_MODES[v.flavour]) \
+                    or self._link_failsafe(v, state, now):
+                # A retake under way goes on (until its own attempts run out) even once
+                # the silence that explained it is over or it was the last one allowed.
                 return self._retake(v, state, now)
             return self._taken_over(v, state)
         if v.phase in _STREAMED and not state.armed and state.last_heartbeat is not None:
