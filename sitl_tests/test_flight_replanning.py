@@ -101,10 +101,11 @@ def test_a_trajectory_is_not_flown_past_stale_and_a_calm_fleet_is_left_alone(
         positions, velocities = _on_paths(paths, clocks, now)
         calm = {s: p + np.array([0.1, -0.1, 0.05]) for s, p in positions.items()}  # calm air
         assert replanner.tick(now, paths, clocks, calm, velocities, {}) == []
-    positions, velocities = _on_paths(paths, clocks, MID_SHOW)
-    assert replanner.active == set() and replanner.overrides(MID_SHOW, lambda s: 0.0) == {}
+    assert replanner.active == set() and replanner.overrides(now, lambda s: 0.0) == {}
+    now += 1.0 / RATE_HZ
+    positions, velocities = _on_paths(paths, clocks, now)
     positions[3] = positions[3] + np.array([0.0, 0.0, -1.2])
-    _fly_until_solved(replanner, paths, clocks, positions, velocities, MID_SHOW, 3)
+    _fly_until_solved(replanner, paths, clocks, positions, velocities, now, 3)
     t0 = replanner.results[3].t0
     assert set(replanner.overrides(t0, lambda s: 0.0)) == {3}
     # The worker fell behind (no new batch): after STALE_S the vehicle gets its path again.
