@@ -77,6 +77,7 @@ from groundctl.plan.quad_qp import (
     PairSegments,
     chord_separation,
 )
+from groundctl.plan.straight import StraightCheck, check_straight_lines
 from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import Limits, PlannerSettings, QuadrotorModel
 
@@ -114,6 +115,12 @@ class TransitionResult:
     """Largest separation slack at the end, m (0 when converged)."""
     straight_length: float
     """Mean straight-line distance start to goal, m (a lower bound on path length)."""
+    straight_min_separation: float = float("nan")
+    """Closest approach of any pair on the synchronised straight lines, exact, m (nan:
+    not checked)."""
+    straight: bool = False
+    """The straight lines were flown as they are (they keep every pair apart, or the
+    optimiser found nothing better that keeps the limit)."""
 
 
 @dataclass
@@ -210,13 +217,38 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
     plan then keeps the limit only, and its minimum separation says so).
     """
     t0 = time.perf_counter()
+    steps, _, _, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
+                                           settings)
+    lines = check_straight_lines(start, goal, limits.min_separation, settings.tracking_margin)
+    # The floor (plan.straight): lines that keep every pair at its target need nothing
+    # more; lines that keep the limit are what is flown if the optimiser finds nothing.
+    usable = lines.keeps_limit and len(_limit_violators(V, A, limits)) == 0
+    if usable and lines.keeps_target:
+        return _straight_result(index, name, start, goal, duration, steps, P, V, lines, t0)
     try:
-        return _plan(index, name, start, goal, duration, limits, settings, t0)
+        try:
+            result = _plan(index, name, start, goal, duration, limits, settings, t0)
+        except PlanningError:
+            if settings.tracking_margin <= 0:
+                raise
+            result = _plan(index, name, start, goal, duration, limits,
+                           replace(settings, tracking_margin=0.0), t0)
     except PlanningError:
-        if settings.tracking_margin <= 0:
+        if not usable:
             raise
-        return _plan(index, name, start, goal, duration, limits,
-                     replace(settings, tracking_margin=0.0), t0)
+        return _straight_result(index, name, start, goal, duration, steps, P, V, lines, t0)
+    return replace(result, straight_min_separation=lines.min_separation_m)
+
+
+def _straight_result(index: int, name: str, start: FloatArray, goal: FloatArray,
+                     duration: float, steps: int, P: FloatArray, V: FloatArray,
+                     lines: StraightCheck, t0: float) -> TransitionResult:
+    times = np.linspace(0.0, duration, steps + 1)
+    return TransitionResult(
+        index=index, name=name, trajectories=Trajectories(times, P, V), steps=steps,
+        iterations=0, seconds=time.perf_counter() - t0, qp_drones=0, groups=0,
+        max_slack=0.0, straight_length=float(np.linalg.norm(goal - start, axis=1).mean()),
+        straight_min_separation=lines.min_separation_m, straight=True)
 
 
 def _straight_lines(index: int, name: str, start: FloatArray, goal: FloatArray,
