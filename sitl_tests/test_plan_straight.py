@@ -1,8 +1,13 @@
-"""The planner's floor: synchronised straight lines checked exactly, and flown when safe."""
+"""The planner's floor: synchronised straight lines checked exactly, and flown when safe;
+a planning worker that dies."""
 
 from __future__ import annotations
 
 import json
+import multiprocessing
+import os
+import signal
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -10,9 +15,11 @@ import pytest
 
 from groundctl.cli import main
 from groundctl.plan.feasibility import min_transition_time
+from groundctl.plan.planner import plan_show
 from groundctl.plan.scp_quad import plan_quad_transition
 from groundctl.plan.straight import check_straight_lines, segment_closest
 from groundctl.plan.verify import _dense_pass
+from groundctl.show.loader import load_show
 from groundctl.show.model import Limits, PlannerSettings, QuadrotorModel
 
 LIMITS = Limits()
@@ -152,3 +159,29 @@ def test_groundctl_plan_flies_a_tight_show_on_its_straight_lines(
             ] == [("low", True, 0), ("shifted", True, 0), ("landing", True, 0)]
     assert all(t["straight_min_separation_m"] == pytest.approx(1.526)
                for t in report["transitions"])
+
+
+def test_a_planning_worker_that_dies_does_not_lose_the_show() -> None:
+    """A worker process killed mid-plan (out of memory, say): its transitions are planned
+    in the calling process, with the same result (the error, had there been one, would be
+    the transition's own, not "a process in the pool was terminated abruptly")."""
+    show = load_show(Path(__file__).resolve().parents[1] / "shows" / "demo.toml")
+    killed: list[int] = []
+
+    def kill_first_worker() -> None:
+        for _ in range(20000):
+            children = multiprocessing.active_children()
+            if children and children[0].pid is not None:
+                os.kill(children[0].pid, signal.SIGKILL)
+                killed.append(children[0].pid)
+                return
+            threading.Event().wait(0.0005)
+
+    killer = threading.Thread(target=kill_first_worker)
+    killer.start()
+    result = plan_show(show, workers=2)
+    killer.join()
+    assert killed, "no worker process was seen to kill"
+    serial = plan_show(show, workers=1)
+    assert result.verification.safe
+    assert np.allclose(result.plan.trajectories.pos, serial.plan.trajectories.pos)
