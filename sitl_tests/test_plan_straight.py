@@ -185,3 +185,21 @@ def test_a_planning_worker_that_dies_does_not_lose_the_show() -> None:
     serial = plan_show(show, workers=1)
     assert result.verification.safe
     assert np.allclose(result.plan.trajectories.pos, serial.plan.trajectories.pos)
+
+
+def test_a_pair_ending_just_above_the_limit_is_planned_with_its_own_bulge() -> None:
+    """Drone 1 flies to where drone 2 was, which side-steps to end 1.53 m from it: their
+    straight lines pass at 1.48 m.  The rows tighten each pair-segment by the bulge of the
+    pair's own relative motion, not by the largest two drones could have (0.04 m at this
+    step), which at the goal, where the slots are fixed 1.53 m apart, could never be
+    met: the optimiser refused this after 30 SCP iterations."""
+    start = np.array([[0.0, 0.0, 10.0], [0.0, 6.0, 10.0]])
+    goal = np.array([[0.0, 6.0, 10.0], [1.53, 6.0, 10.0]])
+    lines = check_straight_lines(start, goal, LIMITS.min_separation)
+    assert lines.min_separation_m == pytest.approx(1.4826, abs=1e-4)
+    duration = 1.5 * min_transition_time(start, goal, LIMITS, QuadrotorModel()).seconds
+    result = plan_quad_transition(1, "side", start, goal, duration, LIMITS,
+                                  PlannerSettings())
+    assert not result.straight and result.iterations <= 5
+    dense = _dense_pass(result.trajectories, LIMITS.min_separation)
+    assert dense.seg_sep.min() >= LIMITS.min_separation

@@ -278,8 +278,8 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
     steps, dt, ref, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
                                               settings)
     delta = goal - start
-    d_sep = chord_separation(limits, dt)
-    d_row = d_sep + SEPARATION_BUFFER  # what the QP's separation rows ask for
+    d_sep = chord_separation(limits, dt)  # the widest bulge: for the searches' radii
+    d_row = limits.min_separation + SEPARATION_BUFFER  # what the rows ask, bulge apart
     margin = _pair_margin(start, goal, d_row, settings.tracking_margin)
     d_far = d_sep + settings.tracking_margin  # pairs beyond this plus a margin are left out
     states: dict[tuple[int, ...], _Group] = {}
@@ -297,7 +297,7 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
         # Only pairs whose row is violated or nearly active join drones into a group;
         # the other close pairs become obstacle rows.  Links accumulate, so a group
         # keeps its members (and its QP) until it converges.
-        tight = need[chord_clearance(P, need) < d_row + margin(need[:, 0], need[:, 1])
+        tight = need[chord_clearance(P, need, A, dt) < d_row + margin(need[:, 0], need[:, 1])
                      + LINK_MARGIN]
         links = unique_segments(np.concatenate([links, tight]), n, steps)
         violators_all = np.union1d(violators_all, _limit_violators(V, A, limits))
@@ -331,7 +331,8 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
             # was solved last, and a group's current iterate is always feasible.
             others = np.stack([P[state.obs_other, state.qp.obstacles.k],
                                P[state.obs_other, state.qp.obstacles.k + 1]], axis=1)
-            state.qp.linearise(P[members], V[members], A[members], state.trust, others)
+            state.qp.linearise(P[members], V[members], A[members], state.trust, others,
+                               A[state.obs_other, state.qp.obstacles.k])
             Pg, Vg, Ag, Sg = state.qp.solve(index)
             change = float(np.abs(Pg - P[members]).max())
             state.slack = float(Sg.max(initial=0.0))
@@ -379,7 +380,7 @@ def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, durat
     others = np.asarray(others_at(times), dtype=float).reshape(-1, steps + 1, 3)
     n = g + len(others)
     d_sep = chord_separation(limits, dt)
-    d_row = d_sep + SEPARATION_BUFFER
+    d_row = limits.min_separation + SEPARATION_BUFFER
     start_all = np.concatenate([start, others[:, 0]])
     goal_all = np.concatenate([goal, others[:, -1]])
     ref_all = np.concatenate([ref, others])
