@@ -797,6 +797,7 @@ class ShowRunner:
             for i in rows:
                 send(sp.sysids[i], int(sp.time_boot_ms[i]), sp.pos_ned[i].tolist(),
                      sp.vel_ned[i].tolist(), sp.acc_ned[i].tolist())
+            seq.streamed([sp.sysids[i] for i in rows], now)
             # The tick's last setpoint has left: how late against its scheduled instant.
             self.lateness_s.append(self.clock.now() - scheduled)
             self._last_show_time = (min(req.clock.show_time(now + self._stream.typical_lead),
