@@ -790,6 +790,7 @@ class MpcController:
         self.M, self.E, self.F = c.max_neighbours, c.max_fence_edges, c.speed_faces
         self._build()
         self._last: MpcResult | None = None
+        self._escaped = False  # the last result flown was an escape
         self._lin: _Plan | None = None
         self._slot_ids = np.full(self.M, -1, dtype=np.intp)
         self._start_distance: FloatArray | None = None
@@ -937,6 +938,7 @@ class MpcController:
     def reset(self) -> None:
         """Forget the previous solutions: the next solve starts cold (the QP is kept)."""
         self._last = None
+        self._escaped = False
         self._lin = None
         self._slot_ids[:] = -1
         self._retimed = None
@@ -1147,6 +1149,16 @@ class MpcController:
         # up, a reason to get out.  Anything else already broken is.
         bad_start = start_violations(replace(request, neighbours=None, neighbour_ids=None),
                                      self.config.limit_tol)
+        escape_at = escape_limits(request.limits)  # never raised twice
+        if bad_start and self._escaped:
+            # Flying an escape, up to ESCAPE_SPEED_MARGIN over its speed limits: it goes on
+            # with those raised limits until its speed is back within its own, instead of
+            # ending after one tick on a start state it was told to fly.
+            continued = replace(request, limits=escape_at)
+            if not start_violations(replace(continued, neighbours=None, neighbour_ids=None),
+                                    self.config.limit_tol):
+                request, bad_start = continued, []
+        self._escaped = False
         if bad_start:
             return self._fallback(request, "start state: " + "; ".join(bad_start), start)
         d0 = np.linalg.norm(request.others[:, 0] - request.p0[None], axis=1)
@@ -1234,8 +1246,7 @@ class MpcController:
                     any(v.startswith("separation") for v in check.violations):
                 # The separation is what cannot be kept: one more pass with the speeds
                 # allowed ESCAPE_SPEED_MARGIN over their limits, from this solution.
-                req, gp, gv, ga = (replace(request, limits=escape_limits(request.limits)),
-                                   pos, vel, acc)
+                req, gp, gv, ga = (replace(request, limits=escape_at), pos, vel, acc)
                 continue
             return self._fallback(request, cause, start, iterations, npass, max_slack, used)
         raise AssertionError("unreachable")  # pragma: no cover
@@ -1262,6 +1273,7 @@ class MpcController:
                 min_separation=check.min_separation, closest=check.closest,
                 neighbours_used=used)
             self._last = result
+            self._escaped = True
             return result
         if stop.status == "fallback" and \
                 on_path.min_separation > stop_check.min_separation + DIST_TOL:
