@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
                                                       f"has tracks 0..{plan.drones - 1}")
     record = args.record or default_directory(plan.show_name, "fly")
     clock = ScaledClock(1.0)
-    recording = Recording(record, clock.now)
+    recording = Recording(record, clock.now, plan)
     notify = say(args.quiet)
     interrupts = Interrupts(notify)
     config = runner_config(args, fleet.tracks if fleet is not None and fleet.tracks else None)
@@ -93,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
                          tlog=recording.tlog, events=events)
         runner = ShowRunner(plan, link, clock, config, events=events, notify=notify,
                             expected_ids=ids)
+        recording.follow(runner)  # the show clock, for a replay
         interrupts.attach(runner)
         interrupts.install()
         error: GroundctlError | None = None
