@@ -127,3 +127,32 @@ def add_plan_source(p: argparse.ArgumentParser) -> None:
                        help="for a .npz plan: trust the limits the plan file carries instead "
                             "of its show's (a plan saved before plans recorded their show, "
                             "or one from elsewhere without its show)")
+
+
+# -- Rerun (issue 13) ----------------------------------------------------------------
+RERUN_USAGE = "--rerun takes nothing, 'spawn', 'connect [URL]' or 'save PATH'"
+
+
+def add_rerun_option(p: argparse.ArgumentParser, what: str) -> None:
+    """``--rerun [spawn | connect [URL] | save PATH]``: ``what`` to Rerun (see
+    :func:`rerun_target`); nothing after it saves to the command's default file."""
+    p.add_argument("--rerun", nargs="*", default=None, metavar="spawn|connect URL|save PATH",
+                   help=f"{what} to Rerun: open a viewer (spawn), send to a running one "
+                        "(connect [URL], default rerun+http://127.0.0.1:9876/proxy) or write "
+                        "an .rrd file (save PATH; --rerun alone saves beside the output)")
+
+
+def rerun_target(words: list[str] | None, default: Path) -> tuple[str, str | None] | None:
+    """``--rerun``'s words as (kind, where): None when not given; ``default`` for save."""
+    if words is None:
+        return None
+    if not words:
+        return ("save", str(default))
+    kind, rest = words[0], words[1:]
+    if kind == "spawn" and not rest:
+        return ("spawn", None)
+    if kind == "connect" and len(rest) <= 1:
+        return ("connect", rest[0] if rest else None)
+    if kind == "save" and len(rest) == 1:
+        return ("save", rest[0])
+    raise argparse.ArgumentTypeError(f"{RERUN_USAGE}, not {' '.join(words)!r}")

@@ -74,6 +74,21 @@ class FlightArrays:
     """(T, n) remaining battery, % (NaN: not reported yet)."""
     estimated_clock: bool
     """True without a show clock log: ticks and ``show_time`` estimated from the tlog."""
+    speed: float = 1.0
+    """Executor (simulated) seconds per Unix second: 1 for a real flight, K for a dry-run
+    at ``--speed K``."""
+
+    def show_time_at(self, unix_s: FloatArray) -> FloatArray:
+        """The ``show_time`` timeline at Unix times: between the ticks interpolated, before
+        the first and after the last run on at :attr:`speed` (pre-flight, shutdown)."""
+        u = np.asarray(unix_s, dtype=float)
+        if len(self.unix_s) == 0:
+            return np.zeros_like(u)
+        inside = np.interp(u, self.unix_s, self.show_time)
+        before = self.show_time[0] + (u - self.unix_s[0]) * self.speed
+        after = self.show_time[-1] + (u - self.unix_s[-1]) * self.speed
+        return np.where(u < self.unix_s[0], before, np.where(u > self.unix_s[-1], after,
+                                                             inside))
 
 
 def show_frame_origin(plan: Plan | None, data: TlogData) -> GeoOrigin:
@@ -242,4 +257,4 @@ def flight_arrays(data: TlogData, plan: Plan | None, clock: ShowClockTable | Non
                         show_time=timeline, show_clock=show_clock, positions=positions,
                         colours=colours, tracking_error=error, min_separation=min_sep,
                         min_pair=min_pair, lateness_ms=lateness, battery=battery,
-                        estimated_clock=clock is None or clock.ticks < 2)
+                        estimated_clock=clock is None or clock.ticks < 2, speed=speed)
