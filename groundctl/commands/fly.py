@@ -18,11 +18,13 @@ from groundctl.commands.flying import (
     Interrupts,
     add_plan_options,
     add_runner_options,
+    close_live_rerun,
     finish,
     plan_for,
     read_operator_commands,
     runner_config,
     say,
+    start_live_rerun,
 )
 from groundctl.errors import GroundctlError
 from groundctl.flight.report import flight_report
@@ -84,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
     config = runner_config(args, fleet.tracks if fleet is not None and fleet.tracks else None)
     config = replace(config, connect_timeout_s=args.connect_timeout)
     ids = list(fleet.system_ids) if fleet is not None else None
+    live = start_live_rerun(args, plan, record)
 
     async def main() -> tuple[dict[str, Any], GroundctlError | None, bool]:
         events = recording.events
@@ -94,6 +97,8 @@ def run(args: argparse.Namespace) -> int:
         runner = ShowRunner(plan, link, clock, config, events=events, notify=notify,
                             expected_ids=ids)
         recording.follow(runner)  # the show clock, for a replay
+        if live is not None:
+            live.attach(runner)
         interrupts.attach(runner)
         interrupts.install()
         error: GroundctlError | None = None
@@ -117,7 +122,10 @@ def run(args: argparse.Namespace) -> int:
             recording.finish(report)
         return report, error, runner.sequence is not None
 
-    report, error, flown = asyncio.run(main())
+    try:
+        report, error, flown = asyncio.run(main())
+    finally:
+        close_live_rerun(live, notify)
     if error is not None and not flown:
         raise error
     return finish(report, args, interrupts.aborted)

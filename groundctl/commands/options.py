@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 from pathlib import Path
+from typing import Any
 
 
 def _number(text: str) -> float:
@@ -133,21 +134,31 @@ def add_plan_source(p: argparse.ArgumentParser) -> None:
 RERUN_USAGE = "--rerun takes nothing, 'spawn', 'connect [URL]' or 'save PATH'"
 
 
+class _RerunAction(argparse.Action):
+    """Stores ``--rerun``'s words as (kind, where) (see :func:`rerun_words`)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        try:
+            setattr(namespace, self.dest, rerun_words(list(values or [])))
+        except ValueError as exc:
+            parser.error(str(exc))
+
+
 def add_rerun_option(p: argparse.ArgumentParser, what: str) -> None:
-    """``--rerun [spawn | connect [URL] | save PATH]``: ``what`` to Rerun (see
-    :func:`rerun_target`); nothing after it saves to the command's default file."""
-    p.add_argument("--rerun", nargs="*", default=None, metavar="spawn|connect URL|save PATH",
+    """``--rerun [spawn | connect [URL] | save PATH]``: ``what`` to Rerun."""
+    p.add_argument("--rerun", nargs="*", action=_RerunAction, default=None,
+                   metavar="spawn|connect URL|save PATH",
                    help=f"{what} to Rerun: open a viewer (spawn), send to a running one "
                         "(connect [URL], default rerun+http://127.0.0.1:9876/proxy) or write "
                         "an .rrd file (save PATH; --rerun alone saves beside the output)")
 
 
-def rerun_target(words: list[str] | None, default: Path) -> tuple[str, str | None] | None:
-    """``--rerun``'s words as (kind, where): None when not given; ``default`` for save."""
-    if words is None:
-        return None
+def rerun_words(words: list[str]) -> tuple[str, str | None]:
+    """(kind, where) of ``--rerun``'s words; ("save", None) means the command's default
+    file."""
     if not words:
-        return ("save", str(default))
+        return ("save", None)
     kind, rest = words[0], words[1:]
     if kind == "spawn" and not rest:
         return ("spawn", None)
@@ -155,4 +166,13 @@ def rerun_target(words: list[str] | None, default: Path) -> tuple[str, str | Non
         return ("connect", rest[0] if rest else None)
     if kind == "save" and len(rest) == 1:
         return ("save", rest[0])
-    raise argparse.ArgumentTypeError(f"{RERUN_USAGE}, not {' '.join(words)!r}")
+    raise ValueError(f"{RERUN_USAGE}, not {' '.join(words)!r}")
+
+
+def rerun_target(value: tuple[str, str | None] | None, default: Path
+                 ) -> tuple[str, str | None] | None:
+    """``--rerun``'s value with the default file filled in (None: not given)."""
+    if value is None:
+        return None
+    kind, where = value
+    return (kind, str(default)) if kind == "save" and where is None else (kind, where)

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 from groundctl.commands.options import add_points_dir, add_rerun_option, rerun_target, workers
 from groundctl.commands.progress import ProgressBar
-from groundctl.errors import EXIT_OK, EXIT_UNSAFE, GroundctlError
+from groundctl.errors import EXIT_OK, EXIT_UNSAFE
 
 if TYPE_CHECKING:
     from groundctl.plan.plan import Plan
@@ -40,10 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from groundctl.show.loader import load_show
 
     out = Path(args.output) if args.output else default_plan_path(args.show)
-    try:
-        rerun = rerun_target(args.rerun, out.with_suffix(".rrd"))
-    except argparse.ArgumentTypeError as exc:
-        raise GroundctlError(str(exc)) from None
+    rerun = rerun_target(args.rerun, out.with_suffix(".rrd"))
     show = load_show(args.show, args.points_dir)
     bar = ProgressBar(f"planning {show.name}")
     try:

@@ -19,7 +19,7 @@ origin and heading, by the same pymap3d conversions as
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pymap3d
@@ -77,6 +77,14 @@ class FlightArrays:
     speed: float = 1.0
     """Executor (simulated) seconds per Unix second: 1 for a real flight, K for a dry-run
     at ``--speed K``."""
+
+    def rows(self, keep: NDArray[np.bool_]) -> FlightArrays:
+        """The same flight on the ticks where ``keep`` is true."""
+        return replace(self, unix_s=self.unix_s[keep], show_time=self.show_time[keep],
+                       show_clock=self.show_clock[keep], positions=self.positions[keep],
+                       colours=self.colours[keep], tracking_error=self.tracking_error[keep],
+                       min_separation=self.min_separation[keep], min_pair=self.min_pair[keep],
+                       lateness_ms=self.lateness_ms[keep], battery=self.battery[keep])
 
     def show_time_at(self, unix_s: FloatArray) -> FloatArray:
         """The ``show_time`` timeline at Unix times: between the ticks interpolated, before

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal, cast
 
 import numpy as np
@@ -81,6 +82,9 @@ def open_recording(targets: Sequence[RerunTarget], name: str) -> rr.RecordingStr
     rec = rr.RecordingStream(APP_ID, make_default=False)
     bp = blueprint()
     try:
+        for target in targets:
+            if target.kind == "save" and target.where:
+                Path(target.where).parent.mkdir(parents=True, exist_ok=True)
         if len(targets) == 1:
             target = targets[0]
             if target.kind == "save":
@@ -108,7 +112,12 @@ def open_recording(targets: Sequence[RerunTarget], name: str) -> rr.RecordingStr
 
 
 def _times(show: FloatArray, unix: FloatArray | None) -> list[rr.TimeColumn]:
-    cols = [rr.TimeColumn("show_time", duration=np.asarray(show, dtype=float))]
+    """The rows' time columns; a live stream's rows before the show clock started have
+    no show time (NaN) and are on ``wall_time`` only."""
+    show = np.asarray(show, dtype=float)
+    cols = []
+    if unix is None or np.isfinite(show).all():
+        cols.append(rr.TimeColumn("show_time", duration=show))
     if unix is not None:
         cols.append(rr.TimeColumn("wall_time", timestamp=np.asarray(unix, dtype=float)))
     return cols
@@ -299,7 +308,7 @@ def log_lines(rec: rr.RecordingStream, show: FloatArray, unix: FloatArray | None
     """``log``: one text line per event, with its level."""
     if not lines:
         return
-    order = np.argsort(show, kind="stable")
+    order = np.argsort(show if unix is None else unix, kind="stable")
     rec.send_columns("log", indexes=_times(show[order], None if unix is None else unix[order]),
                      columns=rr.TextLog.columns(text=[lines[k].text for k in order],
                                                 level=[lines[k].level for k in order]))
