@@ -79,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
             raise FleetFileError(args.fleet, "track", f"track(s) {bad} do not exist: the plan "
                                                       f"has tracks 0..{plan.drones - 1}")
     record = args.record or default_directory(plan.show_name, "fly")
+    live = start_live_rerun(args, plan, record)  # before the recording: may fail to connect
     clock = ScaledClock(1.0)
     recording = Recording(record, clock.now, plan)
     notify = say(args.quiet)
@@ -86,7 +87,6 @@ def run(args: argparse.Namespace) -> int:
     config = runner_config(args, fleet.tracks if fleet is not None and fleet.tracks else None)
     config = replace(config, connect_timeout_s=args.connect_timeout)
     ids = list(fleet.system_ids) if fleet is not None else None
-    live = start_live_rerun(args, plan, record)
 
     async def main() -> tuple[dict[str, Any], GroundctlError | None, bool]:
         events = recording.events

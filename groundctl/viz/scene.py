@@ -229,31 +229,27 @@ def log_vehicles(rec: rr.RecordingStream, fa: FlightArrays, rows: slice | None =
 
 
 def log_trails(rec: rr.RecordingStream, fa: FlightArrays, sl: slice) -> None:
-    """Each vehicle's last :data:`TRAIL_TICKS` ticks, one row every :data:`TRAIL_STEP`."""
-    pos_all = fa.positions
+    """Each vehicle's last :data:`TRAIL_TICKS` ticks, one row every :data:`TRAIL_STEP`.
+
+    A trail point where the vehicle was not heard repeats its present position
+    (fixed-length strips, built without a loop over vehicles)."""
     t_all = np.arange(len(fa.unix_s))[sl]
     rows = t_all[::TRAIL_STEP]
     if rows.size == 0:
         return
     back = np.arange(-TRAIL_TICKS + TRAIL_STEP, 1, TRAIL_STEP)  # e.g. -18, -16, ..., 0
     idx = np.clip(rows[:, None] + back[None, :], 0, None)  # (R, L)
-    win = pos_all[idx]  # (R, L, n, 3)
-    strips: list[FloatArray] = []
-    lengths = np.zeros(len(rows), dtype=np.int64)
-    colours: list[NDArray[np.uint8]] = []
-    finite = np.isfinite(win[..., 0])  # (R, L, n)
-    for r in range(len(rows)):
-        for j in np.flatnonzero(finite[r, -1]):
-            pts = win[r, finite[r, :, j], j]
-            if len(pts) >= 2:
-                strips.append(pts)
-                colours.append(fa.colours[rows[r], j])
-                lengths[r] += 1
-    if not strips:
+    win = fa.positions[idx].transpose(0, 2, 1, 3)  # (R, n, L, 3)
+    here = win[:, :, -1]  # (R, n, 3)
+    present = np.isfinite(here[..., 0])  # (R, n)
+    filled = np.where(np.isfinite(win), win, here[:, :, None, :])
+    strips = filled[present]  # (S, L, 3)
+    if len(strips) == 0:
         return
+    colours = fa.colours[rows][present]
     rec.send_columns("world/trails", indexes=_times(fa.show_time[rows], fa.unix_s[rows]),
-                     columns=rr.LineStrips3D.columns(strips=strips, colors=np.array(colours))
-                     .partition(lengths))
+                     columns=rr.LineStrips3D.columns(strips=cast(Any, strips), colors=colours)
+                     .partition(present.sum(axis=1)))
 
 
 def log_styles(rec: rr.RecordingStream, sysids: Sequence[int], limit: float | None) -> None:
