@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pymap3d
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from groundctl.execute.frames import geodetic_to_show, ned_vel_to_show
 from groundctl.flight.monitor import MAX_SAMPLE_AGE_S
@@ -38,8 +39,6 @@ FloatArray = NDArray[np.float64]
 NO_LED = (90, 90, 90)
 #: Tick period assumed for a bare tlog (no show clock log), in vehicle seconds.
 BARE_TICK_S = 0.1
-#: Pairs of vehicles compared at once when computing separations (memory bound).
-_PAIR_BLOCK = 4_000_000
 
 
 @dataclass(frozen=True)
@@ -169,24 +168,20 @@ def led_at(data: TlogData, sysid: int, unix_s: FloatArray) -> NDArray[np.uint8]:
 
 def separations(positions: FloatArray, sysids: tuple[int, ...]
                 ) -> tuple[FloatArray, NDArray[np.int64]]:
-    """Per tick: the closest distance between any two vehicles present and their ids."""
-    t_count, n, _ = positions.shape
+    """Per tick: the closest distance between any two vehicles present and their ids
+    (a KD-tree per tick, as the monitor's :func:`~groundctl.flight.monitor.nearest_pair`)."""
+    t_count = positions.shape[0]
     dist = np.full(t_count, np.nan)
     pair = np.zeros((t_count, 2), dtype=np.int64)
-    if n < 2:
-        return dist, pair
     ids = np.asarray(sysids, dtype=np.int64)
-    iu, ju = np.triu_indices(n, k=1)
-    step = max(1, _PAIR_BLOCK // len(iu))
-    for a in range(0, t_count, step):
-        p = positions[a:a + step]
-        d = np.linalg.norm(p[:, iu] - p[:, ju], axis=2)
-        d = np.where(np.isnan(d), np.inf, d)
-        k = np.argmin(d, axis=1)
-        best = d[np.arange(len(d)), k]
-        found = np.isfinite(best)
-        dist[a:a + step] = np.where(found, best, np.nan)
-        pair[a:a + step] = np.where(found[:, None], np.stack([ids[iu[k]], ids[ju[k]]], 1), 0)
+    present = np.isfinite(positions[..., 0])
+    for k in np.flatnonzero(present.sum(axis=1) >= 2):
+        cols = np.flatnonzero(present[k])
+        d, idx = cKDTree(positions[k, cols]).query(positions[k, cols], k=2)
+        i = int(np.argmin(d[:, 1]))
+        a, b = ids[cols[i]], ids[cols[idx[i, 1]]]
+        dist[k] = d[i, 1]
+        pair[k] = (min(a, b), max(a, b))
     return dist, pair
 
 

@@ -188,7 +188,7 @@ class LiveRerun:
             scene.log_styles(self.rec, self._sysids, self.plan.limits.min_separation)
         self.batches += 1
         ticks = self._history + new
-        fa = self._arrays(ticks)
+        fa = self._arrays(ticks, len(ticks) - len(new))
         self._history = ticks[-scene.TRAIL_TICKS:]
         first_new = len(ticks) - len(new)
         limit = self.plan.limits.min_separation
@@ -205,7 +205,9 @@ class LiveRerun:
             scene.log_vehicles(self.rec, sub, rows)
             scene.log_series(self.rec, sub, limit, rows)
 
-    def _arrays(self, ticks: list[_Tick]) -> FlightArrays:
+    def _arrays(self, ticks: list[_Tick], first_new: int) -> FlightArrays:
+        """The ticks as arrays; the closest pair only from ``first_new`` on (the rows
+        before are kept for the trails)."""
         sysids = self._sysids
         col = {s: j for j, s in enumerate(sysids)}
         t_count, n = len(ticks), len(sysids)
@@ -233,7 +235,9 @@ class LiveRerun:
             colours[on] = scene.plan_colours(self.plan, times)[track_of].transpose(1, 0, 2)
             planned, _, _ = self.plan.trajectories.evaluate(times, track_of)  # (n, T', 3)
             error[on] = np.linalg.norm(positions[on] - planned.transpose(1, 0, 2), axis=2)
-        sep, pair = separations(positions, sysids)
+        sep = np.full(t_count, np.nan)
+        pair = np.zeros((t_count, 2), dtype=np.int64)
+        sep[first_new:], pair[first_new:] = separations(positions[first_new:], sysids)
         return FlightArrays(
             sysids=sysids, tracks=self._tracks, origin=self.plan.origin,
             unix_s=np.array([tk.unix for tk in ticks]),

@@ -128,12 +128,17 @@ def _rgb(colors01: FloatArray) -> NDArray[np.uint8]:
 
 
 def plan_colours(plan: Plan, times: FloatArray) -> NDArray[np.uint8]:
-    """(n, T, 3) every track's plan colour at ``times``."""
+    """(n, T, 3) every track's plan colour at ``times`` (linear between colour keys, held
+    beyond them, as ``Plan.colors_at``)."""
     keys, cols = plan.color_times, plan.colors  # (K,), (n, K, 3)
-    out = np.empty((plan.drones, len(times), 3))
-    for c in range(3):
-        out[:, :, c] = np.stack([np.interp(times, keys, cols[i, :, c])
-                                 for i in range(plan.drones)])
+    t = np.clip(np.asarray(times, dtype=float), keys[0], keys[-1])
+    hi = np.clip(np.searchsorted(keys, t, side="right"), 1, len(keys) - 1)
+    lo = hi - 1
+    span = keys[hi] - keys[lo]
+    w = np.where(span > 0, (t - keys[lo]) / np.where(span > 0, span, 1.0), 0.0)
+    if len(keys) == 1:
+        return _rgb(np.repeat(cols[:, :1], len(t), axis=1))
+    out = cols[:, lo] * (1.0 - w)[None, :, None] + cols[:, hi] * w[None, :, None]
     return _rgb(out)
 
 
