@@ -62,7 +62,7 @@ def add_runner_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--signing-key", type=signing_key, default=None, metavar="HEX",
                    help="MAVLink 2 signing key, 64 hex digits")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
-    add_rerun_option(p, "stream the flight, live,")
+    add_rerun_option(p, "stream the flight, live,", "live.rrd in the recording directory")
 
 
 def lead_ms(text: str) -> float | None:

@@ -145,13 +145,14 @@ class _RerunAction(argparse.Action):
             parser.error(str(exc))
 
 
-def add_rerun_option(p: argparse.ArgumentParser, what: str) -> None:
-    """``--rerun [spawn | connect [URL] | save PATH]``: ``what`` to Rerun."""
+def add_rerun_option(p: argparse.ArgumentParser, what: str, alone: str) -> None:
+    """``--rerun [spawn | connect [URL] | save PATH]``: ``what`` to Rerun; ``alone`` says
+    where ``--rerun`` without words saves."""
     p.add_argument("--rerun", nargs="*", action=_RerunAction, default=None,
                    metavar="spawn|connect URL|save PATH",
                    help=f"{what} to Rerun: open a viewer (spawn), send to a running one "
                         "(connect [URL], default rerun+http://127.0.0.1:9876/proxy) or write "
-                        "an .rrd file (save PATH; --rerun alone saves beside the output)")
+                        f"an .rrd file (save PATH; --rerun alone saves {alone})")
 
 
 def rerun_words(words: list[str]) -> tuple[str, str | None]:

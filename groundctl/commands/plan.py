@@ -25,7 +25,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--workers", type=workers, default=None, metavar="N",
                    help="parallel processes for transitions, 1..64 (default: one per core)")
     add_points_dir(p)
-    add_rerun_option(p, "the planned show (paths, slots, each transition's closest approach)")
+    add_rerun_option(p, "the planned show (paths, slots, each transition's closest approach)",
+                     "PLAN with .rrd")
     p.set_defaults(func=run)
 
 
