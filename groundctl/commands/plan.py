@@ -73,8 +73,9 @@ def _to_rerun(plan: Plan, target: tuple[str, str | None], quiet: bool) -> None:
         scene.log_plan(rec, plan)
         scene.log_styles(rec, [], None)
         scene.log_planned_fleet(rec, plan)
-        rec.flush()
-    finally:
+    except BaseException:
         rec.disconnect()
+        raise
+    scene.close_recording(rec)
     if not quiet:
         print(f"rerun: plan {kind}{f' {where}' if where else ''}", file=sys.stderr)

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from groundctl.errors import GroundctlError
 from groundctl.plan.plan import Plan
 from groundctl.viz import scene
 from groundctl.viz.eventlog import LogLine, event_line
@@ -251,7 +252,7 @@ class LiveRerun:
         self._stop.set()
         self._thread.join(CLOSE_TIMEOUT_S)
         try:
-            self.rec.flush(timeout_sec=CLOSE_TIMEOUT_S)
-        finally:
-            self.rec.disconnect()
+            scene.close_recording(self.rec, CLOSE_TIMEOUT_S)
+        except GroundctlError as exc:
+            self.errors.append(str(exc))
         return self.errors

@@ -197,6 +197,7 @@ def replay(source: ReplaySource, targets: Sequence[scene.RerunTarget],
 
     name = source.tlog.parent.name if source.tlog.name == TLOG else source.tlog.stem
     rec = scene.open_recording(targets, f"replay {name}")
+    done = False
     try:
         if plan is not None:
             scene.log_plan(rec, plan)
@@ -214,9 +215,12 @@ def replay(source: ReplaySource, targets: Sequence[scene.RerunTarget],
             scene.log_lines(rec, stop, None if d.last_unix_s is None
                             else np.array([d.last_unix_s]),
                             [LogLine(0.0, "ERROR", f"tlog: {summary.damage}")])
-        rec.flush()
+        done = True
     finally:
-        rec.disconnect()
+        if done:
+            scene.close_recording(rec)
+        else:
+            rec.disconnect()
     summary.vehicles = len(fa.sysids)
     summary.ticks = len(fa.unix_s)
     summary.lines = len(lines)

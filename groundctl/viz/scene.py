@@ -46,6 +46,8 @@ TRAIL_TICKS, TRAIL_STEP = 20, 2
 PATH_STEP_S = 0.25
 #: The planned fleet of ``plan --rerun`` moves in steps of this, s.
 PLAN_FRAME_S = 0.1
+#: Longest wait for a viewer (``connect``, ``spawn``) to take a recording at the end, s.
+FLUSH_TIMEOUT_S = 30.0
 
 
 @dataclass(frozen=True)
@@ -109,6 +111,17 @@ def open_recording(targets: Sequence[RerunTarget], name: str) -> rr.RecordingStr
         raise GroundctlError(f"rerun ({what}): {exc}") from exc
     rec.send_recording_name(name)
     return rec
+
+
+def close_recording(rec: rr.RecordingStream, timeout_s: float = FLUSH_TIMEOUT_S) -> None:
+    """Flush (at most ``timeout_s``) and disconnect; a viewer that cannot be reached is one
+    :class:`GroundctlError` (what went to a file is written all the same)."""
+    try:
+        rec.flush(timeout_sec=timeout_s)
+    except RuntimeError as exc:
+        raise GroundctlError(f"rerun: {exc}") from exc
+    finally:
+        rec.disconnect()
 
 
 def _times(show: FloatArray, unix: FloatArray | None) -> list[rr.TimeColumn]:
