@@ -329,3 +329,39 @@ def test_show_clock_log_drops_a_cut_last_line(tmp_path: Path) -> None:
     assert clock.ticks == 3
     assert clock.timeline().tolist() == pytest.approx([-0.2, 0.0, 0.2])
     assert np.isnan(clock.lateness_ms[2]) and clock.lateness_ms[1] == pytest.approx(2.0)
+
+
+def test_tlog_decoding_stops_at_the_first_bad_record(tmp_path: Path) -> None:
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    from groundctl.link import messages
+    from groundctl.link.codec import Encoder, new_codec
+    from groundctl.record.tlog import TlogWriter
+
+    path = tmp_path / "flight.tlog"
+    gcs = Encoder(new_codec(255, 190))
+    veh = mavlink.MAVLink(None, srcSystem=7, srcComponent=1)
+    t0 = 1_700_000_000.0
+    with TlogWriter(path, flush_interval=10.0) as tlog:
+        tlog.write(veh.gps_global_origin_encode(473977000, 85456000, 488000).pack(veh), t0)
+        tlog.write(veh.local_position_ned_encode(1000, 1.0, 2.0, -3.0, 0.1, 0.0, 0.0)
+                   .pack(veh), t0 + 0.1)
+        tlog.flush()
+        before_led = path.stat().st_size
+        tlog.write(gcs.encode(messages.led_rgb(7, 10, 20, 30)), t0 + 0.2)
+    good = path.read_bytes()
+    bad_crc = bytearray(good[before_led:])  # the LED_CONTROL record again, its CRC off
+    bad_crc[-1] ^= 0xFF
+    data = decode_tlog(good + bytes(bad_crc) + good)
+    assert data.packets == 3 and data.damage is not None
+    assert data.damage.offset == len(good) and "CRC" in data.damage.reason
+    assert data.damage.last_unix_s == pytest.approx(t0 + 0.2)
+    assert data.positions.ned.tolist() == [pytest.approx([1.0, 2.0, -3.0])]
+    assert data.leds[7][1].tolist() == [[10, 20, 30]]
+    assert data.origins[7] == [(t0, 47.3977, 8.5456, 488.0)]
+    cut = decode_tlog(good[:-5])
+    assert cut.packets == 2 and cut.damage is not None
+    assert cut.damage.reason == "cut short in a packet"
+    stamp = decode_tlog(good + good[:5])
+    assert stamp.packets == 3 and stamp.damage is not None
+    assert stamp.damage.reason == "cut short in a timestamp"
