@@ -4,8 +4,10 @@ The control loop never waits on Rerun.  On the loop's thread each tick only
 appends a snapshot to a deque: the positions the flight monitor measured this
 tick (the array it made, not a copy), the show clock and the tick's setpoint
 lateness, and once a second the batteries; events are teed the same way.  A
-thread of its own wakes every :data:`BATCH_S` wall seconds, turns the
-snapshots into arrays (LED colours from the plan at the show time, tracking
+thread of its own is woken right after every :data:`BATCH_TICKS`-th tick (so
+that its few milliseconds of work fall in the idle time before the next
+tick, when the loop does not want the interpreter), turns the snapshots into
+arrays (LED colours from the plan at the show time, tracking
 error against the plan, the closest pair), and sends them with one
 ``send_columns`` per entity, in the layout of :mod:`groundctl.viz.scene`.
 Rerun's own sinks (file, gRPC) then run in Rerun's threads.
@@ -39,8 +41,10 @@ if TYPE_CHECKING:
 
 FloatArray = NDArray[np.float64]
 
-#: Snapshots are sent every this many wall seconds.
-BATCH_S = 0.5
+#: Snapshots are sent every this many ticks (half a second at 10 Hz) ...
+BATCH_TICKS = 5
+#: ... or after this many wall seconds without ticks (events before the flight).
+IDLE_S = 1.0
 #: Batteries are read every this many seconds of the executor's clock.
 BATTERY_EVERY_S = 1.0
 #: Longest wait for Rerun to take the last batch when the flight ends, s.
@@ -92,6 +96,8 @@ class LiveRerun:
         self._battery_at = -np.inf
         self._history: list[_Tick] = []
         self._stop = threading.Event()
+        self._wake = threading.Event()
+        self._since_batch = 0
         self._thread = threading.Thread(target=self._run, name="rerun-live", daemon=True)
         self.batches = 0
         self.errors: list[str] = []
@@ -142,6 +148,10 @@ class LiveRerun:
         self._ticks.append(_Tick(time.time() - behind, show, clock, ids, pos,
                                  runner.lateness_s[-1] if runner.lateness_s else np.nan,
                                  battery))
+        self._since_batch += 1
+        if self._since_batch >= BATCH_TICKS:
+            self._since_batch = 0
+            self._wake.set()  # the batch runs now, in the idle time before the next tick
 
     def event(self, event: str, fields: dict[str, Any]) -> None:
         """One event (from the tee)."""
@@ -158,7 +168,9 @@ class LiveRerun:
 
     # -- on its own thread ------------------------------------------------------------
     def _run(self) -> None:
-        while not self._stop.wait(BATCH_S):
+        while not self._stop.is_set():
+            self._wake.wait(IDLE_S)
+            self._wake.clear()
             self._send()
         self._send()
 
@@ -250,6 +262,7 @@ class LiveRerun:
     def close(self) -> list[str]:
         """Send what is left, wait (bounded) for Rerun to take it; the errors met, if any."""
         self._stop.set()
+        self._wake.set()
         self._thread.join(CLOSE_TIMEOUT_S)
         try:
             scene.close_recording(self.rec, CLOSE_TIMEOUT_S)
