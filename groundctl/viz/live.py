@@ -1,27 +1,27 @@
 """``dry-run`` / ``fly --rerun``: the flight streamed to Rerun while it flies.
 
-The control loop never waits on Rerun.  On the loop's thread each tick only
-appends a snapshot to a deque: the positions the flight monitor measured this
-tick (the array it made, not a copy), the show clock and the tick's setpoint
-lateness, and once a second the batteries; events are teed the same way.  A
-thread of its own is woken right after every :data:`BATCH_TICKS`-th tick (so
-that its few milliseconds of work fall in the idle time before the next
-tick, when the loop does not want the interpreter), turns the snapshots into
-arrays (LED colours from the plan at the show time, tracking
-error against the plan, the closest pair), and sends them with one
+The control loop never waits on Rerun, and does not share an interpreter
+with it: the Rerun side runs in a process of its own (``spawn``).  On the
+loop's thread each tick only puts a snapshot on a ``multiprocessing`` queue
+(whose own feeder thread pickles it and writes it to the pipe; ``put`` never
+blocks): the positions the flight monitor measured this tick, the show clock
+and the tick's setpoint lateness, and once a second the batteries; events
+are teed the same way.  The sender process collects :data:`BATCH_TICKS`
+ticks, turns them into arrays (LED colours from the plan at the show time,
+tracking error against the plan, the closest pair) and sends them with one
 ``send_columns`` per entity, in the layout of :mod:`groundctl.viz.scene`.
-Rerun's own sinks (file, gRPC) then run in Rerun's threads.
 
-A tick's snapshot costs a few microseconds on the loop's thread; the
-batching thread competes for the interpreter only for the milliseconds a
-batch takes, a few times a second (measured: ``benchmarks/bench_rerun.py``).
+(A thread was tried first: its few milliseconds per batch held the
+interpreter, and on a busy machine a descheduled sender thread holding it
+delayed ticks by milliseconds at 200 vehicles.)
 """
 
 from __future__ import annotations
 
-import threading
+import contextlib
+import multiprocessing as mp
+import queue
 import time
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -41,14 +41,17 @@ if TYPE_CHECKING:
 
 FloatArray = NDArray[np.float64]
 
-#: Snapshots are sent every this many ticks (half a second at 10 Hz) ...
-BATCH_TICKS = 5
+#: Snapshots are sent once at least this many ticks and this many wall seconds
+#: have passed (a dry-run at x4 ticks every 25 ms) ...
+BATCH_TICKS, BATCH_S = 5, 0.5
 #: ... or after this many wall seconds without ticks (events before the flight).
 IDLE_S = 1.0
 #: Batteries are read every this many seconds of the executor's clock.
 BATTERY_EVERY_S = 1.0
+#: Longest wait for the sender to start (open its file or viewer), s.
+START_TIMEOUT_S = 60.0
 #: Longest wait for Rerun to take the last batch when the flight ends, s.
-CLOSE_TIMEOUT_S = 10.0
+CLOSE_TIMEOUT_S = 30.0
 
 
 @dataclass(frozen=True)
@@ -60,6 +63,27 @@ class _Tick:
     pos: FloatArray
     lateness_s: float
     battery: dict[int, float] | None
+
+
+@dataclass(frozen=True)
+class _Fleet:
+    tracks: dict[int, int]
+
+
+@dataclass(frozen=True)
+class _Event:
+    unix: float
+    show: float
+    line: LogLine
+
+
+@dataclass(frozen=True)
+class LiveResult:
+    """What the sender did, reported when it closes."""
+
+    errors: list[str]
+    batches: int
+    batch_s: list[float]
 
 
 class _Tee:
@@ -82,27 +106,30 @@ class _Tee:
 
 class LiveRerun:
     """Streams one flight to ``targets``; :meth:`attach` it to the runner, :meth:`close`
-    it when the flight is over (it sends what is left)."""
+    it when the flight is over (the sender sends what is left)."""
 
     def __init__(self, plan: Plan, targets: Sequence[scene.RerunTarget]) -> None:
         self.plan = plan
-        self.rec = scene.open_recording(targets, f"flight {plan.show_name}")
-        self._ticks: deque[_Tick] = deque()
-        self._events: deque[tuple[float, float, LogLine]] = deque()
+        ctx = mp.get_context("spawn")
+        self._queue: Any = ctx.Queue()
+        self._results: Any = ctx.Queue()
+        self._proc = ctx.Process(target=_serve, name="groundctl-rerun", daemon=True,
+                                 args=(plan, list(targets), self._queue, self._results))
+        self._proc.start()
+        try:
+            opened = self._results.get(timeout=START_TIMEOUT_S)
+        except queue.Empty:
+            opened = f"the Rerun sender did not start within {START_TIMEOUT_S:.0f} s"
+        if opened is not None:
+            self._stop_process()
+            raise GroundctlError(str(opened))
         self._runner: ShowRunner | None = None
-        self._sysids: tuple[int, ...] = ()
-        self._tracks: dict[int, int] = {}
+        self._fleet_sent = False
         self._end_now: float | None = None
         self._battery_at = -np.inf
-        self._history: list[_Tick] = []
-        self._stop = threading.Event()
-        self._wake = threading.Event()
-        self._since_batch = 0
-        self._thread = threading.Thread(target=self._run, name="rerun-live", daemon=True)
-        self.batches = 0
-        self.errors: list[str] = []
-        scene.log_plan(self.rec, plan)
-        self._thread.start()
+        self.result: LiveResult | None = None
+        self.tick_s: list[float] = []
+        """What each tick's snapshot cost the loop's thread, s."""
 
     # -- on the loop's thread ---------------------------------------------------------
     def attach(self, runner: ShowRunner) -> None:
@@ -113,7 +140,9 @@ class LiveRerun:
         def tick(now: float, show_time: float) -> None:
             if previous is not None:
                 previous(now, show_time)
+            t0 = time.perf_counter()
             self._tick(runner, now, show_time)
+            self.tick_s.append(time.perf_counter() - t0)
 
         runner.on_tick = tick
         runner.events = _Tee(runner.events, self)
@@ -134,9 +163,9 @@ class LiveRerun:
         mon, seq = runner.monitor, runner.sequence
         if mon is None or seq is None or mon.last_positions is None:
             return
-        if not self._sysids:
-            self._tracks = dict(mon.tracks)
-            self._sysids = tuple(sorted(mon.tracks))
+        if not self._fleet_sent:
+            self._fleet_sent = True
+            self._queue.put(_Fleet(dict(mon.tracks)))
         show, clock = self._timeline(now, show_time, seq.started_at is not None)
         battery = None
         if now - self._battery_at >= BATTERY_EVERY_S:
@@ -145,13 +174,9 @@ class LiveRerun:
                        if v.battery_remaining_pct is not None}
         _, ids, pos = mon.last_positions
         behind = runner.clock.wall_interval(max(runner.clock.now() - now, 0.0))
-        self._ticks.append(_Tick(time.time() - behind, show, clock, ids, pos,
-                                 runner.lateness_s[-1] if runner.lateness_s else np.nan,
-                                 battery))
-        self._since_batch += 1
-        if self._since_batch >= BATCH_TICKS:
-            self._since_batch = 0
-            self._wake.set()  # the batch runs now, in the idle time before the next tick
+        self._queue.put(_Tick(time.time() - behind, show, clock, ids, pos,
+                              runner.lateness_s[-1] if runner.lateness_s else np.nan,
+                              battery))
 
     def event(self, event: str, fields: dict[str, Any]) -> None:
         """One event (from the tee)."""
@@ -164,41 +189,115 @@ class LiveRerun:
         seq = runner.sequence if runner is not None else None
         if seq is not None and seq.started_at is not None:
             show, _ = self._timeline(now, seq.show_time(now), True)
-        self._events.append((time.time(), show, line))
+        self._queue.put(_Event(time.time(), show, line))
 
-    # -- on its own thread ------------------------------------------------------------
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            self._wake.wait(IDLE_S)
-            self._wake.clear()
-            self._send()
-        self._send()
+    def close(self) -> list[str]:
+        """Tell the sender to send what is left; wait (bounded) for it; the errors met."""
+        try:
+            self._queue.put(None)
+            self.result = self._results.get(timeout=CLOSE_TIMEOUT_S)
+        except queue.Empty:
+            self.result = LiveResult([f"the Rerun sender did not finish within "
+                                      f"{CLOSE_TIMEOUT_S:.0f} s"], 0, [])
+        finally:
+            self._stop_process()
+        assert self.result is not None
+        return self.result.errors
 
-    def _send(self) -> None:
+    def _stop_process(self) -> None:
+        self._proc.join(5.0)
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(5.0)
+        with contextlib.suppress(OSError, ValueError):
+            self._queue.close()
+            self._queue.join_thread()
+
+
+def _serve(plan: Plan, targets: list[scene.RerunTarget], inbox: Any, results: Any) -> None:
+    """The sender process: open the recording, then batch what comes until ``None``."""
+    try:
+        sender = _Sender(plan, targets)
+    except Exception as exc:  # one line for the parent to raise
+        results.put(str(exc) if isinstance(exc, GroundctlError) else f"rerun: {exc}")
+        return
+    results.put(None)
+    while True:
+        try:
+            msg = inbox.get(timeout=IDLE_S)
+        except queue.Empty:
+            sender.send()
+            continue
+        if msg is None:
+            break
+        sender.take(msg)
+        if sender.pending >= BATCH_TICKS and time.monotonic() - sender.sent_at >= BATCH_S:
+            sender.send()
+    sender.send()
+    try:
+        scene.close_recording(sender.rec, CLOSE_TIMEOUT_S)
+    except GroundctlError as exc:
+        sender.errors.append(str(exc))
+    results.put(LiveResult(sender.errors, sender.batches, sender.batch_s))
+
+
+class _Sender:
+    """Turns snapshots into Rerun batches (in the sender process)."""
+
+    def __init__(self, plan: Plan, targets: Sequence[scene.RerunTarget]) -> None:
+        self.plan = plan
+        self.rec = scene.open_recording(targets, f"flight {plan.show_name}")
+        scene.log_plan(self.rec, plan)
+        self._ticks: list[_Tick] = []
+        self._events: list[_Event] = []
+        self._history: list[_Tick] = []
+        self._sysids: tuple[int, ...] = ()
+        self._tracks: dict[int, int] = {}
+        self.batches = 0
+        self.batch_s: list[float] = []
+        self.errors: list[str] = []
+        self.sent_at = -np.inf
+
+    @property
+    def pending(self) -> int:
+        return len(self._ticks)
+
+    def take(self, msg: object) -> None:
+        if isinstance(msg, _Tick):
+            self._ticks.append(msg)
+        elif isinstance(msg, _Event):
+            self._events.append(msg)
+        elif isinstance(msg, _Fleet):
+            self._tracks = dict(msg.tracks)
+            self._sysids = tuple(sorted(msg.tracks))
+            scene.log_styles(self.rec, self._sysids, self.plan.limits.min_separation)
+
+    def send(self) -> None:
+        self.sent_at = time.monotonic()
+        t0 = time.perf_counter()
         try:
             self._send_events()
-            self._send_ticks()
+            if self._send_ticks():
+                self.batch_s.append(time.perf_counter() - t0)
         except Exception as exc:  # the flight goes on; said once at the end
             if len(self.errors) < 5:
                 self.errors.append(f"{type(exc).__name__}: {exc}")
 
     def _send_events(self) -> None:
-        got = [self._events.popleft() for _ in range(len(self._events))]
+        got, self._events = self._events, []
         if not got:
             return
-        unix = np.array([g[0] for g in got])
-        show = np.array([g[1] for g in got])
+        unix = np.array([g.unix for g in got])
+        show = np.array([g.show for g in got])
         for keep in (np.isfinite(show), ~np.isfinite(show)):
             if keep.any():
                 scene.log_lines(self.rec, show[keep], unix[keep],
-                                [g[2] for g, k in zip(got, keep, strict=True) if k])
+                                [g.line for g, k in zip(got, keep, strict=True) if k])
 
-    def _send_ticks(self) -> None:
-        new = [self._ticks.popleft() for _ in range(len(self._ticks))]
+    def _send_ticks(self) -> bool:
+        new, self._ticks = self._ticks, []
         if not new or not self._sysids:
-            return
-        if self.batches == 0:
-            scene.log_styles(self.rec, self._sysids, self.plan.limits.min_separation)
+            return False
         self.batches += 1
         ticks = self._history + new
         fa = self._arrays(ticks, len(ticks) - len(new))
@@ -217,6 +316,7 @@ class LiveRerun:
             rows = slice(int(sent[0]), None)
             scene.log_vehicles(self.rec, sub, rows)
             scene.log_series(self.rec, sub, limit, rows)
+        return True
 
     def _arrays(self, ticks: list[_Tick], first_new: int) -> FlightArrays:
         """The ticks as arrays; the closest pair only from ``first_new`` on (the rows
@@ -258,14 +358,3 @@ class LiveRerun:
             positions=positions, colours=colours, tracking_error=error, min_separation=sep,
             min_pair=pair, lateness_ms=np.array([tk.lateness_s for tk in ticks]) * 1000.0,
             battery=battery, estimated_clock=False)
-
-    def close(self) -> list[str]:
-        """Send what is left, wait (bounded) for Rerun to take it; the errors met, if any."""
-        self._stop.set()
-        self._wake.set()
-        self._thread.join(CLOSE_TIMEOUT_S)
-        try:
-            scene.close_recording(self.rec, CLOSE_TIMEOUT_S)
-        except GroundctlError as exc:
-            self.errors.append(str(exc))
-        return self.errors
