@@ -1,26 +1,33 @@
 """``dry-run`` / ``fly --rerun``: the flight streamed to Rerun while it flies.
 
-The control loop never waits on Rerun, and does not share an interpreter
-with it: the Rerun side runs in a process of its own (``spawn``).  On the
-loop's thread each tick only puts a snapshot on a ``multiprocessing`` queue
-(whose own feeder thread pickles it and writes it to the pipe; ``put`` never
-blocks): the positions the flight monitor measured this tick, the show clock
-and the tick's setpoint lateness, and once a second the batteries; events
-are teed the same way.  The sender process collects :data:`BATCH_TICKS`
+The control loop never waits on Rerun, and shares no interpreter with it:
+the Rerun side runs in a sender process of its own (``spawn``).  On the
+loop's thread each tick pickles a snapshot (the positions the flight
+monitor measured this tick, the show clock, the tick's setpoint lateness,
+once a second the batteries) and writes it to a non-blocking pipe; what the
+pipe cannot take now waits in a buffer for the next tick (bounded: beyond
+:data:`MAX_PENDING` bytes snapshots are dropped and counted), so a slow
+sender never blocks a tick.  Events are teed the same way.  No thread of
+ours runs in the flight's process.  The sender collects :data:`BATCH_TICKS`
 ticks, turns them into arrays (LED colours from the plan at the show time,
 tracking error against the plan, the closest pair) and sends them with one
 ``send_columns`` per entity, in the layout of :mod:`groundctl.viz.scene`.
 
-(A thread was tried first: its few milliseconds per batch held the
-interpreter, and on a busy machine a descheduled sender thread holding it
-delayed ticks by milliseconds at 200 vehicles.)
+(Tried first and measured: a sender thread, then a ``multiprocessing.Queue``,
+whose feeder thread pickles; on a busy machine a descheduled thread holding
+the interpreter delayed ticks by milliseconds at 200 vehicles.)
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import multiprocessing as mp
+import os
+import pickle
 import queue
+import select
+import struct
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -52,6 +59,78 @@ BATTERY_EVERY_S = 1.0
 START_TIMEOUT_S = 60.0
 #: Longest wait for Rerun to take the last batch when the flight ends, s.
 CLOSE_TIMEOUT_S = 30.0
+#: Snapshots waiting for the pipe beyond this many bytes are dropped (the sender is stuck).
+MAX_PENDING = 64 << 20
+#: The pipe's capacity asked of Linux (F_SETPIPE_SZ), bytes.
+PIPE_BYTES = 1 << 20
+_F_SETPIPE_SZ = 1031
+_FRAME = struct.Struct(">I")
+
+
+class _Writer:
+    """Length-prefixed pickles on a non-blocking pipe; never blocks (see the module)."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        os.set_blocking(fd, False)
+        with contextlib.suppress(OSError):
+            fcntl.fcntl(fd, _F_SETPIPE_SZ, PIPE_BYTES)
+        self.pending = bytearray()
+        self.dropped = 0
+        self.broken = False
+
+    def send(self, obj: object) -> None:
+        if self.broken:
+            return
+        if len(self.pending) > MAX_PENDING:
+            self.dropped += 1
+            return
+        body = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+        self.pending += _FRAME.pack(len(body)) + body
+        self.flush()
+
+    def flush(self) -> None:
+        try:
+            while self.pending:
+                n = os.write(self.fd, self.pending)
+                del self.pending[:n]
+        except BlockingIOError:
+            pass  # the rest goes with the next tick
+        except OSError:
+            self.broken = True  # the sender is gone: nothing more to stream
+            self.pending.clear()
+
+    def finish(self, timeout_s: float) -> None:
+        """Write what is left, waiting at most ``timeout_s`` (the flight is over)."""
+        deadline = time.monotonic() + timeout_s
+        while self.pending and not self.broken and time.monotonic() < deadline:
+            select.select([], [self.fd], [], 0.1)
+            self.flush()
+
+
+class _Reader:
+    """The sender's end: frames from the pipe, waiting at most a given time for some."""
+
+    def __init__(self, fd: int) -> None:
+        self.fd = fd
+        self.buffer = bytearray()
+        self.eof = False
+
+    def read(self, timeout_s: float) -> list[object]:
+        ready, _, _ = select.select([self.fd], [], [], timeout_s)
+        if ready:
+            data = os.read(self.fd, PIPE_BYTES)
+            if not data:
+                self.eof = True
+            self.buffer += data
+        out: list[object] = []
+        while len(self.buffer) >= _FRAME.size:
+            (n,) = _FRAME.unpack_from(self.buffer)
+            if len(self.buffer) < _FRAME.size + n:
+                break
+            out.append(pickle.loads(bytes(self.buffer[_FRAME.size:_FRAME.size + n])))
+            del self.buffer[:_FRAME.size + n]
+        return out
 
 
 @dataclass(frozen=True)
@@ -111,11 +190,14 @@ class LiveRerun:
     def __init__(self, plan: Plan, targets: Sequence[scene.RerunTarget]) -> None:
         self.plan = plan
         ctx = mp.get_context("spawn")
-        self._queue: Any = ctx.Queue()
+        reader, writer = ctx.Pipe(duplex=False)
         self._results: Any = ctx.Queue()
         self._proc = ctx.Process(target=_serve, name="groundctl-rerun", daemon=True,
-                                 args=(plan, list(targets), self._queue, self._results))
+                                 args=(plan, list(targets), reader, self._results))
         self._proc.start()
+        reader.close()
+        self._conn = writer  # keeps the fd open
+        self._pipe = _Writer(writer.fileno())
         try:
             opened = self._results.get(timeout=START_TIMEOUT_S)
         except queue.Empty:
@@ -165,7 +247,7 @@ class LiveRerun:
             return
         if not self._fleet_sent:
             self._fleet_sent = True
-            self._queue.put(_Fleet(dict(mon.tracks)))
+            self._pipe.send(_Fleet(dict(mon.tracks)))
         show, clock = self._timeline(now, show_time, seq.started_at is not None)
         battery = None
         if now - self._battery_at >= BATTERY_EVERY_S:
@@ -174,7 +256,7 @@ class LiveRerun:
                        if v.battery_remaining_pct is not None}
         _, ids, pos = mon.last_positions
         behind = runner.clock.wall_interval(max(runner.clock.now() - now, 0.0))
-        self._queue.put(_Tick(time.time() - behind, show, clock, ids, pos,
+        self._pipe.send(_Tick(time.time() - behind, show, clock, ids, np.asarray(pos),
                               runner.lateness_s[-1] if runner.lateness_s else np.nan,
                               battery))
 
@@ -189,12 +271,13 @@ class LiveRerun:
         seq = runner.sequence if runner is not None else None
         if seq is not None and seq.started_at is not None:
             show, _ = self._timeline(now, seq.show_time(now), True)
-        self._queue.put(_Event(time.time(), show, line))
+        self._pipe.send(_Event(time.time(), show, line))
 
     def close(self) -> list[str]:
         """Tell the sender to send what is left; wait (bounded) for it; the errors met."""
         try:
-            self._queue.put(None)
+            self._pipe.send(None)
+            self._pipe.finish(CLOSE_TIMEOUT_S)
             self.result = self._results.get(timeout=CLOSE_TIMEOUT_S)
         except queue.Empty:
             self.result = LiveResult([f"the Rerun sender did not finish within "
@@ -202,6 +285,9 @@ class LiveRerun:
         finally:
             self._stop_process()
         assert self.result is not None
+        if self._pipe.dropped:
+            self.result.errors.append(f"{self._pipe.dropped} snapshots dropped: the Rerun "
+                                      "sender fell behind")
         return self.result.errors
 
     def _stop_process(self) -> None:
@@ -209,31 +295,31 @@ class LiveRerun:
         if self._proc.is_alive():
             self._proc.terminate()
             self._proc.join(5.0)
-        with contextlib.suppress(OSError, ValueError):
-            self._queue.close()
-            self._queue.join_thread()
+        with contextlib.suppress(OSError):
+            self._conn.close()
 
 
 def _serve(plan: Plan, targets: list[scene.RerunTarget], inbox: Any, results: Any) -> None:
     """The sender process: open the recording, then batch what comes until ``None``."""
+    reader = _Reader(inbox.fileno())
     try:
         sender = _Sender(plan, targets)
     except Exception as exc:  # one line for the parent to raise
         results.put(str(exc) if isinstance(exc, GroundctlError) else f"rerun: {exc}")
         return
     results.put(None)
-    while True:
-        try:
-            msg = inbox.get(timeout=IDLE_S)
-        except queue.Empty:
+    done = False
+    while not done and not reader.eof:
+        for msg in reader.read(IDLE_S):
+            if msg is None:
+                done = True
+                break
+            sender.take(msg)
+        if (sender.pending >= BATCH_TICKS and time.monotonic() - sender.sent_at >= BATCH_S) \
+                or done or reader.eof:
             sender.send()
-            continue
-        if msg is None:
-            break
-        sender.take(msg)
-        if sender.pending >= BATCH_TICKS and time.monotonic() - sender.sent_at >= BATCH_S:
-            sender.send()
-    sender.send()
+        elif not sender.pending:
+            sender.send()  # events before the flight
     try:
         scene.close_recording(sender.rec, CLOSE_TIMEOUT_S)
     except GroundctlError as exc:
