@@ -11,7 +11,8 @@ sender never blocks a tick.  Events are teed the same way.  No thread of
 ours runs in the flight's process.  The sender collects :data:`BATCH_TICKS`
 ticks, turns them into arrays (LED colours from the plan at the show time,
 tracking error against the plan, the closest pair) and sends them with one
-``send_columns`` per entity, in the layout of :mod:`groundctl.viz.scene`.
+``send_columns`` per entity, in the layout of :mod:`groundctl.viz.scene`,
+at a lower priority (nice :data:`SENDER_NICE`) than the flight.
 
 (Tried first and measured: a sender thread, then a ``multiprocessing.Queue``,
 whose feeder thread pickles; on a busy machine a descheduled thread holding
@@ -59,6 +60,8 @@ BATTERY_EVERY_S = 1.0
 START_TIMEOUT_S = 60.0
 #: Longest wait for Rerun to take the last batch when the flight ends, s.
 CLOSE_TIMEOUT_S = 30.0
+#: The sender process's niceness (lower priority than the flight).
+SENDER_NICE = 10
 #: Snapshots waiting for the pipe beyond this many bytes are dropped (the sender is stuck).
 MAX_PENDING = 64 << 20
 #: The pipe's capacity asked of Linux (F_SETPIPE_SZ), bytes.
@@ -301,6 +304,10 @@ class LiveRerun:
 
 def _serve(plan: Plan, targets: list[scene.RerunTarget], inbox: Any, results: Any) -> None:
     """The sender process: open the recording, then batch what comes until ``None``."""
+    # Below the flight's priority: on a busy machine a sender woken by a snapshot must not
+    # preempt the control loop that wrote it.
+    with contextlib.suppress(OSError):
+        os.nice(SENDER_NICE)
     reader = _Reader(inbox.fileno())
     try:
         sender = _Sender(plan, targets)
