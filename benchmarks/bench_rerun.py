@@ -102,7 +102,7 @@ def bench_lateness(sizes: list[int], seconds: float, repeat: int) -> None:
                       f"{r['overruns']:>8} {r['rrd_mb']:>7.2f} {r['safe']!s:>5}"
                       + (f"  snapshot p50 {r['tick_us']:.0f} p99 {r['tick_p99_us']:.0f} us/tick "
                          "(wall, preemption included), batch median "
-                         f"{r['batch_ms']:.1f} ms every 5 ticks (sender process)" if on else "")
+                         f"{r['batch_ms']:.1f} ms every 0.5 s (sender process)" if on else "")
                       + (f"  ({r['errors']} stream errors)" if r["errors"] else ""),
                       flush=True)
     if repeat > 1:

@@ -8,8 +8,8 @@ once a second the batteries) and writes it to a non-blocking pipe; what the
 pipe cannot take now waits in a buffer for the next tick (bounded: beyond
 :data:`MAX_PENDING` bytes snapshots are dropped and counted), so a slow
 sender never blocks a tick.  Events are teed the same way.  No thread of
-ours runs in the flight's process.  The sender collects :data:`BATCH_TICKS`
-ticks, turns them into arrays (LED colours from the plan at the show time,
+ours runs in the flight's process.  The sender wakes every :data:`BATCH_S`
+seconds, turns what came into arrays (LED colours from the plan at the show time,
 tracking error against the plan, the closest pair) and sends them with one
 ``send_columns`` per entity, in the layout of :mod:`groundctl.viz.scene`,
 at a lower priority (nice :data:`SENDER_NICE`) than the flight.
@@ -49,11 +49,8 @@ if TYPE_CHECKING:
 
 FloatArray = NDArray[np.float64]
 
-#: Snapshots are sent once at least this many ticks and this many wall seconds
-#: have passed (a dry-run at x4 ticks every 25 ms) ...
-BATCH_TICKS, BATCH_S = 5, 0.5
-#: ... or after this many wall seconds without ticks (events before the flight).
-IDLE_S = 1.0
+#: The sender sends what came every this many wall seconds.
+BATCH_S = 0.5
 #: Batteries are read every this many seconds of the executor's clock.
 BATTERY_EVERY_S = 1.0
 #: Longest wait for the sender to start (open its file or viewer), s.
@@ -112,19 +109,30 @@ class _Writer:
 
 
 class _Reader:
-    """The sender's end: frames from the pipe, waiting at most a given time for some."""
+    """The sender's end: it sleeps, then takes every frame the pipe holds.
+
+    It never waits on the pipe itself (no ``select``): a process blocked on a
+    pipe is woken by every write, and on a busy machine a woken sender can
+    preempt the control loop that wrote.  A sleeping one is woken by its own
+    timer only, twice a second.
+    """
 
     def __init__(self, fd: int) -> None:
         self.fd = fd
+        os.set_blocking(fd, False)
         self.buffer = bytearray()
         self.eof = False
 
-    def read(self, timeout_s: float) -> list[object]:
-        ready, _, _ = select.select([self.fd], [], [], timeout_s)
-        if ready:
-            data = os.read(self.fd, PIPE_BYTES)
+    def read(self, wait_s: float) -> list[object]:
+        time.sleep(wait_s)
+        while True:
+            try:
+                data = os.read(self.fd, PIPE_BYTES)
+            except BlockingIOError:
+                break
             if not data:
                 self.eof = True
+                break
             self.buffer += data
         out: list[object] = []
         while len(self.buffer) >= _FRAME.size:
@@ -317,16 +325,12 @@ def _serve(plan: Plan, targets: list[scene.RerunTarget], inbox: Any, results: An
     results.put(None)
     done = False
     while not done and not reader.eof:
-        for msg in reader.read(IDLE_S):
+        for msg in reader.read(BATCH_S):
             if msg is None:
                 done = True
                 break
             sender.take(msg)
-        if (sender.pending >= BATCH_TICKS and time.monotonic() - sender.sent_at >= BATCH_S) \
-                or done or reader.eof:
-            sender.send()
-        elif not sender.pending:
-            sender.send()  # events before the flight
+        sender.send()
     try:
         scene.close_recording(sender.rec, CLOSE_TIMEOUT_S)
     except GroundctlError as exc:
@@ -349,7 +353,6 @@ class _Sender:
         self.batches = 0
         self.batch_s: list[float] = []
         self.errors: list[str] = []
-        self.sent_at = -np.inf
 
     @property
     def pending(self) -> int:
@@ -366,7 +369,6 @@ class _Sender:
             scene.log_styles(self.rec, self._sysids, self.plan.limits.min_separation)
 
     def send(self) -> None:
-        self.sent_at = time.monotonic()
         t0 = time.perf_counter()
         try:
             self._send_events()
