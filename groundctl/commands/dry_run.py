@@ -11,10 +11,13 @@ from groundctl.commands.flying import (
     Interrupts,
     add_plan_options,
     add_runner_options,
+    close_live_rerun,
     finish,
     plan_for,
     runner_config,
     say,
+    start_live_rerun,
+    then,
 )
 from groundctl.commands.options import non_negative, positive, probability, push, weak, wind
 from groundctl.errors import GroundctlError
@@ -81,19 +84,23 @@ def run(args: argparse.Namespace) -> int:
         weak=tuple(w for group in args.weak for w in group), profile=args.profile)
     notify = say(args.quiet)
     interrupts = Interrupts(notify)
+    live = start_live_rerun(args, plan, record)
 
     async def main() -> tuple[dict[str, object], GroundctlError | None, bool]:
         interrupts.install()
         try:
-            result = await fly_dry_run(plan, options, notify=notify,
-                                       on_runner=interrupts.attach)
+            result = await fly_dry_run(plan, options, notify=notify, on_runner=then(
+                interrupts.attach, live.attach if live is not None else None))
         finally:
             interrupts.uninstall()
         return result.report, result.error, result.flown
 
     notify(f"dry-run of {plan.show_name}: {plan.drones} simulated {args.autopilot} vehicles "
            f"on 127.0.0.1, speed x{args.speed:g}")
-    report, error, flown = asyncio.run(main())
+    try:
+        report, error, flown = asyncio.run(main())
+    finally:
+        close_live_rerun(live, notify)
     if error is not None and not flown:
         raise error  # nothing flew: one line and the error's exit code
     return finish(report, args, interrupts.aborted)

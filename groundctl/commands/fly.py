@@ -18,11 +18,13 @@ from groundctl.commands.flying import (
     Interrupts,
     add_plan_options,
     add_runner_options,
+    close_live_rerun,
     finish,
     plan_for,
     read_operator_commands,
     runner_config,
     say,
+    start_live_rerun,
 )
 from groundctl.errors import GroundctlError
 from groundctl.flight.report import flight_report
@@ -77,8 +79,9 @@ def run(args: argparse.Namespace) -> int:
             raise FleetFileError(args.fleet, "track", f"track(s) {bad} do not exist: the plan "
                                                       f"has tracks 0..{plan.drones - 1}")
     record = args.record or default_directory(plan.show_name, "fly")
+    live = start_live_rerun(args, plan, record)  # before the recording: may fail to connect
     clock = ScaledClock(1.0)
-    recording = Recording(record, clock.now)
+    recording = Recording(record, clock.now, plan)
     notify = say(args.quiet)
     interrupts = Interrupts(notify)
     config = runner_config(args, fleet.tracks if fleet is not None and fleet.tracks else None)
@@ -93,6 +96,9 @@ def run(args: argparse.Namespace) -> int:
                          tlog=recording.tlog, events=events)
         runner = ShowRunner(plan, link, clock, config, events=events, notify=notify,
                             expected_ids=ids)
+        recording.follow(runner)  # the show clock, for a replay
+        if live is not None:
+            live.attach(runner)
         interrupts.attach(runner)
         interrupts.install()
         error: GroundctlError | None = None
@@ -116,7 +122,10 @@ def run(args: argparse.Namespace) -> int:
             recording.finish(report)
         return report, error, runner.sequence is not None
 
-    report, error, flown = asyncio.run(main())
+    try:
+        report, error, flown = asyncio.run(main())
+    finally:
+        close_live_rerun(live, notify)
     if error is not None and not flown:
         raise error
     return finish(report, args, interrupts.aborted)
