@@ -60,8 +60,10 @@ def report(label: str, show: Show) -> None:
     for tr, w, pe in zip(res.transitions, ver.windows, ver.pattern_errors, strict=True):
         excess = (w.path_length_mean / tr.straight_length - 1) * 100 if tr.straight_length else 0
         print(f"{label:>18} {tr.name:>8} n={show.drones:<5d} N={tr.steps:<4d} "
-              f"iter={tr.iterations:<3d} t={tr.seconds:7.3f}s ({tr.seconds / tr.iterations:.3f}"
-              f" s/it) qp_drones={tr.qp_drones:<5d} minsep={w.min_separation:6.3f} "
+              f"iter={tr.iterations:<3d} t={tr.seconds:7.3f}s "
+              f"({tr.seconds / max(tr.iterations, 1):.3f} s/it) qp_drones={tr.qp_drones:<5d} "
+              f"straight={tr.straight!s:<5} "
+              f"minsep={w.min_separation:6.3f} "
               f"viol={max(0.0, show.limits.min_separation - w.min_separation):.3f} "
               f"pattern={pe:.3f} path={w.path_length_mean:6.2f} line={tr.straight_length:6.2f}"
               f" (+{excess:.1f} %)")

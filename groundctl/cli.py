@@ -17,7 +17,7 @@ from groundctl import __version__
 from groundctl.errors import EXIT_ABORTED, GroundctlError
 
 #: Verb modules under groundctl.commands, in the order ``--help`` lists them.
-COMMANDS = ("plan", "check", "dry_run", "fly", "sim")
+COMMANDS = ("plan", "check", "dry_run", "fly", "sim", "replay")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -18,7 +18,9 @@ The tree::
     │   ├── PlanningTimeout             a plan not ready by its deadline (what, deadline_s)
     │   └── NoGo                        the operator did not give the go (the console)
     ├── SimulatorError                  the built-in simulator was misused
-    └── ConsoleUnavailable              --console without a terminal (or with --json)
+    ├── ConsoleUnavailable              --console without a terminal (or with --json)
+    └── RecordingError                  a recording that cannot be read (path, message)
+        └── DamagedTlog                 a tlog readable only up to a point (path, offset, ...)
 
 Third-party errors (OSError from sockets, ValueError from TOML, OSQP statuses)
 are translated at the boundary with ``raise Ours(...) from exc``.  The CLI
@@ -236,3 +238,36 @@ class ConsoleUnavailable(GroundctlError):
     """``--console`` asked for where it cannot be drawn (no terminal, or ``--json``)."""
 
     exit_code = EXIT_USAGE
+
+
+class RecordingError(GroundctlError):
+    """A flight recording (directory, tlog, event log, show clock) that cannot be read."""
+
+    exit_code = EXIT_USAGE
+
+    def __init__(self, path: str | Path, message: str) -> None:
+        self.path = str(path)
+        self.message = message
+        super().__init__(f"{self.path}: {message}")
+
+
+class DamagedTlog(RecordingError):
+    """A tlog readable only up to byte ``offset``: cut short or damaged there.
+
+    ``packets`` were read before it; ``stopped_at_unix_s`` is the last good
+    record's stamp (None if there was none) and ``show_time_s`` the show time
+    it stands for, where known.  What could be read is still replayed.
+    """
+
+    def __init__(self, path: str | Path, offset: int, size: int, packets: int, reason: str,
+                 stopped_at_unix_s: float | None = None,
+                 show_time_s: float | None = None) -> None:
+        self.offset = offset
+        self.size = size
+        self.packets = packets
+        self.reason = reason
+        self.stopped_at_unix_s = stopped_at_unix_s
+        self.show_time_s = show_time_s
+        when = f", show time {show_time_s:.2f} s" if show_time_s is not None else ""
+        super().__init__(path, f"{reason} at byte {offset} of {size}: replayed the "
+                               f"{packets} packets before it{when}")

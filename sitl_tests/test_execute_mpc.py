@@ -186,8 +186,9 @@ def test_a_dodge_that_needs_a_little_more_speed_is_flown_as_an_escape() -> None:
     # turn the escape into a stop (the cap is the flight's, not the geometry's).
     untimed = MpcConfig(osqp_settings={k: v for k, v in MPC_OSQP_SETTINGS.items()
                                        if k != "time_limit"})
-    r = MpcController(1, untimed).solve(request(1, 0.0, (0.0, 0.0, 10.0), (0.0, 0.0, 0.0),
-                                                hover, [ram], [9], limits=limits))
+    ctrl = MpcController(1, untimed)
+    r = ctrl.solve(request(1, 0.0, (0.0, 0.0, 10.0), (0.0, 0.0, 0.0), hover, [ram], [9],
+                           limits=limits))
     assert r.status == "fallback", r.reason
     assert "best escape found keeps" in r.reason and "its path 0.30 m" in r.reason
     check_limits(r, replace(limits, max_speed_h=1.0 + ESCAPE_SPEED_MARGIN))
@@ -196,6 +197,16 @@ def test_a_dodge_that_needs_a_little_more_speed_is_flown_as_an_escape() -> None:
     ts = np.linspace(0.0, r.end, 601)
     gap = np.linalg.norm(r.sample(ts)[0] - ram(ts)[0], axis=1)
     assert gap.min() >= 1.5 - 1e-3
+    # Flown at its escape speed, the next tick goes on with the escape's raised limits
+    # (not a "start state over max_speed_h" stop after one tick), and no higher.
+    k = int(np.argmax(np.linalg.norm(r.vel[:, :2], axis=1)))
+    t1 = float(r.times[k])
+    nxt = ctrl.solve(request(1, t1, r.pos[k], r.vel[k], hover, [ram], [9], limits=limits))
+    assert "start state" not in nxt.reason, nxt.reason
+    assert nxt.status in ("solved", "fallback")
+    check_limits(nxt, replace(limits, max_speed_h=1.0 + ESCAPE_SPEED_MARGIN))
+    ts = np.linspace(t1, nxt.end, 601)
+    assert np.linalg.norm(nxt.sample(ts)[0] - ram(ts)[0], axis=1).min() >= 1.5 - 1e-3
 
 
 def test_warm_start_cuts_the_iterations() -> None:

@@ -730,6 +730,27 @@ def test_a_link_loss_failsafe_after_a_silence_is_taken_back_but_a_pilot_is_not()
     assert seq.vehicles[1].phase is VehiclePhase.LANDING
 
 
+def test_a_failsafe_after_we_sent_it_no_setpoints_for_a_second_is_taken_back() -> None:
+    """Our loop starved for 1.5 s (no hold in force any more, no gap in the vehicle's own
+    telemetry): the hold mode it is found in is its offboard-loss failsafe, our doing.
+    Left to it, it would land straight down through the formation."""
+    _plan, states, seq, start = _in_formation_show()
+    seq.streamed([1, 2], start + 0.5)
+    seq.streamed([1], start + 1.0)
+    seq.streamed([1], start + 1.5)
+    seq.streamed([1, 2], start + 2.0)  # vehicle 2 had none for 1.5 s
+    assert seq.vehicles[2].starved_at == start + 2.0 and seq.vehicles[1].starved_at is None
+    states[2].mode = "LOITER"
+    for sysid in (1, 2):
+        _at_plan_point(states[sysid], seq, sysid - 1, start + 3.0)
+    actions = seq.update(start + 3.0, states)
+    assert SetMode(2, "GUIDED") in actions and seq.vehicles[2].phase is VehiclePhase.SHOW
+    # Vehicle 1 was never starved: the same mode is a pilot's, not fought.
+    states[1].mode = "LOITER"
+    seq.update(start + 3.1, states)
+    assert seq.vehicles[1].phase is VehiclePhase.LANDING
+
+
 def test_holds_for_the_ground_stations_own_trouble_do_not_strand_a_vehicle() -> None:
     _plan, states, seq, start = _in_formation_show()
     assert seq.hold_for("silence", start + 1.0)

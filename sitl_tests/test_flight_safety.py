@@ -62,6 +62,44 @@ def test_a_stall_of_the_ground_station_holds_the_show_and_blames_no_vehicle(
     assert result.report["max_tracking_error_m"] < 1.0
 
 
+def test_a_loop_that_stalls_tick_after_tick_still_streams_so_px4_stays_in_offboard(
+        tmp_path: Path) -> None:
+    """Every tick starts later than the stall threshold for 4 s (a machine starved of CPU).
+    The show holds, and setpoints still go out on every tick: a PX4 vehicle without them
+    for COM_OF_LOSS_T (1 s) would drop into its offboard-loss failsafe, hold and land
+    where it is, in the middle of the formation."""
+    async def starve(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 10.0)
+        start = runner.clock.now()
+        while runner.clock.now() - start < 4.0:
+            _block_loop(runner, 0.4)  # over the 0.3 s stall threshold, under 1 s
+            await asyncio.sleep(runner.clock.wall_interval(0.05))
+
+    result = dry_run(tmp_path, flavour=Flavour.PX4, during=starve)
+    _assert_safe(result.report)
+    assert "stall" in {e["reason"] for e in _events(tmp_path, "show_held")}
+    # Setpoints kept flowing to everyone (on the flight's clock; without streaming on a
+    # stalled tick the gap was the whole 4 s).
+    gaps = _longest_setpoint_gaps(tmp_path / "flight.tlog", result.report["speed"])
+    assert len(gaps) == 9 and max(gaps.values()) < 2.0, gaps
+    # Nobody was left to its failsafe (had a busy machine starved one for over 1 s
+    # anyway, it would have been taken back into OFFBOARD).
+    assert not [v for v in result.report["vehicles"] if "left OFFBOARD" in (v["reason"] or "")]
+
+
+def _longest_setpoint_gaps(tlog: Path, speed: float) -> dict[int, float]:
+    """Per vehicle, the longest time between two setpoints we sent it, on the flight's
+    clock (the tlog's times are wall clock), from its first setpoint to its last."""
+    from pymavlink import mavutil
+
+    log = mavutil.mavlink_connection(str(tlog), dialect="ardupilotmega")
+    sent: dict[int, list[float]] = {}
+    while (msg := log.recv_match(type="SET_POSITION_TARGET_LOCAL_NED")) is not None:
+        sent.setdefault(msg.target_system, []).append(msg._timestamp)
+    log.close()
+    return {s: float(np.diff(t).max()) * speed for s, t in sent.items() if len(t) > 1}
+
+
 def test_a_way_out_requested_while_the_ground_station_is_overloaded(tmp_path: Path) -> None:
     seen: dict[str, object] = {}
 

@@ -18,14 +18,16 @@ from groundctl.commands.flying import (
     Interrupts,
     add_plan_options,
     add_runner_options,
+    close_live_rerun,
     finish,
     plan_for,
     runner_config,
     say,
+    start_live_rerun,
+    then,
 )
 from groundctl.commands.options import non_negative, positive, probability, push, weak, wind
 from groundctl.errors import GroundctlError
-from groundctl.flight.runner import ShowRunner
 from groundctl.link.flavours import Flavour
 from groundctl.sim.config import PROFILE_NAMES
 
@@ -91,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
         weak=tuple(w for group in args.weak for w in group), profile=args.profile)
     notify = say(args.quiet)
     interrupts = Interrupts(notify)
-    on_runner = interrupts.attach
+    live = start_live_rerun(args, plan, record)
 
     # -- the console (issue 12): the same flight, its lines and hooks to the console --
     session = None
@@ -103,11 +105,9 @@ def run(args: argparse.Namespace) -> int:
                                  separation_limit_m=plan.limits.min_separation,
                                  go_gate=not args.go)
         notify = session.notify
-
-        def on_runner(runner: ShowRunner) -> None:
-            interrupts.attach(runner)
-            session.attach(runner)
     # ----------------------------------------------------------------------------------
+    on_runner = then(interrupts.attach, session.attach if session is not None else None,
+                     live.attach if live is not None else None)
 
     async def main() -> tuple[dict[str, object], GroundctlError | None, bool]:
         interrupts.install()
@@ -119,12 +119,15 @@ def run(args: argparse.Namespace) -> int:
 
     say(args.quiet)(f"dry-run of {plan.show_name}: {plan.drones} simulated {args.autopilot} "
                     f"vehicles on 127.0.0.1, speed x{args.speed:g}")
-    if session is not None:
-        from groundctl.console.session import run_with_console
-        report, error, flown = asyncio.run(run_with_console(
-            session, main(), lambda r: outcome(r[0])))
-    else:
-        report, error, flown = asyncio.run(main())
+    try:
+        if session is not None:
+            from groundctl.console.session import run_with_console
+            report, error, flown = asyncio.run(run_with_console(
+                session, main(), lambda r: outcome(r[0])))
+        else:
+            report, error, flown = asyncio.run(main())
+    finally:
+        close_live_rerun(live, say(args.quiet))
     if error is not None and not flown:
         raise error  # nothing flew: one line and the error's exit code
     return finish(report, args, interrupts.aborted)

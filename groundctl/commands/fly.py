@@ -24,11 +24,13 @@ from groundctl.commands.flying import (
     Interrupts,
     add_plan_options,
     add_runner_options,
+    close_live_rerun,
     finish,
     plan_for,
     read_operator_commands,
     runner_config,
     say,
+    start_live_rerun,
 )
 from groundctl.errors import GroundctlError
 from groundctl.flight.report import flight_report
@@ -85,8 +87,9 @@ def run(args: argparse.Namespace) -> int:
             raise FleetFileError(args.fleet, "track", f"track(s) {bad} do not exist: the plan "
                                                       f"has tracks 0..{plan.drones - 1}")
     record = args.record or default_directory(plan.show_name, "fly")
+    live = start_live_rerun(args, plan, record)  # before the recording: may fail to connect
     clock = ScaledClock(1.0)
-    recording = Recording(record, clock.now)
+    recording = Recording(record, clock.now, plan)
     notify = say(args.quiet)
     interrupts = Interrupts(notify)
     config = runner_config(args, fleet.tracks if fleet is not None and fleet.tracks else None)
@@ -113,6 +116,9 @@ def run(args: argparse.Namespace) -> int:
                          tlog=recording.tlog, events=events)
         runner = ShowRunner(plan, link, clock, config, events=events, notify=notify,
                             expected_ids=ids)
+        recording.follow(runner)  # the show clock, for a replay
+        if live is not None:
+            live.attach(runner)
         interrupts.attach(runner)
         interrupts.install()
         error: GroundctlError | None = None
@@ -139,12 +145,15 @@ def run(args: argparse.Namespace) -> int:
             recording.finish(report)
         return report, error, runner.sequence is not None
 
-    if session is not None:
-        from groundctl.console.session import run_with_console
-        report, error, flown = asyncio.run(run_with_console(
-            session, main(), lambda r: outcome(r[0])))
-    else:
-        report, error, flown = asyncio.run(main())
+    try:
+        if session is not None:
+            from groundctl.console.session import run_with_console
+            report, error, flown = asyncio.run(run_with_console(
+                session, main(), lambda r: outcome(r[0])))
+        else:
+            report, error, flown = asyncio.run(main())
+    finally:
+        close_live_rerun(live, say(args.quiet))
     if error is not None and not flown:
         raise error
     return finish(report, args, interrupts.aborted)

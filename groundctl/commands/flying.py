@@ -12,15 +12,25 @@ import stat
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import IO, Any, Protocol
+from typing import IO, TYPE_CHECKING, Any, Protocol
 
-from groundctl.commands.options import add_plan_source, add_points_dir, positive, signing_key
+from groundctl.commands.options import (
+    add_plan_source,
+    add_points_dir,
+    add_rerun_option,
+    positive,
+    rerun_target,
+    signing_key,
+)
 from groundctl.commands.progress import ProgressBar
 from groundctl.errors import EXIT_ABORTED, EXIT_OK, EXIT_UNSAFE, GroundctlError, UnsafePlan
 from groundctl.execute.preflight import Thresholds
 from groundctl.flight.report import render_report
 from groundctl.flight.runner import RunnerConfig, ShowRunner
 from groundctl.plan.plan import Plan
+
+if TYPE_CHECKING:
+    from groundctl.viz.live import LiveRerun
 
 #: The show ``groundctl dry-run`` flies when none is given.
 BUNDLED_DEMO = Path(__file__).resolve().parents[2] / "shows" / "demo.toml"
@@ -52,6 +62,7 @@ def add_runner_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--signing-key", type=signing_key, default=None, metavar="HEX",
                    help="MAVLink 2 signing key, 64 hex digits")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+    add_rerun_option(p, "stream the flight, live,", "live.rrd in the recording directory")
 
 
 def lead_ms(text: str) -> float | None:
@@ -349,3 +360,39 @@ def finish(report: dict[str, Any], args: argparse.Namespace, aborted: bool) -> i
     if aborted:  # the operator stopped the show (Ctrl-C): not the show that was planned
         return EXIT_ABORTED
     return EXIT_OK if report.get("safe") else EXIT_UNSAFE
+
+
+# -- Rerun, live (issue 13) ------------------------------------------------------------
+def start_live_rerun(args: argparse.Namespace, plan: Plan, record: Path | None
+                     ) -> LiveRerun | None:
+    """``--rerun``: a live stream of the flight (None without the option); ``--rerun``
+    alone saves ``live.rrd`` in the recording directory."""
+    from groundctl.record.recording import safe_name
+
+    default = record / "live.rrd" if record is not None \
+        else Path(f"{safe_name(plan.show_name)}-live.rrd")
+    target = rerun_target(args.rerun, default)
+    if target is None:
+        return None
+    from groundctl.viz.live import LiveRerun
+    from groundctl.viz.scene import RerunTarget
+
+    kind, where = target
+    return LiveRerun(plan, [RerunTarget(kind, where)])  # type: ignore[arg-type]
+
+
+def close_live_rerun(live: LiveRerun | None, notify: Callable[[str], None]) -> None:
+    """Send the stream's last batch; say its trouble, if any, on one line each."""
+    if live is None:
+        return
+    for error in live.close():
+        notify(f"rerun: {error}")
+
+
+def then(*calls: Callable[[ShowRunner], None] | None) -> Callable[[ShowRunner], None]:
+    """One ``on_runner`` callback that makes each of ``calls`` in turn."""
+    def each(runner: ShowRunner) -> None:
+        for call in calls:
+            if call is not None:
+                call(runner)
+    return each

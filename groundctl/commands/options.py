@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 from pathlib import Path
+from typing import Any
 
 
 def _number(text: str) -> float:
@@ -127,3 +128,52 @@ def add_plan_source(p: argparse.ArgumentParser) -> None:
                        help="for a .npz plan: trust the limits the plan file carries instead "
                             "of its show's (a plan saved before plans recorded their show, "
                             "or one from elsewhere without its show)")
+
+
+# -- Rerun (issue 13) ----------------------------------------------------------------
+RERUN_USAGE = "--rerun takes nothing, 'spawn', 'connect [URL]' or 'save PATH'"
+
+
+class _RerunAction(argparse.Action):
+    """Stores ``--rerun``'s words as (kind, where) (see :func:`rerun_words`)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        try:
+            setattr(namespace, self.dest, rerun_words(list(values or [])))
+        except ValueError as exc:
+            parser.error(str(exc))
+
+
+def add_rerun_option(p: argparse.ArgumentParser, what: str, alone: str) -> None:
+    """``--rerun [spawn | connect [URL] | save PATH]``: ``what`` to Rerun; ``alone`` says
+    where ``--rerun`` without words saves."""
+    p.add_argument("--rerun", nargs="*", action=_RerunAction, default=None,
+                   metavar="spawn|connect URL|save PATH",
+                   help=f"{what} to Rerun: open a viewer (spawn), send to a running one "
+                        "(connect [URL], default rerun+http://127.0.0.1:9876/proxy) or write "
+                        f"an .rrd file (save PATH; --rerun alone saves {alone})")
+
+
+def rerun_words(words: list[str]) -> tuple[str, str | None]:
+    """(kind, where) of ``--rerun``'s words; ("save", None) means the command's default
+    file."""
+    if not words:
+        return ("save", None)
+    kind, rest = words[0], words[1:]
+    if kind == "spawn" and not rest:
+        return ("spawn", None)
+    if kind == "connect" and len(rest) <= 1:
+        return ("connect", rest[0] if rest else None)
+    if kind == "save" and len(rest) == 1:
+        return ("save", rest[0])
+    raise ValueError(f"{RERUN_USAGE}, not {' '.join(words)!r}")
+
+
+def rerun_target(value: tuple[str, str | None] | None, default: Path
+                 ) -> tuple[str, str | None] | None:
+    """``--rerun``'s value with the default file filled in (None: not given)."""
+    if value is None:
+        return None
+    kind, where = value
+    return (kind, str(default)) if kind == "save" and where is None else (kind, where)

@@ -6,10 +6,14 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from groundctl.commands.options import add_points_dir, workers
+from groundctl.commands.options import add_points_dir, add_rerun_option, rerun_target, workers
 from groundctl.commands.progress import ProgressBar
 from groundctl.errors import EXIT_OK, EXIT_UNSAFE
+
+if TYPE_CHECKING:
+    from groundctl.plan.plan import Plan
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -21,6 +25,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--workers", type=workers, default=None, metavar="N",
                    help="parallel processes for transitions, 1..64 (default: one per core)")
     add_points_dir(p)
+    add_rerun_option(p, "the planned show (paths, slots, each transition's closest approach)",
+                     "PLAN with .rrd")
     p.set_defaults(func=run)
 
 
@@ -34,13 +40,14 @@ def run(args: argparse.Namespace) -> int:
     from groundctl.plan.report import report_dict, report_table
     from groundctl.show.loader import load_show
 
+    out = Path(args.output) if args.output else default_plan_path(args.show)
+    rerun = rerun_target(args.rerun, out.with_suffix(".rrd"))
     show = load_show(args.show, args.points_dir)
     bar = ProgressBar(f"planning {show.name}")
     try:
         result = plan_show(show, workers=args.workers, progress=bar)
     finally:
         bar.close()
-    out = Path(args.output) if args.output else default_plan_path(args.show)
     result.plan.save(out)
     report = report_dict(result)
     report["plan_file"] = str(out)
@@ -50,4 +57,25 @@ def run(args: argparse.Namespace) -> int:
     else:
         print(report_table(report))
         print(f"plan written to {out}")
+    if rerun is not None:
+        _to_rerun(result.plan, rerun, args.json)
     return EXIT_OK if report["safe"] else EXIT_UNSAFE
+
+
+def _to_rerun(plan: Plan, target: tuple[str, str | None], quiet: bool) -> None:
+    """``--rerun``: the plan alone, the fleet flying it on ``show_time``."""
+    from groundctl.viz import scene
+
+    kind, where = target
+    rec = scene.open_recording([scene.RerunTarget(kind, where)],  # type: ignore[arg-type]
+                               f"plan {plan.show_name}")
+    try:
+        scene.log_plan(rec, plan)
+        scene.log_styles(rec, [], None)
+        scene.log_planned_fleet(rec, plan)
+    except BaseException:
+        rec.disconnect()
+        raise
+    scene.close_recording(rec)
+    if not quiet:
+        print(f"rerun: plan {kind}{f' {where}' if where else ''}", file=sys.stderr)

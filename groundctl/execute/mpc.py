@@ -743,9 +743,8 @@ def convex_fence(polygon: tuple[tuple[float, float], ...]) -> tuple[FloatArray, 
     return normals, offsets
 
 
-def start_violations(request: MpcRequest, limit_tol: float = 0.01) -> list[str]:
-    """Limits the measured state already breaks at ``t0`` (nothing a correction can fix)."""
-    lim, p, v = request.limits, request.p0, request.v0
+def speed_violations(v: FloatArray, lim: Limits, limit_tol: float = 0.01) -> list[str]:
+    """Speed limits velocity ``v`` (3,) breaks (by more than ``limit_tol``, a fraction)."""
     out: list[str] = []
     vh = float(np.linalg.norm(v[:2]))
     tol = 1.0 + limit_tol
@@ -756,6 +755,13 @@ def start_violations(request: MpcRequest, limit_tol: float = 0.01) -> list[str]:
     if -v[2] > lim.max_speed_down * tol:
         out.append(f"descent rate {-v[2]:.2f} m/s above max_speed_down "
                    f"{lim.max_speed_down} m/s")
+    return out
+
+
+def start_violations(request: MpcRequest, limit_tol: float = 0.01) -> list[str]:
+    """Limits the measured state already breaks at ``t0`` (nothing a correction can fix)."""
+    lim, p = request.limits, request.p0
+    out = speed_violations(request.v0, lim, limit_tol)
     if p[2] < lim.min_alt - DIST_TOL or p[2] > lim.max_alt + DIST_TOL:
         out.append(f"altitude {p[2]:.2f} m outside [{lim.min_alt}, {lim.max_alt}] m")
     if lim.geofence and not inside_polygon(np.asarray(lim.geofence, dtype=float), p[None, :2])[0]:
@@ -784,15 +790,13 @@ class MpcController:
         self.M, self.E, self.F = c.max_neighbours, c.max_fence_edges, c.speed_faces
         self._build()
         self._last: MpcResult | None = None
+        self._escaped = False  # the last result flown was an escape
         self._lin: _Plan | None = None
         self._slot_ids = np.full(self.M, -1, dtype=np.intp)
         self._start_distance: FloatArray | None = None
         self._retimer: Retimer | None = None
         self._retimed: Retimed | None = None
         self._streamed: MpcRequest | None = None
-        # The last fallback's two candidates, checked (read by the escape).
-        self._stop_check = TrajectoryCheck((), math.inf, None)
-        self._path_check = TrajectoryCheck((), math.inf, None)
 
     # -- layout -----------------------------------------------------------------------
     def _ip(self, k: IntArray, c: int | IntArray) -> IntArray:
@@ -934,6 +938,7 @@ class MpcController:
     def reset(self) -> None:
         """Forget the previous solutions: the next solve starts cold (the QP is kept)."""
         self._last = None
+        self._escaped = False
         self._lin = None
         self._slot_ids[:] = -1
         self._retimed = None
@@ -1144,6 +1149,16 @@ class MpcController:
         # up, a reason to get out.  Anything else already broken is.
         bad_start = start_violations(replace(request, neighbours=None, neighbour_ids=None),
                                      self.config.limit_tol)
+        escape_at = escape_limits(request.limits)  # never raised twice
+        if bad_start and self._escaped:
+            # Flying an escape, up to ESCAPE_SPEED_MARGIN over its speed limits: it goes on
+            # with those raised limits until its speed is back within its own, instead of
+            # ending after one tick on a start state it was told to fly.
+            continued = replace(request, limits=escape_at)
+            if not start_violations(replace(continued, neighbours=None, neighbour_ids=None),
+                                    self.config.limit_tol):
+                request, bad_start = continued, []
+        self._escaped = False
         if bad_start:
             return self._fallback(request, "start state: " + "; ".join(bad_start), start)
         d0 = np.linalg.norm(request.others[:, 0] - request.p0[None], axis=1)
@@ -1231,8 +1246,7 @@ class MpcController:
                     any(v.startswith("separation") for v in check.violations):
                 # The separation is what cannot be kept: one more pass with the speeds
                 # allowed ESCAPE_SPEED_MARGIN over their limits, from this solution.
-                req, gp, gv, ga = (replace(request, limits=escape_limits(request.limits)),
-                                   pos, vel, acc)
+                req, gp, gv, ga = (replace(request, limits=escape_at), pos, vel, acc)
                 continue
             return self._fallback(request, cause, start, iterations, npass, max_slack, used)
         raise AssertionError("unreachable")  # pragma: no cover
@@ -1242,11 +1256,11 @@ class MpcController:
                 iterations: int, passes: int, max_slack: float, used: int) -> MpcResult:
         recovering = self._start_distance is not None
         where = f"inside a neighbour's separation: {cause}" if recovering else cause
-        stop = self._fallback(req, where, start, iterations, passes, max_slack, used)
-        on_path = self._path_check
+        stop, stop_check, on_path = self._judged_fallback(req, where, start, iterations,
+                                                          passes, max_slack, used)
         if stop.status in ("fallback", "path") and not recovering:
             return stop  # a fallback that keeps every limit beats an escape that breaks one
-        best_other = max(self._stop_check.min_separation, on_path.min_separation)
+        best_other = max(stop_check.min_separation, on_path.min_separation)
         usable = not escape.violations or _only_separation(escape)
         if usable and check.min_separation > best_other + DIST_TOL:
             result = MpcResult(
@@ -1259,13 +1273,14 @@ class MpcController:
                 min_separation=check.min_separation, closest=check.closest,
                 neighbours_used=used)
             self._last = result
+            self._escaped = True
             return result
         if stop.status == "fallback" and \
-                on_path.min_separation > self._stop_check.min_separation + DIST_TOL:
+                on_path.min_separation > stop_check.min_separation + DIST_TOL:
             # The stop breaks nothing new but the path keeps farther away: the path.
             stop = replace(stop, status="unsafe",
                            reason=f"{stop.reason}; the stop keeps "
-                                  f"{self._stop_check.min_separation:.2f} m, its path "
+                                  f"{stop_check.min_separation:.2f} m, its path "
                                   f"{on_path.min_separation:.2f} m")
             self._last = None
         return stop
@@ -1317,13 +1332,20 @@ class MpcController:
 
     def _fallback(self, req: MpcRequest, cause: str, start: float, iterations: int = 0,
                   passes: int = 0, max_slack: float = 0.0, used: int = 0) -> MpcResult:
+        return self._judged_fallback(req, cause, start, iterations, passes, max_slack,
+                                     used)[0]
+
+    def _judged_fallback(self, req: MpcRequest, cause: str, start: float, iterations: int,
+                         passes: int, max_slack: float, used: int
+                         ) -> tuple[MpcResult, TrajectoryCheck, TrajectoryCheck]:
+        """The fallback (the checked stop, or the path if it keeps every limit), with the
+        checks of both candidates: the stop's and the path's (the escape weighs them)."""
         pos, vel, acc = brake_trajectory(req.p0, req.v0, self.dt, self.N, req.limits.max_accel)
         check = verify(pos, vel, acc, self.dt, req.limits, req.others, req.other_ids,
                        substeps=self.config.substeps, limit_tol=self.config.limit_tol,
                        baseline=True)
         streamed = req if self._streamed is None else self._streamed
         on_path = self._path_back(replace(streamed, p0=req.p0, v0=req.v0, lookahead=None))
-        self._stop_check, self._path_check = check, on_path
         status: Status = "fallback" if check.ok else "unsafe"
         reason = cause if check.ok else f"{cause}; the stop is unsafe too: " + \
             "; ".join(check.violations)
@@ -1342,7 +1364,7 @@ class MpcController:
         # Only what is flown is the vehicle's last trajectory (its acceleration smooths
         # the next solve's first step).
         self._last = result if status == "fallback" else None
-        return result
+        return result, check, on_path
 
 
 #: Speed limits (horizontal, climb, descent) an escape may exceed by this fraction

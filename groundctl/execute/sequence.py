@@ -339,6 +339,12 @@ class VehicleRun:
     """Times it was taken back from a link-loss failsafe."""
     gap_at: float | None = None
     """Our time its own telemetry last came back from a silence."""
+    streamed_at: float | None = None
+    """Our time setpoints were last sent to it (:meth:`ShowSequence.streamed`)."""
+    starved_at: float | None = None
+    """Our time its setpoints resumed after we had sent it none for LINK_FAILSAFE_GAP_S
+    or more (our own loop starved: a PX4 vehicle then drops into its offboard-loss
+    failsafe without any silence of the link)."""
 
 
 @dataclass(frozen=True)
@@ -687,6 +693,18 @@ class ShowSequence:
                                  now)
         v.retry_at = now + self.config.retry_after_s
         return []
+
+    def streamed(self, sysids: Collection[int], now: float) -> None:
+        """The driver sent setpoints to ``sysids`` at ``now``: a vehicle that had had none
+        for LINK_FAILSAFE_GAP_S (our loop starved) may be in its offboard-loss failsafe
+        for our doing, and is taken back from it (:meth:`_link_failsafe`)."""
+        for sysid in sysids:
+            v = self.vehicles.get(sysid)
+            if v is None:
+                continue
+            if v.streamed_at is not None and now - v.streamed_at >= LINK_FAILSAFE_GAP_S:
+                v.starved_at = now
+            v.streamed_at = now
 
     def stream_request(self, now: float) -> StreamRequest:
         """Whom to send setpoints to this tick, and the path each follows."""
@@ -1198,8 +1216,10 @@ class ShowSequence:
         own_silence = state.last_stream_gap_s >= LINK_FAILSAFE_GAP_S and (
             state.stream_gaps > v.gap_seen
             or (v.gap_at is not None and now - v.gap_at <= RETAKE_WINDOW_S))
-        # Our own stall starves it of setpoints without any gap in its telemetry.
-        return own_silence or bool(self.holds & {"stall", "silence"})
+        # Our own stall starves it of setpoints without any gap in its telemetry: the
+        # hold says so while it lasts, and the setpoints we did not send say so after.
+        starved = v.starved_at is not None and now - v.starved_at <= RETAKE_WINDOW_S
+        return own_silence or starved or bool(self.holds & {"stall", "silence"})
 
     def _retake(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
         """Back in touch after a link loss that tripped its failsafe (a hold, or a blind
@@ -1241,7 +1261,10 @@ class ShowSequence:
                            f"back in {state.mode} after its link-loss failsafe")]
         if v.phase in _STREAMED and state.mode is not None \
                 and state.mode not in (_FLIGHT_MODE[v.flavour], "UNKNOWN"):
-            if self._link_failsafe(v, state, now):
+            if (v.retaking is not None and state.mode in _LINK_FAILSAFE_MODES[v.flavour]) \
+                    or self._link_failsafe(v, state, now):
+                # A retake under way goes on (until its own attempts run out) even once
+                # the silence that explained it is over or it was the last one allowed.
                 return self._retake(v, state, now)
             return self._taken_over(v, state)
         if v.phase in _STREAMED and not state.armed and state.last_heartbeat is not None:

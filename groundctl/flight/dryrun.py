@@ -152,7 +152,7 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
     """
     clock = ScaledClock(options.speed)
     record = options.record_dir
-    recording = None if record is None else Recording(record, clock.now)
+    recording = None if record is None else Recording(record, clock.now, plan)
     tlog = None if recording is None else recording.tlog
     events = None if recording is None else recording.events
     link = FleetLink((LOOPBACK, 0), clock=clock, expected_ids=range(1, plan.drones + 1),
@@ -172,6 +172,8 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
         runner = ShowRunner(plan, link, clock, options.runner, events=events, notify=notify,
                             expected_ids=config.sysids())
         runner.on_tick = _truth_probe(runner, fleet)
+        if recording is not None:
+            recording.follow(runner)  # the show clock, for a replay
         if on_runner is not None:
             on_runner(runner)
         if events is not None:

@@ -46,7 +46,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from groundctl.execute.authority import AuthorityEstimator, beyond, scaled_limits
-from groundctl.execute.mpc import MpcConfig, MpcRequest, MpcResult
+from groundctl.execute.mpc import MpcConfig, MpcRequest, MpcResult, speed_violations
 from groundctl.execute.paths import Path, PathClocks, sample_paths
 from groundctl.execute.replan import (
     Activation,
@@ -57,7 +57,7 @@ from groundctl.execute.replan import (
 from groundctl.execute.retime import clip_speed
 from groundctl.flight.mpcworker import MpcWorker
 from groundctl.plan.plan import Plan
-from groundctl.show.model import Limits, MpcSettings
+from groundctl.show.model import MpcSettings
 
 FloatArray = NDArray[np.float64]
 
@@ -71,12 +71,6 @@ LOOKAHEAD_DT = 0.25
 #: A vehicle within this of what it is told (its MPC trajectory, else its path) is
 #: replanned from that reference's state, farther off from its measured state, m.
 REINIT_M = 1.0
-
-
-def _within(vel: FloatArray, limits: Limits) -> bool:
-    """Whether velocity ``vel`` (3,) keeps the speed limits (what a start state must)."""
-    return bool(np.hypot(vel[0], vel[1]) <= limits.max_speed_h
-                and -limits.max_speed_down <= vel[2] <= limits.max_speed_up)
 
 
 @dataclass
@@ -321,7 +315,7 @@ class Replanner:
             weak = self._weak.get(sysid)
             limits = self.plan.limits if weak is None else scaled_limits(self.plan.limits, weak)
             own = np.zeros((n_steps + 1, 3))
-            if np.linalg.norm(p0 - told_p) <= REINIT_M and _within(told_v, limits):
+            if np.linalg.norm(p0 - told_p) <= REINIT_M and not speed_violations(told_v, limits):
                 p0, v0 = told_p, told_v
                 # It flies its reference offset by its deviation, drifting as forecast:
                 # the separation is between where the vehicles will be, so the others are

@@ -530,13 +530,17 @@ class ShowRunner:
                     deadline += period  # held: the flight's time budget does not run
                 self.link.check_lost(now)
                 self._perform(seq.update(now, self.link.vehicles))
-                if lag > cfg.guard.stall_s and seq.started_at is not None:
-                    # We stalled: setpoints on the clock as it stands would send the fleet
-                    # where it never went.  The guard re-synchronises the clock first.
-                    self.lateness_s.append(lag)
-                else:
+                stalled = lag > cfg.guard.stall_s and seq.started_at is not None
+                if not stalled:
                     self._stream_tick(seq, now, scheduled)
                 self._guard_tick(seq, now, lag, period)
+                if stalled:
+                    # We stalled: setpoints on the clock as it stood would send the fleet
+                    # where it never went, so the guard put the show clock back at the last
+                    # setpoints' show time first.  Streaming goes on: a PX4 vehicle left
+                    # without setpoints for COM_OF_LOSS_T (1 s) drops out of OFFBOARD into
+                    # its failsafe, so a loop that stalls tick after tick must still send.
+                    self._stream_tick(seq, now, scheduled)
                 self._start_planning(seq)
                 if now >= next_check:
                     next_check = now + 1.0
@@ -803,6 +807,7 @@ class ShowRunner:
             for i in rows:
                 send(sp.sysids[i], int(sp.time_boot_ms[i]), sp.pos_ned[i].tolist(),
                      sp.vel_ned[i].tolist(), sp.acc_ned[i].tolist())
+            seq.streamed([sp.sysids[i] for i in rows], now)
             # The tick's last setpoint has left: how late against its scheduled instant.
             self.lateness_s.append(self.clock.now() - scheduled)
             self._last_show_time = (min(req.clock.show_time(now + self._stream.typical_lead),

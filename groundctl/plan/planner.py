@@ -8,10 +8,12 @@ heading the previous one ended with, so they are planned in order.
 
 from __future__ import annotations
 
+import logging
 import os
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,6 +28,8 @@ from groundctl.plan.verify import Verification, verify
 from groundctl.show.model import Show, UnicycleModel
 
 FloatArray = NDArray[np.float64]
+
+log = logging.getLogger(__name__)
 
 #: Colour of every drone before the first formation's colours fade in.
 START_COLOR = (0.1, 0.1, 0.1)
@@ -89,16 +93,22 @@ def plan_show(show: Show, workers: int | None = None,
         # Never more processes than transitions: each one is a whole interpreter.
         workers = min(workers if workers is not None else os.cpu_count() or 1, len(jobs))
         if workers > 1 and len(jobs) > 1:
-            with ProcessPoolExecutor(max_workers=workers) as pool:
-                for res in pool.map(_quad_job, jobs):
-                    results.append(res)
-                    if progress:
-                        progress(len(results), total)
-        else:
-            for job in jobs:
-                results.append(_quad_job(job))
-                if progress:
-                    progress(len(results), total)
+            try:
+                with ProcessPoolExecutor(max_workers=workers) as pool:
+                    for res in pool.map(_quad_job, jobs):
+                        results.append(res)
+                        if progress:
+                            progress(len(results), total)
+            except BrokenProcessPool:
+                # A worker died (killed, out of memory): whatever it was planning is
+                # planned here, so the transition's own result or error is what comes
+                # out, never "a process in the pool was terminated abruptly".
+                log.warning("a planning worker process died: planning the %d remaining "
+                            "transition(s) in this process", len(jobs) - len(results))
+        for job in jobs[len(results):]:
+            results.append(_quad_job(job))
+            if progress:
+                progress(len(results), total)
 
     # Stitch transitions and holds onto one show clock; colours fade over each transition.
     parts: list[Trajectories] = []

@@ -154,15 +154,22 @@ def chord_normals(rel0: FloatArray, rel1: FloatArray) -> FloatArray:
     return np.where(norm[:, None] > 1e-6, mid / np.maximum(norm, 1e-12)[:, None], fallback)
 
 
-def chord_clearance(P: FloatArray, segments: NDArray[np.int64]) -> FloatArray:
-    """Value of each pair-segment's separation row at ``P`` itself, m.
+def chord_clearance(P: FloatArray, segments: NDArray[np.int64],
+                    A: FloatArray | None = None, dt: float = 0.0) -> FloatArray:
+    """Value of each pair-segment's separation rows at ``P`` (and ``A``) itself, m.
 
     ``segments`` is (m, 3) rows (i, j, k); the value is the smaller of
     n.(p_i - p_j) at both segment ends with the normal of :func:`segment_normals`,
-    i.e. how much separation the linearised constraint sees at the iterate.
+    i.e. how much separation the linearised constraint sees at the iterate; with the
+    accelerations ``A`` (n, N, 3), less the bulge of the pair's relative parabola
+    towards the other over the segment (dt^2 / 8 times n.(a_i - a_j), when positive).
     """
     i, j, k = segments[:, 0], segments[:, 1], segments[:, 2]
     rel0 = P[i, k] - P[j, k]
     rel1 = P[i, k + 1] - P[j, k + 1]
     nrm = chord_normals(rel0, rel1)
-    return np.minimum(np.einsum("md,md->m", nrm, rel0), np.einsum("md,md->m", nrm, rel1))
+    value = np.minimum(np.einsum("md,md->m", nrm, rel0), np.einsum("md,md->m", nrm, rel1))
+    if A is None:
+        return np.asarray(value)
+    towards = np.einsum("md,md->m", nrm, A[i, k] - A[j, k])
+    return np.asarray(value - dt * dt / 8.0 * np.maximum(towards, 0.0))

@@ -16,16 +16,24 @@ Constraints (rows of OSQP's l <= Ax <= u):
 * separation, linearised around the previous iterate pbar (the paper's
   constraint), imposed on *segments*: for pair (i, j) and step k, with the
   normal n taken at the middle of the segment, n.(p_i - p_j) + s >= d' at
-  both ends k and k+1.  Both ends sharing one normal keeps the whole chord on
-  the safe side, and d' adds the most a double integrator can bulge from its
-  chord (a_rel dt^2 / 8) so the continuous trajectory keeps d_min, not only
-  the samples.  The slack s >= 0 (l1-penalised) keeps every QP feasible even
+  both ends k and k+1, d' the limit plus a numerical buffer.  Both ends sharing
+  one normal keeps the whole chord on the safe side.  Between the samples the
+  pair's relative motion is a parabola (constant accelerations), which bulges
+  from its chord towards the other drone by dt^2 / 8 times n.(a_i - a_j)[k]
+  where that is positive: two more rows per pair-segment,
+  n.(p_i - p_j) - dt^2/8 n.(a_i - a_j)[k] + s >= d' at both ends, make the
+  minimum over the segment of n.(p_i - p_j) at least d' exactly -- the pair's
+  own motion, not the most any two drones could bulge (2 a_max dt^2 / 8,
+  which a pair whose goal slots are just above the limit could never meet at
+  its fixed end).  The slack s >= 0 (l1-penalised) keeps every QP feasible even
   from a straight-line guess that runs two drones through each other;
-* obstacle rows: the same segment rows for a pair whose other drone is outside
-  the group, with that drone's trajectory o held fixed, n.p_i + s >= n.o + d'
-  at both ends (the bound is refreshed from the other drone's latest position
-  at every linearisation).  They touch the group's own variables only, so they
-  add rows but no coupling to the KKT system.
+* obstacle rows: the same four segment rows for a pair whose other drone is
+  outside the group, with that drone's trajectory o held fixed, n.p_i + s >=
+  n.o + d' at both ends, and less the bulge with the other drone's own
+  acceleration on the segment if it flies the same knots (else the worst it can
+  have, a_max); the bounds are refreshed from its latest trajectory at every
+  linearisation.  They touch the group's own variables only, so they add rows
+  but no coupling to the KKT system.
 
 Only the values of the tangent, separation and obstacle rows, the bounds and the linear
 cost change between SCP iterations: the sparsity pattern is fixed at build
@@ -122,8 +130,11 @@ class GroupQP:
         self.oA = self.oV + self.nV
         self.oS = self.oA + self.nA
         self.nx = self.oS + self.nS
-        # Bulge of a double integrator's relative path from its chord over one step.
-        self.d_sep = chord_separation(limits, dt) + SEPARATION_BUFFER
+        # Every pair-segment has rows at both ends on the positions alone and rows with
+        # the pair's own relative acceleration along the normal (the bulge of its
+        # relative parabola from the chord, dt^2 / 8 times that): see _build.
+        self.d_sep = limits.min_separation + SEPARATION_BUFFER
+        self.bulge = dt * dt / 8.0
 
         self._build(osqp_settings)
 
@@ -187,9 +198,21 @@ class GroupQP:
                                        np.concatenate([np.ones(12 * m), np.ones(2 * m)]))
             # The slack coefficients (last 2m entries) never change.
             self.sep_coo = slice(sep_coo.start, sep_coo.start + 12 * m)
+            # The same rows less the bulge of the pair's relative parabola over segment k:
+            # n.(p_i - p_j)(e) - dt^2/8 n.(a_i - a_j)(k) >= limit.  With the rows above,
+            # min over the segment of n.(p_i - p_j) >= limit exactly (module docstring).
+            kk2 = np.concatenate([p.k, p.k])
+            acc = [self._ia(ii, kk2, c) for c in range(3)] + [self._ia(jj, kk2, c)
+                                                               for c in range(3)]
+            self.bul_rows, bul_coo = rows.block(2 * m, np.concatenate([np.tile(rr, 12), rr]),
+                                       np.concatenate([*cols, *acc, slack]),
+                                       np.ones(26 * m))
+            self.bul_coo = slice(bul_coo.start, bul_coo.start + 24 * m)
         else:
             self.sep_rows = slice(rows.count, rows.count)
             self.sep_coo = slice(rows.nnz, rows.nnz)
+            self.bul_rows = slice(rows.count, rows.count)
+            self.bul_coo = slice(rows.nnz, rows.nnz)
         # Obstacle rows: the same two segment-end rows, on the group's drone only.
         ob = self.obstacles
         mo = len(ob.i)
@@ -201,6 +224,13 @@ class GroupQP:
             2 * mo, np.concatenate([np.tile(rr, 3), rr]),
             np.concatenate([*(self._ip(ii, end, c) for c in range(3)), slack]), np.ones(8 * mo))
         self.obs_coo = slice(obs_coo.start, obs_coo.start + 6 * mo)
+        kk2 = np.concatenate([ob.k, ob.k])
+        self.obs_bul_rows, obs_bul_coo = rows.block(
+            2 * mo, np.concatenate([np.tile(rr, 6), rr]),
+            np.concatenate([*(self._ip(ii, end, c) for c in range(3)),
+                            *(self._ia(ii, kk2, c) for c in range(3)), slack]),
+            np.ones(14 * mo))
+        self.obs_bul_coo = slice(obs_bul_coo.start, obs_bul_coo.start + 12 * mo)
 
         self.n_rows = rows.count
         self._pattern = FixedPattern(rows, self.nx)
@@ -218,7 +248,9 @@ class GroupQP:
         self.u[self.tan_v_rows] = lim.max_speed_h
         self.u[self.tan_a_rows] = lim.max_accel
         self.l[self.sep_rows] = self.d_sep + np.tile(_extra(self.pairs), 2)
+        self.l[self.bul_rows] = self.l[self.sep_rows]
         self.l[self.obs_rows] = self.d_sep  # replaced by every linearise()
+        self.l[self.obs_bul_rows] = self.d_sep
         self._static_boxes()
         self.solver = osqp.OSQP()
         self.solver.setup(P=self._P, q=self.q, A=self.A, l=self.l, u=self.u, **settings)
@@ -271,12 +303,15 @@ class GroupQP:
         self.u[self.box_rows] = hi
 
     def linearise(self, P: FloatArray, V: FloatArray, A: FloatArray, trust: float,
-                  others: FloatArray | None = None) -> None:
+                  others: FloatArray | None = None,
+                  others_acc: FloatArray | None = None) -> None:
         """Relinearise every iterate-dependent row around (P, V, A) and push to OSQP.
 
         ``trust`` bounds how far any interior position may move in this solve (m).
         ``others`` (m_o, 2, 3) are the positions of the drone outside the group at
-        both ends of each obstacle segment: fixed obstacles for this solve.
+        both ends of each obstacle segment: fixed obstacles for this solve;
+        ``others_acc`` (m_o, 3) its (constant) acceleration over the segment, if it
+        flies a trajectory of the same knots (else anything within ``max_accel``).
         """
         g, N = self.g, self.N
         # Speed tangent planes at interior steps: normal of the previous horizontal velocity.
@@ -304,6 +339,18 @@ class GroupQP:
             self.l[self.obs_rows] = self.d_sep + np.tile(_extra(ob), 2) + np.concatenate([
                 np.einsum("md,md->m", n_ob, others[:, 0]),
                 np.einsum("md,md->m", n_ob, others[:, 1])])
+            # ... and less the bulge: n.p_i - dt^2/8 n.a_i >= that - dt^2/8 n.a_o.
+            n2 = np.tile(n_ob, (2, 1))
+            self._values[self.obs_bul_coo] = np.concatenate(
+                [n2[:, 0], n2[:, 1], n2[:, 2], -self.bulge * n2[:, 0],
+                 -self.bulge * n2[:, 1], -self.bulge * n2[:, 2]])
+            if others_acc is None:
+                their = np.full(len(ob.i), -self.limits.max_accel)  # the worst they can do
+            else:
+                if others_acc.shape != (len(ob.i), 3):
+                    raise ValueError("`others_acc` must be (m_o, 3)")
+                their = np.einsum("md,md->m", n_ob, others_acc)
+            self.l[self.obs_bul_rows] = self.l[self.obs_rows] - self.bulge * np.tile(their, 2)
         lo = self._box_lo.copy()
         hi = self._box_hi.copy()
         if m:
@@ -311,6 +358,10 @@ class GroupQP:
             coef = np.concatenate([n_sep, n_sep], axis=0)  # both segment ends
             self._values[self.sep_coo] = np.concatenate(
                 [coef[:, 0], coef[:, 1], coef[:, 2], -coef[:, 0], -coef[:, 1], -coef[:, 2]])
+            b = self.bulge * coef
+            self._values[self.bul_coo] = np.concatenate(
+                [coef[:, 0], coef[:, 1], coef[:, 2], -coef[:, 0], -coef[:, 1], -coef[:, 2],
+                 -b[:, 0], -b[:, 1], -b[:, 2], b[:, 0], b[:, 1], b[:, 2]])
         # Trust region on interior positions, inside the altitude box.
         tr = trust
         P_lo = lo[: self.nP].reshape(g, N + 1, 3)

@@ -2,9 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from groundctl.plan.planner import PlanResult
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
 
 
 def report_dict(result: PlanResult) -> dict[str, Any]:
@@ -22,6 +27,8 @@ def report_dict(result: PlanResult) -> dict[str, Any]:
             "seconds_per_iteration": tr.seconds / max(tr.iterations, 1),
             "plan_seconds": tr.seconds,
             "qp_drones": tr.qp_drones,
+            "straight_lines": tr.straight,
+            "straight_min_separation_m": _finite(tr.straight_min_separation),
             "path_length_mean_m": w.path_length_mean,
             "straight_length_mean_m": tr.straight_length,
             "min_separation_m": w.min_separation,

@@ -77,6 +77,7 @@ from groundctl.plan.quad_qp import (
     PairSegments,
     chord_separation,
 )
+from groundctl.plan.straight import StraightCheck, check_straight_lines
 from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import Limits, PlannerSettings, QuadrotorModel
 
@@ -114,6 +115,12 @@ class TransitionResult:
     """Largest separation slack at the end, m (0 when converged)."""
     straight_length: float
     """Mean straight-line distance start to goal, m (a lower bound on path length)."""
+    straight_min_separation: float = float("nan")
+    """Closest approach of any pair on the synchronised straight lines, exact, m (nan:
+    not checked)."""
+    straight: bool = False
+    """The straight lines were flown as they are (they keep every pair apart, or the
+    optimiser found nothing better that keeps the limit)."""
 
 
 @dataclass
@@ -210,13 +217,38 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
     plan then keeps the limit only, and its minimum separation says so).
     """
     t0 = time.perf_counter()
+    steps, _, _, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
+                                           settings)
+    lines = check_straight_lines(start, goal, limits.min_separation, settings.tracking_margin)
+    # The floor (plan.straight): lines that keep every pair at its target need nothing
+    # more; lines that keep the limit are what is flown if the optimiser finds nothing.
+    usable = lines.keeps_limit and len(_limit_violators(V, A, limits)) == 0
+    if usable and lines.keeps_target:
+        return _straight_result(index, name, start, goal, duration, steps, P, V, lines, t0)
     try:
-        return _plan(index, name, start, goal, duration, limits, settings, t0)
+        try:
+            result = _plan(index, name, start, goal, duration, limits, settings, t0)
+        except PlanningError:
+            if settings.tracking_margin <= 0:
+                raise
+            result = _plan(index, name, start, goal, duration, limits,
+                           replace(settings, tracking_margin=0.0), t0)
     except PlanningError:
-        if settings.tracking_margin <= 0:
+        if not usable:
             raise
-        return _plan(index, name, start, goal, duration, limits,
-                     replace(settings, tracking_margin=0.0), t0)
+        return _straight_result(index, name, start, goal, duration, steps, P, V, lines, t0)
+    return replace(result, straight_min_separation=lines.min_separation_m)
+
+
+def _straight_result(index: int, name: str, start: FloatArray, goal: FloatArray,
+                     duration: float, steps: int, P: FloatArray, V: FloatArray,
+                     lines: StraightCheck, t0: float) -> TransitionResult:
+    times = np.linspace(0.0, duration, steps + 1)
+    return TransitionResult(
+        index=index, name=name, trajectories=Trajectories(times, P, V), steps=steps,
+        iterations=0, seconds=time.perf_counter() - t0, qp_drones=0, groups=0,
+        max_slack=0.0, straight_length=float(np.linalg.norm(goal - start, axis=1).mean()),
+        straight_min_separation=lines.min_separation_m, straight=True)
 
 
 def _straight_lines(index: int, name: str, start: FloatArray, goal: FloatArray,
@@ -246,8 +278,8 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
     steps, dt, ref, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
                                               settings)
     delta = goal - start
-    d_sep = chord_separation(limits, dt)
-    d_row = d_sep + SEPARATION_BUFFER  # what the QP's separation rows ask for
+    d_sep = chord_separation(limits, dt)  # the widest bulge: for the searches' radii
+    d_row = limits.min_separation + SEPARATION_BUFFER  # what the rows ask, bulge apart
     margin = _pair_margin(start, goal, d_row, settings.tracking_margin)
     d_far = d_sep + settings.tracking_margin  # pairs beyond this plus a margin are left out
     states: dict[tuple[int, ...], _Group] = {}
@@ -265,7 +297,7 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
         # Only pairs whose row is violated or nearly active join drones into a group;
         # the other close pairs become obstacle rows.  Links accumulate, so a group
         # keeps its members (and its QP) until it converges.
-        tight = need[chord_clearance(P, need) < d_row + margin(need[:, 0], need[:, 1])
+        tight = need[chord_clearance(P, need, A, dt) < d_row + margin(need[:, 0], need[:, 1])
                      + LINK_MARGIN]
         links = unique_segments(np.concatenate([links, tight]), n, steps)
         violators_all = np.union1d(violators_all, _limit_violators(V, A, limits))
@@ -299,7 +331,8 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
             # was solved last, and a group's current iterate is always feasible.
             others = np.stack([P[state.obs_other, state.qp.obstacles.k],
                                P[state.obs_other, state.qp.obstacles.k + 1]], axis=1)
-            state.qp.linearise(P[members], V[members], A[members], state.trust, others)
+            state.qp.linearise(P[members], V[members], A[members], state.trust, others,
+                               A[state.obs_other, state.qp.obstacles.k])
             Pg, Vg, Ag, Sg = state.qp.solve(index)
             change = float(np.abs(Pg - P[members]).max())
             state.slack = float(Sg.max(initial=0.0))
@@ -347,7 +380,7 @@ def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, durat
     others = np.asarray(others_at(times), dtype=float).reshape(-1, steps + 1, 3)
     n = g + len(others)
     d_sep = chord_separation(limits, dt)
-    d_row = d_sep + SEPARATION_BUFFER
+    d_row = limits.min_separation + SEPARATION_BUFFER
     start_all = np.concatenate([start, others[:, 0]])
     goal_all = np.concatenate([goal, others[:, -1]])
     ref_all = np.concatenate([ref, others])

@@ -1,4 +1,10 @@
-"""One flight's recordings: flight.tlog, events.jsonl and report.json in one directory."""
+"""One flight's recordings in one directory.
+
+``flight.tlog`` (every MAVLink packet), ``events.jsonl``, ``showclock.csv``
+(the show clock against wall time, per tick: what puts the tlog on the show's
+timeline), ``plan.npz`` (the plan flown, in the plan file format) and
+``report.json``.  ``groundctl replay DIR`` reads them back into Rerun.
+"""
 
 from __future__ import annotations
 
@@ -7,11 +13,20 @@ import json
 import re
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from groundctl.errors import GroundctlError
 from groundctl.record.events import EventLog
+from groundctl.record.showclock import ShowClockLog
 from groundctl.record.tlog import TlogWriter
+
+if TYPE_CHECKING:
+    from groundctl.flight.runner import ShowRunner
+    from groundctl.plan.plan import Plan
+
+#: The files of a recording directory.
+TLOG, EVENTS, SHOW_CLOCK, PLAN, REPORT = ("flight.tlog", "events.jsonl", "showclock.csv",
+                                          "plan.npz", "report.json")
 
 #: How long the show's part of a recording directory's name may be.
 MAX_NAME_PART = 64
@@ -37,29 +52,58 @@ def default_directory(show: str, command: str, root: Path = Path("recordings")) 
 
 
 class Recording:
-    """Opens the tlog and the event log; :meth:`finish` writes the report and closes both.
+    """Opens the tlog, the event log and the show clock log, and keeps ``plan``;
+    :meth:`finish` writes the report and closes them.
 
-    Call :meth:`finish` from a ``finally``: whatever happened, what was
-    recorded reaches the disk.
+    Call :meth:`follow` with the runner so the show clock is logged every tick,
+    and :meth:`finish` from a ``finally``: whatever happened, what was recorded
+    reaches the disk.
     """
 
-    def __init__(self, directory: Path, now: Callable[[], float]) -> None:
+    def __init__(self, directory: Path, now: Callable[[], float],
+                 plan: Plan | None = None) -> None:
         try:
             directory.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise GroundctlError(f"{directory}: cannot create the recording directory: "
                                  f"{exc.strerror or exc}") from exc
         self.directory = directory
-        self.tlog = TlogWriter(directory / "flight.tlog")
-        self.events = EventLog(directory / "events.jsonl", now)
+        if plan is not None:
+            try:
+                plan.save(directory / PLAN)  # before the flight: a crash keeps it too
+            except OSError as exc:
+                raise GroundctlError(f"{directory / PLAN}: cannot write the plan: "
+                                     f"{exc.strerror or exc}") from exc
+        self.tlog = TlogWriter(directory / TLOG)
+        self.events = EventLog(directory / EVENTS, now)
+        self.show_clock = ShowClockLog(directory / SHOW_CLOCK)
+
+    def follow(self, runner: ShowRunner) -> None:
+        """Log the show clock on every tick of ``runner``, chained before any
+        ``on_tick`` it already has (the dry-run's truth probe)."""
+        previous = runner.on_tick
+        log = self.show_clock
+
+        def tick(now: float, show_time: float) -> None:
+            seq = runner.sequence
+            started = seq is not None and seq.started_at is not None
+            late = runner.lateness_s[-1] if runner.lateness_s else None
+            # The Unix time of ``now`` (the tick's start), not of this call at its end.
+            behind = runner.clock.wall_interval(max(runner.clock.now() - now, 0.0))
+            log.tick(now, show_time if started else None, late, behind)
+            if previous is not None:
+                previous(now, show_time)
+
+        runner.on_tick = tick
 
     def finish(self, report: dict[str, Any]) -> None:
         """Write report.json, log its verdict, flush and close the tlog and the event log."""
         try:
-            (self.directory / "report.json").write_text(json.dumps(report, indent=1) + "\n")
+            (self.directory / REPORT).write_text(json.dumps(report, indent=1) + "\n")
             self.events.emit("report", safe=report.get("safe"),
                              min_separation_m=report.get("min_separation_m"),
                              max_tracking_error_m=report.get("max_tracking_error_m"))
         finally:
+            self.show_clock.close()
             self.events.close()
             self.tlog.close()
