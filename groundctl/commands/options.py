@@ -167,7 +167,9 @@ def rerun_words(words: list[str]) -> tuple[str, str | None]:
         return ("connect", rest[0] if rest else None)
     if kind == "save" and len(rest) == 1:
         return ("save", rest[0])
-    raise ValueError(f"{RERUN_USAGE}, not {' '.join(words)!r}")
+    hint = "" if kind in ("spawn", "connect", "save") else \
+        " (it takes every word up to the next option: give the show before --rerun)"
+    raise ValueError(f"{RERUN_USAGE}, not {' '.join(words)!r}{hint}")
 
 
 def rerun_target(value: tuple[str, str | None] | None, default: Path
