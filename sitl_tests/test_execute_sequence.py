@@ -337,13 +337,30 @@ def _formation_plan() -> Plan:
     return replace(plan, formations=(up, down))
 
 
-def _in_formation_show() -> tuple[Plan, dict[int, VehicleState], ShowSequence, float]:
-    """Two ArduPilot vehicles flying :func:`_formation_plan`; returns the show's start time."""
+def _in_formation_show(flavour: Flavour = ARDU
+                       ) -> tuple[Plan, dict[int, VehicleState], ShowSequence, float]:
+    """Two vehicles flying :func:`_formation_plan`; returns the show's start time."""
     plan = _formation_plan()
-    states = _fleet(ARDU, n=2)
-    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
-    t0 = _airborne_ardupilot(seq, states, 0.0)
+    states = _fleet(flavour, n=2)
+    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: flavour, 2: flavour},
+                       SequenceConfig(offboard_lead_s=1.0))
+    if flavour is ARDU:
+        t0 = _airborne_ardupilot(seq, states, 0.0)
+    else:  # arm, take off, setpoints for offboard_lead_s, OFFBOARD
+        seq.start(0.0)
+        for v in states.values():
+            v.armed = True
+        seq.update(0.1, states)
+        for v in states.values():
+            set_altitude(v, 3.0)
+        seq.update(0.2, states)
+        seq.update(1.3, states)
+        for v in states.values():
+            v.mode = "OFFBOARD"
+        t0 = 1.4
+        seq.update(t0, states)
     seq.update(t0 + 0.1, states)  # settled on the first plan point: the show clock runs
+    assert seq.started_at is not None
     return plan, states, seq, t0 + 0.1
 
 
@@ -730,25 +747,40 @@ def test_a_link_loss_failsafe_after_a_silence_is_taken_back_but_a_pilot_is_not()
     assert seq.vehicles[1].phase is VehiclePhase.LANDING
 
 
-def test_a_failsafe_after_we_sent_it_no_setpoints_for_a_second_is_taken_back() -> None:
-    """Our loop starved for 1.5 s (no hold in force any more, no gap in the vehicle's own
-    telemetry): the hold mode it is found in is its offboard-loss failsafe, our doing.
-    Left to it, it would land straight down through the formation."""
-    _plan, states, seq, start = _in_formation_show()
+def test_a_px4_failsafe_after_we_sent_it_no_setpoints_for_a_second_is_taken_back() -> None:
+    """Our loop starved for 1.5 s (no hold in force, no gap in the vehicle's own
+    telemetry): the hold mode a PX4 vehicle is found in is its offboard-loss failsafe,
+    our doing.  Left to it, it would land straight down through the formation."""
+    _plan, states, seq, start = _in_formation_show(PX4)
     seq.streamed([1, 2], start + 0.5)
     seq.streamed([1], start + 1.0)
     seq.streamed([1], start + 1.5)
-    seq.streamed([1, 2], start + 2.0)  # vehicle 2 had none for 1.5 s
-    assert seq.vehicles[2].starved_at == start + 2.0 and seq.vehicles[1].starved_at is None
-    states[2].mode = "LOITER"
+    # The first tick after the stall, before anything is sent again: already ours.
+    states[2].mode = "AUTO.LOITER"
     for sysid in (1, 2):
-        _at_plan_point(states[sysid], seq, sysid - 1, start + 3.0)
-    actions = seq.update(start + 3.0, states)
-    assert SetMode(2, "GUIDED") in actions and seq.vehicles[2].phase is VehiclePhase.SHOW
-    # Vehicle 1 was never starved: the same mode is a pilot's, not fought.
-    states[1].mode = "LOITER"
-    seq.update(start + 3.1, states)
+        _at_plan_point(states[sysid], seq, sysid - 1, start + 2.0)
+    actions = seq.update(start + 2.0, states)
+    assert SetMode(2, "OFFBOARD") in actions and seq.vehicles[2].phase is VehiclePhase.SHOW
+    seq.streamed([1, 2], start + 2.0)
+    assert seq.vehicles[2].starved_at == start + 2.0 and seq.vehicles[1].starved_at is None
+    # Vehicle 1 was never starved: the same mode is a pilot's (or its own), not fought.
+    states[1].mode = "AUTO.LOITER"
+    seq.update(start + 2.1, states)
     assert seq.vehicles[1].phase is VehiclePhase.LANDING
+
+
+def test_a_retake_under_way_gives_way_to_a_battery_failsafe() -> None:
+    _plan, states, seq, start = _in_formation_show(PX4)
+    seq.streamed([1, 2], start + 0.5)
+    states[2].mode = "AUTO.LOITER"
+    _at_plan_point(states[2], seq, 1, start + 2.0)
+    assert SetMode(2, "OFFBOARD") in seq.update(start + 2.0, states)
+    assert seq.vehicles[2].retaking == "AUTO.LOITER"
+    # Before it is back, its battery failsafe takes it home: not fought over.
+    states[2].mode, states[2].battery_remaining_pct = "AUTO.RTL", 5.0
+    actions = seq.update(start + 2.5, states)
+    assert SetMode(2, "OFFBOARD") not in actions
+    assert seq.vehicles[2].phase is VehiclePhase.LANDING and seq.vehicles[2].retaking is None
 
 
 def test_holds_for_the_ground_stations_own_trouble_do_not_strand_a_vehicle() -> None:

@@ -163,7 +163,7 @@ def test_groundctl_plan_flies_a_tight_show_on_its_straight_lines(
 
 def test_a_planning_worker_that_dies_does_not_lose_the_show() -> None:
     """A worker process killed mid-plan (out of memory, say): its transitions are planned
-    in the calling process, with the same result (the error, had there been one, would be
+    again in a fresh worker, with the same result (the error, had there been one, would be
     the transition's own, not "a process in the pool was terminated abruptly")."""
     show = load_show(Path(__file__).resolve().parents[1] / "shows" / "demo.toml")
     killed: list[int] = []

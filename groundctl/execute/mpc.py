@@ -790,7 +790,8 @@ class MpcController:
         self.M, self.E, self.F = c.max_neighbours, c.max_fence_edges, c.speed_faces
         self._build()
         self._last: MpcResult | None = None
-        self._escaped = False  # the last result flown was an escape
+        self._escaped = False  # the last result flown was an escape (or went on with one)
+        self._continuing = False
         self._lin: _Plan | None = None
         self._slot_ids = np.full(self.M, -1, dtype=np.intp)
         self._start_distance: FloatArray | None = None
@@ -1138,6 +1139,15 @@ class MpcController:
 
     def solve(self, request: MpcRequest) -> MpcResult:
         """One tick: the verified correction, or a stop with the reason why not."""
+        self._continuing = False
+        result = self._solve(request)
+        if self._continuing and result.status in ("solved", "fallback"):
+            # Solved with the escape's raised limits from a start above its own: it may
+            # still be above them next tick, and the escape goes on until it is not.
+            self._escaped = True
+        return result
+
+    def _solve(self, request: MpcRequest) -> MpcResult:
         self._check(request)
         # The path the executor streams when the MPC gives nothing: a weak vehicle's
         # is its plan, not the re-timed reference the QP tracks.
@@ -1158,6 +1168,7 @@ class MpcController:
             if not start_violations(replace(continued, neighbours=None, neighbour_ids=None),
                                     self.config.limit_tol):
                 request, bad_start = continued, []
+                self._continuing = True
         self._escaped = False
         if bad_start:
             return self._fallback(request, "start state: " + "; ".join(bad_start), start)

@@ -235,6 +235,10 @@ MAX_RETAKES = 2
 RETAKE_WINDOW_S = 10.0
 #: ... and that silence was at least this long (PX4's COM_OF_LOSS_T default), s.
 LINK_FAILSAFE_GAP_S = 1.0
+#: A PX4 vehicle found in a failsafe mode this soon after we resumed the setpoints we had
+#: not sent it for LINK_FAILSAFE_GAP_S is taken back (its HEARTBEAT says so within about
+#: a second, and it is confirmed by the next), s.
+STARVED_WINDOW_S = 3.0
 #: This share of the fleet (at least two) below the battery threshold lands everyone.
 LOW_BATTERY_FLEET = 0.1
 #: A way out planned too late this many times is given up (no retry storm).
@@ -1051,7 +1055,7 @@ class ShowSequence:
         silent = "never heard" if state is None else f"silent for {state.silent_for(now):.1f} s"
         was = v.phase
         v.phase, v.pending, v.reason = VehiclePhase.LOST, None, f"link lost ({silent})"
-        v.lost_from = was
+        v.lost_from, v.retaking = was, None
         still = ("still streamed its plan in case it hears us, otherwise its failsafe is in "
                  "charge" if was in _STREAMED else "its failsafe is in charge")
         actions: list[Action] = [
@@ -1196,6 +1200,7 @@ class ShowSequence:
         disarmed wherever its own mode brings it."""
         was = v.phase
         v.phase, v.pending, v.leave_at = VehiclePhase.LANDING, None, None
+        v.retaking = None
         v.reason = f"left {_FLIGHT_MODE[v.flavour]} for {state.mode} during {was}"
         return [Notice(v.sysid, f"vehicle {v.sysid} switched to {state.mode} by itself "
                                 f"(failsafe or pilot) during {was}: out of the show, its "
@@ -1217,9 +1222,27 @@ class ShowSequence:
             state.stream_gaps > v.gap_seen
             or (v.gap_at is not None and now - v.gap_at <= RETAKE_WINDOW_S))
         # Our own stall starves it of setpoints without any gap in its telemetry: the
-        # hold says so while it lasts, and the setpoints we did not send say so after.
-        starved = v.starved_at is not None and now - v.starved_at <= RETAKE_WINDOW_S
+        # hold says so while it lasts, and the setpoints we did not send say so after
+        # (or now, on the first tick after the stall, before any is sent again).  Only
+        # PX4 leaves its flight mode for want of setpoints (ArduPilot's GUIDED holds).
+        starved = v.flavour is Flavour.PX4 and (
+            (v.starved_at is not None and now - v.starved_at <= STARVED_WINDOW_S)
+            or (v.streamed_at is not None and now - v.streamed_at >= LINK_FAILSAFE_GAP_S))
         return own_silence or starved or bool(self.holds & {"stall", "silence"})
+
+    def _retake_goes_on(self, v: VehicleRun, state: VehicleState) -> bool:
+        """A retake under way goes on, until its own attempts run out, even once the silence
+        that explained it is over: while the vehicle is still in the failsafe mode it was
+        being taken back from (or PX4's hold moved on to its land), and its battery is
+        fine (a battery failsafe is never fought)."""
+        if v.retaking is None:
+            return False
+        battery = state.battery_remaining_pct
+        if battery is not None and self._battery is not None and battery < self._battery:
+            return False
+        return state.mode == v.retaking or (
+            v.flavour is Flavour.PX4 and v.retaking == "AUTO.LOITER"
+            and state.mode == "AUTO.LAND")
 
     def _retake(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
         """Back in touch after a link loss that tripped its failsafe (a hold, or a blind
@@ -1261,8 +1284,7 @@ class ShowSequence:
                            f"back in {state.mode} after its link-loss failsafe")]
         if v.phase in _STREAMED and state.mode is not None \
                 and state.mode not in (_FLIGHT_MODE[v.flavour], "UNKNOWN"):
-            if (v.retaking is not None and state.mode in _LINK_FAILSAFE_MODES[v.flavour]) \
-                    or self._link_failsafe(v, state, now):
+            if self._retake_goes_on(v, state) or self._link_failsafe(v, state, now):
                 # A retake under way goes on (until its own attempts run out) even once
                 # the silence that explained it is over or it was the last one allowed.
                 return self._retake(v, state, now)

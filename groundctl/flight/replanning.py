@@ -133,6 +133,12 @@ class Replanner:
     def close(self) -> None:
         self.worker.close()
 
+    def drop_trajectories(self) -> None:
+        """Forget every MPC trajectory (our loop stalled and the show clock was put back:
+        they were checked against the neighbours on the clock as it was); the vehicles
+        get their paths until the next batch."""
+        self.results.clear()
+
     @property
     def active(self) -> set[int]:
         return set(self.supervisor.active)
@@ -315,7 +321,8 @@ class Replanner:
             weak = self._weak.get(sysid)
             limits = self.plan.limits if weak is None else scaled_limits(self.plan.limits, weak)
             own = np.zeros((n_steps + 1, 3))
-            if np.linalg.norm(p0 - told_p) <= REINIT_M and not speed_violations(told_v, limits):
+            if np.linalg.norm(p0 - told_p) <= REINIT_M \
+                    and not speed_violations(told_v, limits, self.config.limit_tol):
                 p0, v0 = told_p, told_v
                 # It flies its reference offset by its deviation, drifting as forecast:
                 # the separation is between where the vehicles will be, so the others are

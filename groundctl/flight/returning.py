@@ -65,7 +65,10 @@ def plan_return(plan: Plan, tracks: list[int], start: NDArray[np.float64],
 
         return plan_among(0, "return", start, goal, duration, plan.limits, settings,
                           still).trajectories
-    result = plan_quad_transition(0, "return", start, goal, duration, plan.limits, settings)
+    # Flown unrehearsed: lines that keep only the bare limit are no return (the show's
+    # own path home is kept instead, return_failed).
+    result = plan_quad_transition(0, "return", start, goal, duration, plan.limits, settings,
+                                  lines_at_limit=False)
     return result.trajectories
 
 

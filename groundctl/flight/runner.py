@@ -533,8 +533,16 @@ class ShowRunner:
                 stalled = lag > cfg.guard.stall_s and seq.started_at is not None
                 if not stalled:
                     self._stream_tick(seq, now, scheduled)
-                self._guard_tick(seq, now, lag, period)
+                resynced = self._guard_tick(seq, now, lag, period)
                 if stalled:
+                    if not resynced and "stall" in seq.holds:
+                        # Stalled again while the first stall's hold brakes: back at the
+                        # last setpoints once more (where the drones stand now).
+                        self._stop_at_last_setpoints(seq, now, "stall")
+                    if self.replanner is not None:
+                        # MPC trajectories were checked on the clock before it was put
+                        # back: the next batch is solved on the clock as it is now.
+                        self.replanner.drop_trajectories()
                     # We stalled: setpoints on the clock as it stood would send the fleet
                     # where it never went, so the guard put the show clock back at the last
                     # setpoints' show time first.  Streaming goes on: a PX4 vehicle left
@@ -582,8 +590,27 @@ class ShowRunner:
         await self._drain()
 
     # -- the guard: our own lag, fleet-wide silence, safety responses ------------------
-    def _guard_tick(self, seq: ShowSequence, now: float, lag: float, period: float) -> None:
+    def _stop_at_last_setpoints(self, seq: ShowSequence, now: float, reason: str,
+                                show_time: float | None = None) -> bool:
+        """Put the show clock back where the drones are along the plan after flying on
+        stale setpoints (between the last setpoints' show time and the clock now); False
+        if there is nothing to put back (no setpoints sent on the show clock yet)."""
+        at_sent = self._last_show_time if show_time is None else show_time
+        if at_sent is None or seq.started_at is None or seq.ended:
+            return False
+        lead = self._stream.typical_lead if self._stream is not None else 0.0
+        ids, pos = telemetry_positions(self.plan, self.link.vehicles, now)
+        vel = {sid: ned_vel_to_show(self.plan.origin, np.array(st.velocity_ned))
+               for sid, st in self.link.vehicles.items() if st.velocity_ned is not None}
+        at, rate = seq.fit_show_time(at_sent - lead, seq.clock.show_time(now),
+                                     dict(zip(ids, pos, strict=True)), vel)
+        seq.stop_for(reason, now, at, rate)
+        return True
+
+    def _guard_tick(self, seq: ShowSequence, now: float, lag: float, period: float) -> bool:
+        """The guard's tick; True if it put the show clock back after a stall."""
         assert self.monitor is not None
+        resynced = False
         in_show = seq.started_at is not None and not seq.ended
         req = self._request
         streamed = (req[1] if req is not None and req[0] == now
@@ -638,14 +665,8 @@ class ShowRunner:
                 if action.show_time is not None and in_show:
                     # Where along the plan are the drones, after flying on stale setpoints
                     # (between the last setpoints' show time and where the clock is now)?
-                    lead = self._stream.typical_lead if self._stream is not None else 0.0
-                    vel = {sid: ned_vel_to_show(self.plan.origin,
-                                                np.array(st.velocity_ned))
-                           for sid, st in self.link.vehicles.items()
-                           if st.velocity_ned is not None}
-                    at, rate = seq.fit_show_time(action.show_time - lead,
-                                                 seq.clock.show_time(now), ids_pos, vel)
-                    seq.stop_for(action.reason, now, at, rate)
+                    resynced = self._stop_at_last_setpoints(seq, now, action.reason,
+                                                            action.show_time)
                 else:
                     seq.hold_for(action.reason, now)
                 self._say(action.text, "show_held", reason=action.reason,
@@ -664,6 +685,7 @@ class ShowRunner:
             elif isinstance(action, LandAll):
                 self._say(action.text, "guard_land_all")
                 self._perform(seq.land_all(now))
+        return resynced
 
     # -- planning in worker processes ---------------------------------------------------
     def _start_planning(self, seq: ShowSequence) -> None:

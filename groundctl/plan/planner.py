@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from groundctl.errors import PlanningError
 from groundctl.plan.assign import assign_chain
 from groundctl.plan.plan import FormationWindow, Plan
 from groundctl.plan.scp_quad import TransitionResult, plan_quad_transition
@@ -100,11 +101,23 @@ def plan_show(show: Show, workers: int | None = None,
                         if progress:
                             progress(len(results), total)
             except BrokenProcessPool:
-                # A worker died (killed, out of memory): whatever it was planning is
-                # planned here, so the transition's own result or error is what comes
-                # out, never "a process in the pool was terminated abruptly".
+                # A worker died (killed, out of memory): what it had not delivered is
+                # planned again, one at a time in a fresh worker, so the transition's own
+                # result or error comes out -- or, if that one dies too, one line that
+                # names the transition (never this process killed in its place).
                 log.warning("a planning worker process died: planning the %d remaining "
-                            "transition(s) in this process", len(jobs) - len(results))
+                            "transition(s) again, one at a time", len(jobs) - len(results))
+                for job in jobs[len(results):]:
+                    with ProcessPoolExecutor(max_workers=1) as single:
+                        try:
+                            results.append(single.submit(_quad_job, job).result())
+                        except BrokenProcessPool:
+                            raise PlanningError(
+                                job[0], "planning worker died",
+                                f"the process planning the transition into '{job[1]}' was "
+                                "killed twice (out of memory?)") from None
+                    if progress:
+                        progress(len(results), total)
         for job in jobs[len(results):]:
             results.append(_quad_job(job))
             if progress:

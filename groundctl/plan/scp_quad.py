@@ -210,11 +210,15 @@ def _build_group(members: NDArray[np.intp], inside: NDArray[np.bool_],
 
 def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatArray,
                          duration: float, limits: Limits,
-                         settings: PlannerSettings) -> TransitionResult:
+                         settings: PlannerSettings, lines_at_limit: bool = True
+                         ) -> TransitionResult:
     """Plan one quadrotor transition from ``start`` to ``goal`` (n, 3) in ``duration`` s.
 
     With the tracking margin first; if that cannot be met, without it (the
     plan then keeps the limit only, and its minimum separation says so).
+    Straight lines that keep every pair at its target are flown as they are; if
+    the optimiser fails, lines that keep only the limit are flown unless
+    ``lines_at_limit`` is False (a return flown unrehearsed wants its margin).
     """
     t0 = time.perf_counter()
     steps, _, _, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
@@ -234,7 +238,7 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
             result = _plan(index, name, start, goal, duration, limits,
                            replace(settings, tracking_margin=0.0), t0)
     except PlanningError:
-        if not usable:
+        if not (usable and lines_at_limit):
             raise
         return _straight_result(index, name, start, goal, duration, steps, P, V, lines, t0)
     return replace(result, straight_min_separation=lines.min_separation_m)

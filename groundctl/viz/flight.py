@@ -39,6 +39,10 @@ FloatArray = NDArray[np.float64]
 NO_LED = (90, 90, 90)
 #: Tick period assumed for a bare tlog (no show clock log), in vehicle seconds.
 BARE_TICK_S = 0.1
+#: Clock rates a bare tlog's ticks are laid out at, at most and at least, and the longest
+#: stretch of it replayed (a day).
+MIN_RATE, MAX_RATE = 0.1, 100.0
+MAX_BARE_S = 86400.0
 
 
 @dataclass(frozen=True)
@@ -196,6 +200,10 @@ def _ticks(data: TlogData, clock: ShowClockTable | None, rate: float
     # A bare tlog: ticks every BARE_TICK_S of the vehicles' clock, time from the first packet.
     first = data.first_unix_s or 0.0
     last = data.last_unix_s or first
+    # The vehicles' clock rate against the tlog's (x1 flown, x2 a dry-run at speed 2): a
+    # file with reboots or stray stamps must not ask for billions of ticks.
+    rate = min(max(rate, MIN_RATE), MAX_RATE)
+    last = min(last, first + MAX_BARE_S)
     unix = np.arange(first, last + 1e-9, BARE_TICK_S / rate)
     nan = np.full(len(unix), np.nan)
     return unix, (unix - first) * rate, nan, nan, rate

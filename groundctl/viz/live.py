@@ -28,6 +28,7 @@ import os
 import pickle
 import queue
 import select
+import signal
 import struct
 import time
 from collections.abc import Sequence
@@ -289,7 +290,7 @@ class LiveRerun:
         try:
             self._pipe.send(None)
             self._pipe.finish(CLOSE_TIMEOUT_S)
-            self.result = self._results.get(timeout=CLOSE_TIMEOUT_S)
+            self.result = self._wait_result(CLOSE_TIMEOUT_S)
         except queue.Empty:
             self.result = LiveResult([f"the Rerun sender did not finish within "
                                       f"{CLOSE_TIMEOUT_S:.0f} s"], 0, [])
@@ -300,6 +301,18 @@ class LiveRerun:
             self.result.errors.append(f"{self._pipe.dropped} snapshots dropped: the Rerun "
                                       "sender fell behind")
         return self.result.errors
+
+    def _wait_result(self, timeout_s: float) -> LiveResult:
+        """The sender's result, polled: a sender that died gives up at once, not after
+        ``timeout_s``."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                result: LiveResult = self._results.get(timeout=0.2)
+                return result
+            except queue.Empty:
+                if not self._proc.is_alive() or time.monotonic() > deadline:
+                    raise
 
     def _stop_process(self) -> None:
         self._proc.join(5.0)
@@ -312,6 +325,12 @@ class LiveRerun:
 
 def _serve(plan: Plan, targets: list[scene.RerunTarget], inbox: Any, results: Any) -> None:
     """The sender process: open the recording, then batch what comes until ``None``."""
+    # Stop signals reach the whole process group (Ctrl-C, a closed terminal, a service
+    # manager): the flight decides what they mean, and this process is told to finish by
+    # the ``None`` at the end (or stopped) -- never cut off in the middle of a land-all.
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
     # Below the flight's priority: on a busy machine a sender woken by a snapshot must not
     # preempt the control loop that wrote it.
     with contextlib.suppress(OSError):

@@ -49,6 +49,10 @@ PLAN_FRAME_S = 0.1
 #: Longest wait for a viewer (``connect``, ``spawn``) to take a recording at the end, s.
 FLUSH_TIMEOUT_S = 30.0
 
+#: A viewer spawned beside a flight keeps to this much of the machine's memory (Rerun's
+#: default, 75 %, can push the ground station into swap on a long show: loop stalls).
+VIEWER_MEMORY = "25%"
+
 
 @dataclass(frozen=True)
 class RerunTarget:
@@ -93,7 +97,7 @@ def open_recording(targets: Sequence[RerunTarget], name: str) -> rr.RecordingStr
                 assert target.where is not None
                 rec.save(target.where, default_blueprint=bp)
             elif target.kind == "spawn":
-                rec.spawn(default_blueprint=bp)
+                rec.spawn(default_blueprint=bp, memory_limit=VIEWER_MEMORY)
             else:
                 rec.connect_grpc(target.where, default_blueprint=bp)
         else:
@@ -103,7 +107,7 @@ def open_recording(targets: Sequence[RerunTarget], name: str) -> rr.RecordingStr
                     sinks.append(rr.FileSink(str(target.where)))
                 else:
                     if target.kind == "spawn":
-                        rr.spawn(connect=False, recording=rec)
+                        rr.spawn(connect=False, recording=rec, memory_limit=VIEWER_MEMORY)
                     sinks.append(rr.GrpcSink(target.where) if target.where else rr.GrpcSink())
             rec.set_sinks(*sinks, default_blueprint=bp)
     except (OSError, RuntimeError, ValueError) as exc:

@@ -1,0 +1,60 @@
+"""The console's cost to the control loop, with the console really drawn.
+
+    .venv/bin/python benchmarks/bench_console.py [--sizes 200] [--seconds 20] [--repeat 2]
+
+Runs ``bench_flight.py load --console off on`` with stdin and stderr on a
+pseudo-terminal (200 x 60), where Textual draws, and prints its table: setpoint
+lateness p99 with the console off and on, alternating.  Without a terminal the
+console would not be drawn at all, and its cost would not be measured.
+"""
+
+from __future__ import annotations
+
+import argparse
+import fcntl
+import os
+import pty
+import select
+import struct
+import subprocess
+import sys
+import tempfile
+import termios
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", nargs="+", default=["200"])
+    ap.add_argument("--seconds", default="20")
+    ap.add_argument("--repeat", default="2")
+    args = ap.parse_args()
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 60, 200, 0, 0))
+    env = dict(os.environ, TERM="xterm-256color")
+    with tempfile.TemporaryFile("w+") as out:
+        proc = subprocess.Popen(
+            [sys.executable, str(HERE / "bench_flight.py"), "load", "--sizes", *args.sizes,
+             "--seconds", args.seconds, "--console", "off", "on", "--repeat", args.repeat],
+            stdin=slave, stdout=out, stderr=slave, env=env, cwd=HERE.parent)
+        os.close(slave)
+        while True:  # drain what the console draws, or it blocks on a full terminal
+            ready, _, _ = select.select([master], [], [], 0.5)
+            if ready:
+                try:
+                    if not os.read(master, 1 << 16):
+                        break
+                except OSError:
+                    break
+            elif proc.poll() is not None:
+                break
+        code = proc.wait()
+        out.seek(0)
+        print(out.read(), end="")
+    return code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
