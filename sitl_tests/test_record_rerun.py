@@ -221,12 +221,18 @@ def test_minimum_separation_series_matches_the_report(flown: Flown,
     pair = replayed["/world/closest_pair"]
     j = _row_at(pair, series.seconds()[k])
     assert pair.column("LineStrips3D:labels")[j] == [f"{values[k]:.2f} m"]
-    # Tracking error: per vehicle against its report figures (the monitor's clock
-    # offsets from TIMESYNC against the tlog's fitted vehicle clocks: within 2 cm).
+    # Tracking error: per vehicle against its report figures.  The monitor carries each
+    # sample to the tick with TIMESYNC's clock offsets, the replay with vehicle clocks
+    # fitted to the tlog's receive times: on a busy machine the receive times jitter, and
+    # a single sample's difference moves the largest error by a few centimetres, so the
+    # RMS (every sample) is held to 1 cm and the largest to 6 cm.
     errors = np.array(replayed["/series/tracking_error"].column("Scalars:scalars"),
                       dtype=float)
     for j, v in enumerate(sorted(flown.report["vehicles"], key=lambda v: v["system_id"])):
-        assert np.nanmax(errors[:, j]) == pytest.approx(v["max_tracking_error_m"], abs=0.03)
+        flown_err = errors[np.isfinite(errors[:, j]), j]
+        assert float(np.sqrt(np.mean(flown_err ** 2))) == pytest.approx(
+            v["rms_tracking_error_m"], abs=0.01)
+        assert float(flown_err.max()) == pytest.approx(v["max_tracking_error_m"], abs=0.06)
 
 
 def test_events_are_in_the_log_with_levels(flown: Flown, replayed: dict[str, Entity]) -> None:
