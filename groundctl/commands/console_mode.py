@@ -13,12 +13,22 @@ vehicle off its slot) does not end the pre-flight early: the operator decides
 from __future__ import annotations
 
 import argparse
+import asyncio
 import sys
+from collections.abc import Callable, Coroutine
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from groundctl.errors import ConsoleUnavailable
+from groundctl.errors import ConsoleUnavailable, GroundctlError
 from groundctl.flight.runner import RunnerConfig
+
+if TYPE_CHECKING:
+    from groundctl.console.session import ConsoleSession
+    from groundctl.viz.live import LiveRerun
+
+Flown = tuple[dict[str, Any], GroundctlError | None, bool]
+"""What a flying command's flight gives: its report, the error that ended it, whether
+anything flew."""
 
 
 def add_console_options(p: argparse.ArgumentParser) -> None:
@@ -66,3 +76,18 @@ def _isatty(stream: Any) -> bool:
         return bool(stream is not None and stream.isatty())
     except (AttributeError, ValueError, OSError):
         return False
+
+
+def run_flight(main: Coroutine[Any, Any, Flown], session: ConsoleSession | None,
+               live: LiveRerun | None, notify: Callable[[str], None]) -> Flown:
+    """Run a flying command's ``main`` (report, error, flown): beside the console if there
+    is one, and the live Rerun stream closed (bounded, flushed) whatever happens."""
+    from groundctl.commands.flying import close_live_rerun
+
+    try:
+        if session is not None:
+            from groundctl.console.session import run_with_console
+            return asyncio.run(run_with_console(session, main, lambda r: outcome(r[0])))
+        return asyncio.run(main)
+    finally:
+        close_live_rerun(live, notify)

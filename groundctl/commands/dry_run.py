@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import asyncio
 from dataclasses import replace
 from pathlib import Path
 
@@ -11,14 +10,13 @@ from groundctl.commands.console_mode import (
     add_console_options,
     console_config,
     console_wanted,
-    outcome,
+    run_flight,
 )
 from groundctl.commands.flying import (
     BUNDLED_DEMO,
     Interrupts,
     add_plan_options,
     add_runner_options,
-    close_live_rerun,
     finish,
     plan_for,
     runner_config,
@@ -119,15 +117,7 @@ def run(args: argparse.Namespace) -> int:
 
     say(args.quiet)(f"dry-run of {plan.show_name}: {plan.drones} simulated {args.autopilot} "
                     f"vehicles on 127.0.0.1, speed x{args.speed:g}")
-    try:
-        if session is not None:
-            from groundctl.console.session import run_with_console
-            report, error, flown = asyncio.run(run_with_console(
-                session, main(), lambda r: outcome(r[0])))
-        else:
-            report, error, flown = asyncio.run(main())
-    finally:
-        close_live_rerun(live, say(args.quiet))
+    report, error, flown = run_flight(main(), session, live, say(args.quiet))
     if error is not None and not flown:
         raise error  # nothing flew: one line and the error's exit code
     return finish(report, args, interrupts.aborted)

@@ -18,13 +18,12 @@ from groundctl.commands.console_mode import (
     add_console_options,
     console_config,
     console_wanted,
-    outcome,
+    run_flight,
 )
 from groundctl.commands.flying import (
     Interrupts,
     add_plan_options,
     add_runner_options,
-    close_live_rerun,
     finish,
     plan_for,
     read_operator_commands,
@@ -145,17 +144,9 @@ def run(args: argparse.Namespace) -> int:
             recording.finish(report)
         return report, error, runner.sequence is not None
 
-    try:
-        if session is not None:
-            from groundctl.console.session import run_with_console
-            report, error, flown = asyncio.run(run_with_console(
-                session, main(), lambda r: outcome(r[0])))
-        else:
-            report, error, flown = asyncio.run(main())
-    finally:
-        close_live_rerun(live, say(args.quiet))
+    report, error, flown = run_flight(main(), session, live, say(args.quiet))
     if error is not None and not flown:
-        raise error
+        raise error  # nothing flew: one line and the error's exit code
     return finish(report, args, interrupts.aborted)
 
 

@@ -18,22 +18,17 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol
 
+from groundctl.commands.flying import OperatorTarget
 from groundctl.console.feed import EventFeed
 from groundctl.errors import GroundctlError
 from groundctl.execute.preflight import PreflightReport
 
 
-class ConsoleTarget(Protocol):
-    """What the console acts on: a :class:`~groundctl.flight.runner.ShowRunner`."""
+class ConsoleTarget(OperatorTarget, Protocol):
+    """What the console acts on: the typed commands' target, and exclusion before arming
+    (a :class:`~groundctl.flight.runner.ShowRunner`)."""
 
-    def hold(self) -> None: ...
-    def resume(self) -> None: ...
-    def land_all(self) -> None: ...
-    def land_one(self, sysid: int) -> None: ...
-    def land_here(self, sysid: int) -> None: ...
-    def kill(self, sysid: int, confirm: bool = False) -> None: ...
     def exclude(self, sysid: int) -> None: ...
-    def status_line(self) -> str: ...
 
 
 class GoGate:
