@@ -111,6 +111,39 @@ class PlanningError(GroundctlError):
         super().__init__(f"{msg} ({detail})" if detail else msg)
 
 
+class SeparationConflict(PlanningError):
+    """The optimiser found no plan that keeps every pair apart within its budget.
+
+    Keeps the drones still in conflict (1-based, worst first, with how close and
+    when, on the last iterate) and the formations' spacing that straight lines are
+    guaranteed to clear."""
+
+    def __init__(self, transition: int, name: str, reason: str,
+                 pairs: Sequence[tuple[int, int, float, float]], conflicts: int,
+                 spacing: float, safe_spacing: float) -> None:
+        self.name = name
+        self.reason = reason
+        self.pairs = [tuple(p) for p in pairs]
+        self.conflicts = conflicts
+        self.spacing = spacing
+        self.safe_spacing = safe_spacing
+        shown = ", ".join(f"drones {i} and {j} {d:.2f} m apart at t = {t:.1f} s"
+                          for i, j, d, t in self.pairs)
+        more = conflicts - len(self.pairs)
+        if more > 0:
+            shown += f" (+{more} more pair{'s' if more > 1 else ''})"
+        if spacing < safe_spacing:
+            way = (f"its formations' closest slots are {spacing:.2f} m apart: space them at "
+                   f"least {safe_spacing:.2f} m (sqrt 2 x min_separation: the straight lines "
+                   f"are then conflict-free) or give the transition into '{name}' more time")
+        else:
+            way = (f"its slots are {spacing:.2f} m apart, so the straight lines of the "
+                   "planner's own assignment would be conflict-free: plan the show with "
+                   f"groundctl's assignment, or give the transition into '{name}' more time")
+        detail = f"{reason}: {shown or 'no pair named'}; {way}"
+        super().__init__(transition, "no separation-feasible solution", detail)
+
+
 class PlanFileError(GroundctlError):
     """A plan file that cannot be read or is not a groundctl plan."""
 

@@ -70,7 +70,7 @@ def test_a_tight_grid_whose_straight_lines_keep_the_limit_is_planned_in_one_pass
     assert result.straight and result.iterations == 0 and result.qp_drones == 0
     assert result.straight_min_separation == pytest.approx(1.526)
     # The continuous-time verifier agrees: the limit is kept between the knots too.
-    dense = _dense_pass(result.trajectories, LIMITS.min_separation)
+    dense = _dense_pass(result.trajectories)
     assert dense.seg_sep.min() >= LIMITS.min_separation - 1e-9
 
 
@@ -85,7 +85,7 @@ def test_crossing_drones_still_get_real_avoidance() -> None:
     result = plan_quad_transition(1, "swap", start, goal, duration, LIMITS,
                                   PlannerSettings())
     assert not result.straight and result.iterations >= 1 and result.qp_drones > 0
-    dense = _dense_pass(result.trajectories, LIMITS.min_separation)
+    dense = _dense_pass(result.trajectories)
     assert dense.seg_sep.min() >= LIMITS.min_separation - 1e-9
 
 
@@ -201,5 +201,5 @@ def test_a_pair_ending_just_above_the_limit_is_planned_with_its_own_bulge() -> N
     result = plan_quad_transition(1, "side", start, goal, duration, LIMITS,
                                   PlannerSettings())
     assert not result.straight and result.iterations <= 5
-    dense = _dense_pass(result.trajectories, LIMITS.min_separation)
+    dense = _dense_pass(result.trajectories)
     assert dense.seg_sep.min() >= LIMITS.min_separation

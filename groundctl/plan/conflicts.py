@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse.csgraph import breadth_first_order, connected_components
 from scipy.spatial import cKDTree
 
 IntArray = NDArray[np.intp]
@@ -89,8 +89,12 @@ def widen(segments: NDArray[np.int64], steps: int, by: int) -> NDArray[np.int64]
     return unique_segments(rows, int(rows[:, :2].max()) + 1, steps)
 
 
-def groups(n: int, pairs: NDArray[np.int64], extra: IntArray) -> list[IntArray]:
-    """Connected components (size >= 2, or listed in ``extra``) of the pair graph."""
+def groups(n: int, pairs: NDArray[np.int64], extra: IntArray,
+           max_size: int | None = None) -> list[IntArray]:
+    """Connected components (size >= 2, or listed in ``extra``) of the pair graph; a
+    component larger than ``max_size`` is cut into pieces of at most that many drones,
+    each a breadth-first stretch of the graph (neighbours stay together)."""
+    graph = None
     if len(pairs):
         graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
         _, label = connected_components(graph, directed=False)
@@ -103,7 +107,14 @@ def groups(n: int, pairs: NDArray[np.int64], extra: IntArray) -> list[IntArray]:
     members[extra] = True
     out = []
     for lab in np.unique(label[members]):
-        out.append(np.flatnonzero((label == lab) & members))
+        comp = np.flatnonzero((label == lab) & members)
+        if max_size is None or len(comp) <= max_size or graph is None:
+            out.append(comp)
+            continue
+        order = breadth_first_order(graph, int(comp[0]), directed=False,
+                                    return_predecessors=False)
+        for lo in range(0, len(order), max_size):
+            out.append(np.sort(order[lo:lo + max_size]).astype(np.intp))
     return out
 
 

@@ -253,6 +253,7 @@ class GroupQP:
         self.l[self.obs_bul_rows] = self.d_sep
         self._static_boxes()
         self.solver = osqp.OSQP()
+        self._time_limited = False
         self.solver.setup(P=self._P, q=self.q, A=self.A, l=self.l, u=self.u, **settings)
 
     @property
@@ -374,8 +375,13 @@ class GroupQP:
         x0 = np.concatenate([P.ravel(), V.ravel(), A.ravel(), np.zeros(self.nS)])
         self.solver.warm_start(x=x0)
 
-    def solve(self, transition: int) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        """Solve; return (P, V, A, slack).  Raises PlanningError unless OSQP solved it."""
+    def solve(self, transition: int, time_limit: float = 0.0
+              ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Solve; return (P, V, A, slack).  Raises PlanningError unless OSQP solved it
+        (OSQP stops at ``time_limit`` seconds if given: status "run time limit reached")."""
+        if time_limit > 0 or self._time_limited:
+            self.solver.update_settings(time_limit=max(time_limit, 0.0))
+            self._time_limited = time_limit > 0
         x = solve_checked(self.solver, transition,
                           f"{self.g} drones, {self.N} steps, {len(self.pairs.i)} pair-segments, "
                           f"{len(self.obstacles.i)} obstacle segments")

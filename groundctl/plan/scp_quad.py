@@ -48,8 +48,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
-from groundctl.errors import InfeasibleTransition, PlanningError
+from groundctl.errors import InfeasibleTransition, PlanningError, SeparationConflict
 from groundctl.plan.conflicts import (
     close_pair_segments,
     groups,
@@ -79,6 +80,7 @@ from groundctl.plan.quad_qp import (
 )
 from groundctl.plan.straight import StraightCheck, check_straight_lines
 from groundctl.plan.trajectory import Trajectories
+from groundctl.plan.verify import close_pairs
 from groundctl.show.model import Limits, PlannerSettings, QuadrotorModel
 
 FloatArray = NDArray[np.float64]
@@ -89,6 +91,14 @@ TRUST_RADIUS = 1.0
 #: the current iterate (violated, or held up against an obstacle row) joins its two
 #: drones into one group, m.
 LINK_MARGIN = 0.05
+#: Drones in one QP at most: a larger component of tight pairs is cut into breadth-first
+#: pieces solved one after another against each other (Gauss-Seidel), as separate
+#: groups are: the KKT factorisation of a 100-drone group takes minutes.
+MAX_GROUP = 4
+#: Wall time one transition may spend looking for a plan that keeps every pair apart
+#: (both attempts, with and without the tracking margin), s.  Past it the transition
+#: fails with the drones still in conflict named: 1000 drones refused inside a minute.
+BUDGET_S = 40.0
 
 
 @dataclass(frozen=True)
@@ -210,8 +220,9 @@ def _build_group(members: NDArray[np.intp], inside: NDArray[np.bool_],
 
 def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatArray,
                          duration: float, limits: Limits,
-                         settings: PlannerSettings, lines_at_limit: bool = True
-                         ) -> TransitionResult:
+                         settings: PlannerSettings, lines_at_limit: bool = True,
+                         budget_s: float = BUDGET_S,
+                         clock: Callable[[], float] = time.perf_counter) -> TransitionResult:
     """Plan one quadrotor transition from ``start`` to ``goal`` (n, 3) in ``duration`` s.
 
     With the tracking margin first; if that cannot be met, without it (the
@@ -219,8 +230,10 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
     Straight lines that keep every pair at its target are flown as they are; if
     the optimiser fails, lines that keep only the limit are flown unless
     ``lines_at_limit`` is False (a return flown unrehearsed wants its margin).
+    Past ``budget_s`` of ``clock`` the search stops with a SeparationConflict.
     """
     t0 = time.perf_counter()
+    deadline = clock() + budget_s
     steps, _, _, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
                                            settings)
     lines = check_straight_lines(start, goal, limits.min_separation, settings.tracking_margin)
@@ -231,12 +244,13 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
         return _straight_result(index, name, start, goal, duration, steps, P, V, lines, t0)
     try:
         try:
-            result = _plan(index, name, start, goal, duration, limits, settings, t0)
+            result = _plan(index, name, start, goal, duration, limits, settings, t0,
+                           deadline, clock)
         except PlanningError:
-            if settings.tracking_margin <= 0:
+            if settings.tracking_margin <= 0 or clock() >= deadline:
                 raise
             result = _plan(index, name, start, goal, duration, limits,
-                           replace(settings, tracking_margin=0.0), t0)
+                           replace(settings, tracking_margin=0.0), t0, deadline, clock)
     except PlanningError:
         if not (usable and lines_at_limit):
             raise
@@ -276,8 +290,34 @@ def _straight_lines(index: int, name: str, start: FloatArray, goal: FloatArray,
     return steps, dt, ref, ref.copy(), V, A
 
 
+def _conflict(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
+              P: FloatArray, V: FloatArray, limits: Limits, reason: str
+              ) -> SeparationConflict:
+    """The error for a transition left in conflict: who, how close and when, on the
+    last iterate ``P``, ``V`` (knots), and a spacing that is sure to work.
+
+    Synchronised straight lines under the assignment that minimises the sum of squared
+    distances (the planner's) never bring two drones closer than min_separation if
+    every start and every goal are at least sqrt 2 x min_separation apart (Turpin,
+    Michael, Kumar, CAPT, 2014)."""
+    times = np.linspace(0.0, duration, P.shape[1])
+    found = close_pairs(Trajectories(times, P, V), limits.min_separation - 1e-3)
+    spacing = min(_closest_slots(start), _closest_slots(goal))
+    return SeparationConflict(index, name, reason, found[:4], len(found), spacing,
+                              float(np.sqrt(2.0) * limits.min_separation))
+
+
+def _closest_slots(points: FloatArray) -> float:
+    if len(points) < 2:
+        return float("inf")
+    d, _ = cKDTree(points).query(points, k=2)
+    return float(d[:, 1].min())
+
+
 def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
-          limits: Limits, settings: PlannerSettings, t0: float) -> TransitionResult:
+          limits: Limits, settings: PlannerSettings, t0: float,
+          deadline: float = np.inf, clock: Callable[[], float] = time.perf_counter
+          ) -> TransitionResult:
     n = start.shape[0]
     steps, dt, ref, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
                                               settings)
@@ -294,7 +334,7 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
     had_rows = np.empty((0, 3), dtype=np.int64)
     if settings.tolerance > MAX_TOLERANCE:
         raise ValueError(f"`tolerance` must be at most {MAX_TOLERANCE} m")
-    for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 (used after)
+    for iterations in range(1, settings.max_iterations + 1):
         # One spatial query per iterate, at the largest radius; the others filter it.
         near_build = close_pair_segments(P, d_far + BUILD_MARGIN)
         need = within(P, near_build, d_far + NEED_MARGIN)
@@ -305,7 +345,7 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
                      + LINK_MARGIN]
         links = unique_segments(np.concatenate([links, tight]), n, steps)
         violators_all = np.union1d(violators_all, _limit_violators(V, A, limits))
-        grouped = groups(n, links[:, :2], violators_all)
+        grouped = groups(n, links[:, :2], violators_all, MAX_GROUP)
         # Which group each drone was in, so a grown or merged group inherits the
         # smallest trust region of its parts: resetting it would let a group that
         # keeps picking up neighbours cycle for ever.
@@ -337,7 +377,17 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
                                P[state.obs_other, state.qp.obstacles.k + 1]], axis=1)
             state.qp.linearise(P[members], V[members], A[members], state.trust, others,
                                A[state.obs_other, state.qp.obstacles.k])
-            Pg, Vg, Ag, Sg = state.qp.solve(index)
+            left = deadline - clock()
+            try:
+                if left <= 0:
+                    raise PlanningError(index, "out of time")
+                Pg, Vg, Ag, Sg = state.qp.solve(index, time_limit=left)
+            except PlanningError:
+                if clock() < deadline:
+                    raise
+                raise _conflict(index, name, start, goal, duration, P, V, limits,
+                                f"no plan within {time.perf_counter() - t0:.0f} s "
+                                f"({iterations} SCP iterations)") from None
             change = float(np.abs(Pg - P[members]).max())
             state.slack = float(Sg.max(initial=0.0))
             P[members], V[members], A[members] = Pg, Vg, Ag
@@ -349,10 +399,8 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
             break
     max_slack = max((st.slack for st in states.values()), default=0.0)
     if max_slack >= SLACK_TOL:
-        raise PlanningError(
-            index, "no separation-feasible solution",
-            f"slack {max_slack:.3f} m after {iterations} SCP iterations; give transition "
-            f"into '{name}' more time or space the formations further")
+        raise _conflict(index, name, start, goal, duration, P, V, limits,
+                        f"slack {max_slack:.3f} m after {iterations} SCP iterations")
     times = np.linspace(0.0, duration, steps + 1)
     return TransitionResult(
         index=index, name=name, trajectories=Trajectories(times, P, V), steps=steps,

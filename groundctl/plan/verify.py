@@ -1,9 +1,12 @@
 """Continuous-time verification of a plan: what the drones will fly, not the QP samples.
 
-Everything is evaluated once, densely, over the whole show (see
-:func:`_dense_pass`); per-transition and whole-show figures are read off that
-one pass.  Separation is checked on the cubic trajectories between knots, not
-only at the knots.
+One pass over the show (:func:`_dense_pass`) reduces everything to one row per knot
+segment; per-transition and whole-show figures are read off those rows.  Separation
+is exact in continuous time: per segment a KD-tree over each drone's Bezier bounding
+sphere finds the pairs that can come close, and their closest approach is solved on
+their relative cubic (time grows with drones x segments, not drones^2 or the fleet's
+dense samples held at once).  Speeds, accelerations, altitudes and the geofence are
+read off SAMPLES points per segment, drone-chunk by drone-chunk.
 """
 
 from __future__ import annotations
@@ -23,8 +26,16 @@ FloatArray = NDArray[np.float64]
 
 #: Dense samples per knot segment for every check.
 SAMPLES = 12
-#: Finer samples per segment for the pairs near the separation limit.
-REFINE = 400
+#: Grid points per segment bracketing a close pair's closest approach (then Newton).
+FINE = 64
+#: Newton steps polishing a close pair's closest approach.
+NEWTON_STEPS = 4
+#: Powers of the coarse samples that bound a segment's minimum from above.
+_COARSE_POWERS = np.linspace(0.0, 1.0, 9)[None, :] ** np.arange(4)[:, None]
+#: Close pairs measured per block (bounds the temporaries).
+PAIR_BLOCK = 20_000
+#: Drones evaluated per block for the kinematic figures (bounds the temporaries).
+DRONE_CHUNK = 256
 #: Relative slack on speed and acceleration limits (solver tolerance), 0.5 %.
 LIMIT_TOL = 5e-3
 #: Max distance from its slot a drone may be when its formation is due, m.  The
@@ -101,75 +112,207 @@ def inside_polygon(poly: NDArray[np.float64], xy: NDArray[np.float64]) -> NDArra
 
 @dataclass(frozen=True)
 class _DensePass:
-    """Everything the checks need, evaluated once over the whole show."""
+    """Everything the checks need, reduced to one row per knot segment.
+
+    Built drone-chunk by drone-chunk and segment by segment, so memory stays bounded
+    and time grows with drones x segments (plus the close pairs), whatever the fleet size.
+    """
 
     tr: Trajectories
-    ts: FloatArray
-    """(T,) dense times: SAMPLES per knot segment, segment k is ts[k*S : (k+1)*S + 1]."""
-    pos: FloatArray
-    vel: FloatArray
-    acc: FloatArray
     seg_sep: FloatArray
     """(K-1,) min distance between any two drones in each segment (inf: nobody near)."""
     seg_pair: NDArray[np.intp]
     """(K-1, 2) 1-based drone numbers of that pair."""
     seg_time: FloatArray
     """(K-1,) when it happens."""
+    seg_speed_h: FloatArray
+    """(K-1,) largest horizontal speed in each segment (dense samples), m/s."""
+    seg_up: FloatArray
+    seg_down: FloatArray
+    seg_accel: FloatArray
+    seg_min_alt: FloatArray
+    seg_max_alt: FloatArray
+    seg_path: FloatArray
+    """(K-1,) path length flown in each segment, summed over the fleet, m."""
+    seg_outside: NDArray[np.intp]
+    """(K-1,) dense samples outside the geofence (each knot counted in the segment before it,
+    the first knot in the first segment)."""
 
 
-def _dense_pass(tr: Trajectories, limit: float) -> _DensePass:
-    """Sample every segment densely once; find each segment's closest pair.
+def _power_basis(tr: Trajectories, k: int, rows: NDArray[np.intp] | slice = slice(None)
+                 ) -> FloatArray:
+    """(m, 4, 3) coefficients c0..c3 of p(s) = sum c_q s^q, s in [0, 1], on knot segment k."""
+    h = tr.times[k + 1] - tr.times[k]
+    p0, p1 = tr.pos[rows, k], tr.pos[rows, k + 1]
+    m0, m1 = tr.vel[rows, k] * h, tr.vel[rows, k + 1] * h
+    return np.stack([p0, m0, 3 * (p1 - p0) - 2 * m0 - m1, 2 * (p0 - p1) + m0 + m1], axis=1)
 
-    Per knot segment, a KD-tree at the segment start finds every pair that could
-    come within the limit during it (radius = limit + the most two drones can
-    close in it, from the segment's top speed); those pairs are read off the
-    dense samples, and the ones near the limit are refined on a much finer grid
-    of their own two trajectories only.
+
+def _bounding_spheres(coef: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Centre (m, 3) and radius (m,) of a sphere holding each cubic on [0, 1].
+
+    The curve lies in the convex hull of its four Bezier control points."""
+    c0, c1, c2, c3 = coef[:, 0], coef[:, 1], coef[:, 2], coef[:, 3]
+    b = np.stack([c0, c0 + c1 / 3, c0 + 2 * c1 / 3 + c2 / 3, c0 + c1 + c2 + c3], axis=1)
+    centre = b.mean(axis=1)
+    return centre, np.linalg.norm(b - centre[:, None], axis=2).max(axis=1)
+
+
+def _closest_on_segment(d: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Exact min over s in [0, 1] of |d(s)| for relative cubics d (m, 4, 3), and where.
+
+    A grid of FINE points brackets the minimum; Newton steps on the derivative of
+    |d|^2 (a quintic) inside that bracket polish it to rounding."""
+    fine = np.linspace(0.0, 1.0, FINE + 1)
+    powers = fine[None, :] ** np.arange(4)[:, None]  # (4, F)
+    vals = np.einsum("mqx,qf->mfx", d, powers)
+    dist2 = np.einsum("mfx,mfx->mf", vals, vals)
+    best = np.argmin(dist2, axis=1)
+    s = fine[best]
+    lo = np.maximum(s - 1.0 / FINE, 0.0)
+    hi = np.minimum(s + 1.0 / FINE, 1.0)
+    d1 = d[:, 1:] * np.array([1.0, 2.0, 3.0])[None, :, None]   # d'(s) coefficients
+    d2 = d1[:, 1:] * np.array([1.0, 2.0])[None, :, None]       # d''(s)
+    for _ in range(NEWTON_STEPS):
+        sp = s[:, None] ** np.arange(4)[None, :]
+        p = np.einsum("mqx,mq->mx", d, sp)
+        v = np.einsum("mqx,mq->mx", d1, sp[:, :3])
+        a = np.einsum("mqx,mq->mx", d2, sp[:, :2])
+        g = np.einsum("mx,mx->m", p, v)
+        hess = np.einsum("mx,mx->m", v, v) + np.einsum("mx,mx->m", p, a)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = np.where(hess > 0, g / hess, 0.0)
+        s = np.clip(s - step, lo, hi)
+    sp = s[:, None] ** np.arange(4)[None, :]
+    p = np.einsum("mqx,mq->mx", d, sp)
+    polished = np.linalg.norm(p, axis=1)
+    grid_min = np.sqrt(dist2[np.arange(len(d)), best])
+    keep = polished <= grid_min
+    return np.where(keep, polished, grid_min), np.where(keep, s, fine[best])
+
+
+def _separation(tr: Trajectories
+                ) -> tuple[FloatArray, NDArray[np.intp], FloatArray]:
+    """Per knot segment: the closest pair, how close, and when, in continuous time.
+
+    Each drone's segment is a cubic inside a bounding sphere (its Bezier hull).  The
+    closest pair at the segment's first knot bounds the segment's minimum from above
+    (``bound``); a KD-tree on the sphere centres gives the few pairs whose spheres come
+    within ``bound`` of each other -- the only pairs that can hold the minimum -- and
+    their exact closest approach is found on their relative cubic.  A spatial index per
+    segment: drones x segments, not drones^2.
     """
-    S = SAMPLES
-    ts = tr.dense_times(S)
-    pos, vel, acc = tr.evaluate(ts)
     nseg = len(tr.times) - 1
     seg_sep = np.full(nseg, np.inf)
     seg_pair = np.zeros((nseg, 2), dtype=np.intp)
     seg_time = tr.times[:-1].copy()
     if tr.drones < 2:
-        return _DensePass(tr, ts, pos, vel, acc, seg_sep, seg_pair, seg_time)
-    speed = np.linalg.norm(vel, axis=2).max(axis=0)  # (T,) fastest drone at each sample
-    fine_frac = np.linspace(0.0, 1.0, REFINE + 1)
+        return seg_sep, seg_pair, seg_time
     for k in range(nseg):
-        window = slice(k * S, (k + 1) * S + 1)
-        h = tr.times[k + 1] - tr.times[k]
-        radius = limit + 0.5 + 2 * float(speed[window].max()) * h
-        pairs = cKDTree(tr.pos[:, k]).query_pairs(radius, output_type="ndarray")
-        if not len(pairs):
-            continue
-        d = np.linalg.norm(pos[pairs[:, 0], window] - pos[pairs[:, 1], window], axis=2)
-        dmin = d.min(axis=1)
-        at = ts[window][np.argmin(d, axis=1)]
-        near = np.flatnonzero(dmin < limit + 0.25)
-        if len(near):
-            fine = tr.times[k] + fine_frac * h
-            pi, _, _ = tr.evaluate(fine, pairs[near, 0])
-            pj, _, _ = tr.evaluate(fine, pairs[near, 1])
-            dn = np.linalg.norm(pi - pj, axis=2)
-            dmin[near] = dn.min(axis=1)
-            at[near] = fine[np.argmin(dn, axis=1)]
-        q = int(np.argmin(dmin))
-        seg_sep[k] = dmin[q]
-        seg_pair[k] = pairs[q] + 1
-        seg_time[k] = at[q]
-    return _DensePass(tr, ts, pos, vel, acc, seg_sep, seg_pair, seg_time)
+        coef = _power_basis(tr, k)
+        centre, radius = _bounding_spheres(coef)
+        knot_gap, _ = cKDTree(tr.pos[:, k]).query(tr.pos[:, k], k=2)
+        bound = float(knot_gap[:, 1].min()) * (1 + 1e-9) + 1e-12
+        pairs = cKDTree(centre).query_pairs(bound + 2 * float(radius.max()),
+                                            output_type="ndarray")
+        i, j = pairs[:, 0], pairs[:, 1]
+        gap = np.linalg.norm(centre[i] - centre[j], axis=1) - radius[i] - radius[j]
+        pairs = pairs[gap <= bound]
+        # Coarse samples bound the segment's minimum from above again, much tighter;
+        # each pair's relative Bezier hull bounds its own minimum from below.  Only the
+        # pairs whose lower bound reaches under it can hold the minimum.
+        d = coef[pairs[:, 0]] - coef[pairs[:, 1]]
+        coarse = np.linalg.norm(np.einsum("mqx,qf->mfx", d, _COARSE_POWERS), axis=2)
+        centre_d, radius_d = _bounding_spheres(d)
+        lower = np.linalg.norm(centre_d, axis=1) - radius_d
+        pairs = pairs[lower <= coarse.min() * (1 + 1e-9)]
+        best_d, best_s, best_q = np.inf, 0.0, 0
+        for b in range(0, len(pairs), PAIR_BLOCK):
+            blk = pairs[b:b + PAIR_BLOCK]
+            dmin, at = _closest_on_segment(coef[blk[:, 0]] - coef[blk[:, 1]])
+            q = int(np.argmin(dmin))
+            if dmin[q] < best_d:
+                best_d, best_s, best_q = float(dmin[q]), float(at[q]), b + q
+        seg_sep[k] = best_d
+        seg_pair[k] = pairs[best_q] + 1
+        seg_time[k] = tr.times[k] + best_s * (tr.times[k + 1] - tr.times[k])
+    return seg_sep, seg_pair, seg_time
+
+
+def close_pairs(tr: Trajectories, limit: float) -> list[tuple[int, int, float, float]]:
+    """Every pair that comes closer than ``limit``, worst first: (i, j, distance, time)
+    with 1-based drone numbers, exact in continuous time (as :func:`_separation`)."""
+    best: dict[tuple[int, int], tuple[float, float]] = {}
+    if tr.drones < 2:
+        return []
+    for k in range(len(tr.times) - 1):
+        coef = _power_basis(tr, k)
+        centre, radius = _bounding_spheres(coef)
+        pairs = cKDTree(centre).query_pairs(limit + 2 * float(radius.max()),
+                                            output_type="ndarray")
+        gap = (np.linalg.norm(centre[pairs[:, 0]] - centre[pairs[:, 1]], axis=1)
+               - radius[pairs[:, 0]] - radius[pairs[:, 1]])
+        pairs = pairs[gap < limit]
+        for b in range(0, len(pairs), PAIR_BLOCK):
+            blk = pairs[b:b + PAIR_BLOCK]
+            dmin, at = _closest_on_segment(coef[blk[:, 0]] - coef[blk[:, 1]])
+            h = tr.times[k + 1] - tr.times[k]
+            for (i, j), d, s in zip(blk[dmin < limit], dmin[dmin < limit], at[dmin < limit],
+                                    strict=True):
+                key = (int(i) + 1, int(j) + 1)
+                if key not in best or d < best[key][0]:
+                    best[key] = (float(d), float(tr.times[k] + s * h))
+    return sorted(((i, j, d, t) for (i, j), (d, t) in best.items()), key=lambda r: r[2])
+
+
+def _dense_pass(tr: Trajectories, geofence: NDArray[np.float64] | None = None) -> _DensePass:
+    """Separation per segment in continuous time; kinematics on SAMPLES points per segment.
+
+    The kinematic figures are read drone-chunk by drone-chunk off the dense samples and
+    reduced to one row per segment at once, so no (drones x samples) array of the whole
+    fleet is ever held.
+    """
+    S = SAMPLES
+    nseg = len(tr.times) - 1
+    seg_sep, seg_pair, seg_time = _separation(tr)
+    ts = tr.dense_times(S)
+    speed_h = np.zeros(nseg)
+    up, down, accel = np.zeros(nseg), np.zeros(nseg), np.zeros(nseg)
+    lo, hi = np.full(nseg, np.inf), np.full(nseg, -np.inf)
+    path = np.zeros(nseg)
+    outside = np.zeros(nseg, dtype=np.intp)
+
+    def per_seg_max(q: FloatArray) -> FloatArray:
+        # q (m, T) -> (nseg,) max over drones and the segment's samples, both ends included.
+        body = q[:, :-1].reshape(len(q), nseg, S).max(axis=(0, 2))
+        return np.maximum(body, q[:, S::S].max(axis=0))
+
+    for c in range(0, tr.drones, DRONE_CHUNK):
+        rows = np.arange(c, min(c + DRONE_CHUNK, tr.drones))
+        pos, vel, acc = tr.evaluate(ts, rows)
+        speed_h = np.maximum(speed_h, per_seg_max(np.hypot(vel[..., 0], vel[..., 1])))
+        up = np.maximum(up, per_seg_max(vel[..., 2]))
+        down = np.maximum(down, per_seg_max(-vel[..., 2]))
+        accel = np.maximum(accel, per_seg_max(np.linalg.norm(acc, axis=2)))
+        hi = np.maximum(hi, per_seg_max(pos[..., 2]))
+        lo = np.minimum(lo, -per_seg_max(-pos[..., 2]))
+        step = np.linalg.norm(np.diff(pos, axis=1), axis=2)  # (m, T-1)
+        path += step.reshape(len(rows), nseg, S).sum(axis=(0, 2))
+        if geofence is not None:
+            out = ~inside_polygon(geofence, pos[..., :2])  # (m, T)
+            counts = out[:, 1:].reshape(len(rows), nseg, S).sum(axis=(0, 2))
+            counts[0] += int(out[:, 0].sum())
+            outside += counts
+    return _DensePass(tr, seg_sep, seg_pair, seg_time, speed_h, np.maximum(up, 0.0),
+                      np.maximum(down, 0.0), accel, lo, hi, path, outside)
 
 
 def _window(dp: _DensePass, limits: Limits, t0: float, t1: float) -> WindowMetrics:
-    """Figures over show times [t0, t1] (knot-aligned), read off the dense pass."""
-    tr, S = dp.tr, SAMPLES
+    """Figures over show times [t0, t1] (knot-aligned), read off the per-segment rows."""
+    tr = dp.tr
     k0 = int(np.searchsorted(tr.times, t0 - 1e-9))
     k1 = int(np.searchsorted(tr.times, t1 + 1e-9)) - 1  # last knot inside
     k1 = max(k1, k0 + 1)
-    dense = slice(k0 * S, k1 * S + 1)
-    pos, vel, acc = dp.pos[:, dense], dp.vel[:, dense], dp.acc[:, dense]
     segs = slice(k0, k1)
     if np.isfinite(dp.seg_sep[segs]).any():
         q = k0 + int(np.argmin(dp.seg_sep[segs]))
@@ -182,26 +325,23 @@ def _window(dp: _DensePass, limits: Limits, t0: float, t1: float) -> WindowMetri
         sep, pair, tsep = float(dist[q, 1]), (q + 1, int(idx[q, 1]) + 1), float(tr.times[k0])
     else:
         sep, pair, tsep = np.inf, (0, 0), t0
-    outside = 0
-    if limits.geofence:
-        poly = np.asarray(limits.geofence, dtype=float)
-        outside = int((~inside_polygon(poly, pos[..., :2])).sum())
     return WindowMetrics(
         min_separation=sep, min_separation_pair=pair, min_separation_time=tsep,
-        max_speed_h=float(np.linalg.norm(vel[..., :2], axis=2).max()),
-        max_speed_up=float(max(vel[..., 2].max(), 0.0)),
-        max_speed_down=float(max(-vel[..., 2].min(), 0.0)),
-        max_accel=float(np.linalg.norm(acc, axis=2).max()),
-        min_alt=float(pos[..., 2].min()), max_alt=float(pos[..., 2].max()),
-        path_length_mean=float(np.linalg.norm(np.diff(pos, axis=1), axis=2).sum(axis=1).mean()),
-        outside_fence=outside)
+        max_speed_h=float(dp.seg_speed_h[segs].max()),
+        max_speed_up=float(dp.seg_up[segs].max()),
+        max_speed_down=float(dp.seg_down[segs].max()),
+        max_accel=float(dp.seg_accel[segs].max()),
+        min_alt=float(dp.seg_min_alt[segs].min()), max_alt=float(dp.seg_max_alt[segs].max()),
+        path_length_mean=float(dp.seg_path[segs].sum() / max(tr.drones, 1)),
+        outside_fence=int(dp.seg_outside[segs].sum()))
 
 
 def verify(plan: Plan) -> Verification:
     """Check every limit of ``plan.limits`` on the continuous trajectories."""
     lim = plan.limits
     tr = plan.trajectories
-    dense = _dense_pass(tr, lim.min_separation)
+    fence = np.asarray(lim.geofence, dtype=float) if lim.geofence else None
+    dense = _dense_pass(tr, fence)
     windows = tuple(_window(dense, lim, f.start, f.arrive) for f in plan.formations)
     overall = _window(dense, lim, tr.start, tr.end)
     errors = []
