@@ -245,12 +245,13 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
     try:
         try:
             result = _plan(index, name, start, goal, duration, limits, settings, t0,
-                           deadline, clock)
+                           deadline, clock, budget_s)
         except PlanningError:
             if settings.tracking_margin <= 0 or clock() >= deadline:
                 raise
             result = _plan(index, name, start, goal, duration, limits,
-                           replace(settings, tracking_margin=0.0), t0, deadline, clock)
+                           replace(settings, tracking_margin=0.0), t0, deadline, clock,
+                           budget_s)
     except PlanningError:
         if not (usable and lines_at_limit):
             raise
@@ -316,8 +317,8 @@ def _closest_slots(points: FloatArray) -> float:
 
 def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
           limits: Limits, settings: PlannerSettings, t0: float,
-          deadline: float = np.inf, clock: Callable[[], float] = time.perf_counter
-          ) -> TransitionResult:
+          deadline: float = np.inf, clock: Callable[[], float] = time.perf_counter,
+          budget_s: float = BUDGET_S) -> TransitionResult:
     n = start.shape[0]
     steps, dt, ref, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
                                               settings)
@@ -386,7 +387,7 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
                 if clock() < deadline:
                     raise
                 raise _conflict(index, name, start, goal, duration, P, V, limits,
-                                f"no plan within {time.perf_counter() - t0:.0f} s "
+                                f"no plan within the {budget_s:g} s budget "
                                 f"({iterations} SCP iterations)") from None
             change = float(np.abs(Pg - P[members]).max())
             state.slack = float(Sg.max(initial=0.0))
