@@ -99,6 +99,8 @@ MAX_GROUP = 4
 #: (both attempts, with and without the tracking margin), s.  Past it the transition
 #: fails with the drones still in conflict named: 1000 drones refused inside a minute.
 BUDGET_S = 40.0
+#: Times OSQP may give up on one group before the transition fails.
+GROUP_FAILURES = 3
 
 
 @dataclass(frozen=True)
@@ -149,6 +151,8 @@ class _Group:
     slack: float = np.inf
     """Largest separation slack of the last solve, m."""
     converged: bool = False
+    failures: int = 0
+    """Solves OSQP did not finish."""
 
 
 def _steps(duration: float, settings: PlannerSettings) -> tuple[int, float]:
@@ -383,12 +387,22 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
                 if left <= 0:
                     raise PlanningError(index, "out of time")
                 Pg, Vg, Ag, Sg = state.qp.solve(index, time_limit=left)
-            except PlanningError:
-                if clock() < deadline:
-                    raise
-                raise _conflict(index, name, start, goal, duration, P, V, limits,
-                                f"no plan within the {budget_s:g} s budget "
-                                f"({iterations} SCP iterations)") from None
+            except PlanningError as exc:
+                if clock() >= deadline:
+                    raise _conflict(index, name, start, goal, duration, P, V, limits,
+                                    f"no plan within the {budget_s:g} s budget "
+                                    f"({iterations} SCP iterations)") from None
+                # OSQP gave up on this group (it can call a badly scaled QP infeasible):
+                # the group keeps its trajectory, which every neighbour solved since was
+                # kept clear of, and tries again with a smaller trust region.
+                state.failures += 1
+                if state.failures > GROUP_FAILURES:
+                    raise _conflict(index, name, start, goal, duration, P, V, limits,
+                                    f"{exc.status} for a group of {len(members)} drones "
+                                    f"after {iterations} SCP iterations") from None
+                state.slack = np.inf
+                state.trust = max(state.trust * 0.5, settings.tolerance / 4)
+                continue
             change = float(np.abs(Pg - P[members]).max())
             state.slack = float(Sg.max(initial=0.0))
             P[members], V[members], A[members] = Pg, Vg, Ag
