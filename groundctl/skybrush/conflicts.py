@@ -54,7 +54,7 @@ class Conflict:
             return f"{i + 1} ({names[i]})" if names else str(i + 1)
         return (f"conflict: drones {who(self.a)} and {who(self.b)} come {self.distance:.3f} m "
                 f"apart at t = {self.time + offset:.2f} s (min_separation {limit:g} m; below "
-                f"it from {self.start + offset:.2f} to {self.end + offset:.2f} s)")
+                f"it within the knots {self.start + offset:.2f} to {self.end + offset:.2f} s)")
 
 
 def find_conflicts(tr: Trajectories, limit: float) -> list[Conflict]:

@@ -130,6 +130,25 @@ def _rest_to_rest_time(delta: FloatArray, limits: Limits) -> float:
     return max(0.1, math.ceil(max(need) * 1.02 * 10 - 1e-9) / 10)
 
 
+def _hermite_time(a: FloatArray, va: FloatArray, b: FloatArray, vb: FloatArray,
+                  limits: Limits) -> float:
+    """Shortest duration (0.1 s steps) of the cubic Hermite moves ``a, va -> b, vb``
+    (n, 3) that keeps the speed and acceleration limits (checked on 64 samples)."""
+    T = _rest_to_rest_time(b - a, limits)
+    s = np.linspace(0.0, 1.0, 65)[None, :, None]
+    for _ in range(200):
+        tr = Trajectories(np.array([0.0, T]), np.stack([a, b], 1), np.stack([va, vb], 1))
+        _, v, acc = tr.evaluate(s[0, :, 0] * T)
+        ok = (np.linalg.norm(v[..., :2], axis=2).max() <= limits.max_speed_h
+              and v[..., 2].max() <= limits.max_speed_up
+              and -v[..., 2].min() <= limits.max_speed_down
+              and np.linalg.norm(acc, axis=2).max() <= limits.max_accel)
+        if ok:
+            return T
+        T = round(T + 0.1, 6)
+    return T
+
+
 def _union_knots(tracks: list[BezierTrack]) -> FloatArray:
     t = np.unique(np.concatenate([tr.times for tr in tracks]))
     keep = np.concatenate([[True], np.diff(t) > 1e-9])
@@ -165,33 +184,41 @@ def sky_to_plan(show: SkyShow, origin: GeoOrigin, limits: Limits,
     up = (height > LIFTED).all(axis=0)
     rest_r = (np.linalg.norm(vel_r, axis=2) <= REST_SPEED).all(axis=0)
     rest_l = (np.linalg.norm(vel_l, axis=2) <= REST_SPEED).all(axis=0)
+    # The show starts at the first instant every drone is up and at rest, or, if some
+    # drone moves sideways before any such instant (a show sampled too coarsely to see
+    # its rest, one that flies off from the climb), at the last knot before that.
+    side_home = np.linalg.norm(pos_r[:, :, :2] - home[:, None, :2], axis=2)
+    away = np.flatnonzero((side_home > VERTICAL_TOL).any(axis=0))
+    first_away = int(away[0]) if len(away) else len(knots)
     starts = np.flatnonzero(up & rest_r)
+    starts = starts[starts < first_away]
+    if len(starts):
+        i0 = int(starts[0])
+    elif 0 < first_away < len(knots) and up[first_away - 1]:
+        i0 = first_away - 1
+    else:
+        k = min(first_away, len(knots) - 1)
+        i = int(np.argmax(side_home[:, k]))
+        raise ConversionError(
+            f"drone {i + 1} ({show.drones[i].name}) is {side_home[i, k]:.2f} m sideways from "
+            f"its home at t = {knots[k]:.2f} s, before every drone is up (more than {LIFTED} "
+            "m above home): groundctl takes off straight up")
+    final = pos_l[:, -1:, :2]
+    side_end = np.linalg.norm(pos_l[:, :, :2] - final, axis=2)
+    moving = np.flatnonzero((side_end > VERTICAL_TOL).any(axis=0))
+    last_move = int(moving[-1]) if len(moving) else -1
     ends = np.flatnonzero(up & rest_l)
-    if not len(starts):
-        raise ConversionError(f"no instant at which all {n} drones are up (more than "
-                              f"{LIFTED} m above home) and at rest after taking off: groundctl "
-                              "takes off, then starts the show from rest")
-    i0, i1 = int(starts[0]), int(ends[-1])
+    ends = ends[ends > last_move]
+    if len(ends):
+        i1 = int(ends[-1])
+    elif last_move + 1 < len(knots) and up[last_move + 1]:
+        i1 = last_move + 1
+    else:
+        raise ConversionError("the drones are not all up when the last of them stops moving "
+                              "sideways before landing: groundctl lands straight down")
     if i1 <= i0:
         raise ConversionError("the show never moves between taking off and landing")
     t0, t_end = float(knots[i0]), float(knots[i1])
-    # Takeoff and landing are vertical (groundctl's own, straight up and down).
-    side = np.linalg.norm(pos_r[:, :i0 + 1, :2] - home[:, None, :2], axis=2)
-    bad = np.argwhere(side > VERTICAL_TOL)
-    if len(bad):
-        i, k = bad[0]
-        raise ConversionError(f"drone {i + 1} ({show.drones[i].name}) is {side[i, k]:.2f} m "
-                              f"sideways from its home at t = {knots[k]:.2f} s, before every "
-                              f"drone is up and at rest (t = {t0:.2f} s): groundctl takes off "
-                              "straight up")
-    side = np.linalg.norm(pos_l[:, i1:, :2] - pos_l[:, i1:i1 + 1, :2], axis=2)
-    bad = np.argwhere(side > VERTICAL_TOL)
-    if len(bad):
-        i, k = bad[0]
-        raise ConversionError(f"drone {i + 1} ({show.drones[i].name}) moves {side[i, k]:.2f} m "
-                              f"sideways at t = {knots[i1 + k]:.2f} s, after every drone's "
-                              f"last rest before landing (t = {t_end:.2f} s): groundctl lands "
-                              "straight down")
     h = float(height[:, i0].min()) if takeoff_altitude is None else float(takeoff_altitude)
 
     # The show's own curves between t0 and t_end on the union of knots.
@@ -217,7 +244,7 @@ def sky_to_plan(show: SkyShow, origin: GeoOrigin, limits: Limits,
     climb = mid_p[:, 0] - top
     climb_s = 0.0
     if np.abs(climb).max() > SAME_POINT:
-        climb_s = _rest_to_rest_time(climb, limits)
+        climb_s = _hermite_time(top, np.zeros_like(top), mid_p[:, 0], mid_v[:, 0], limits)
         parts.append(Trajectories(np.array([0.0, climb_s]), np.stack([top, mid_p[:, 0]], 1),
                                   np.stack([np.zeros_like(top), mid_v[:, 0]], 1)))
     else:
@@ -227,7 +254,8 @@ def sky_to_plan(show: SkyShow, origin: GeoOrigin, limits: Limits,
     descent = bottom - mid_p[:, -1]
     descent_s = 0.0
     if np.abs(descent).max() > SAME_POINT:
-        descent_s = _rest_to_rest_time(descent, limits)
+        descent_s = _hermite_time(mid_p[:, -1], mid_v[:, -1], bottom, np.zeros_like(bottom),
+                                  limits)
         end = parts[-1].end
         parts.append(Trajectories(np.array([end, end + descent_s]),
                                   np.stack([mid_p[:, -1], bottom], 1),

@@ -6,10 +6,11 @@ the colour as red, green, blue bytes (0..255); Studio writes a header line
 first row is not numbers.  Drones are taken in the natural order of the file
 names (``Drone 2`` before ``Drone 10``).
 
-The samples become each drone's cubic Hermite curve through them, with
-velocities from central differences (one-sided at the ends): between samples
-that is what groundctl flies and verifies.  Colours are linear between
-samples, exact at them.
+The samples become each drone's cubic Hermite curve through every few of them
+(knots at least :data:`KNOT_SPACING` apart, so that the millimetre rounding of
+the rows does not become acceleration), with velocities from central
+differences (one-sided at the ends): that curve is what groundctl flies and
+verifies.  Colours are linear between rows, exact at every row.
 """
 
 from __future__ import annotations
@@ -30,6 +31,8 @@ from groundctl.skybrush.reader import MAX_SHOW_SECONDS
 
 #: Largest CSV file of one drone.
 MAX_CSV_BYTES = 64 * MiB
+#: Knots of a CSV drone's curve are at least this far apart (every few rows), s.
+KNOT_SPACING = 0.2
 
 
 def _natural(name: str) -> list[object]:
@@ -122,10 +125,45 @@ def _drone(name: str, data: bytes) -> SkyDrone:
     rgb = a[:, 4:7]
     if rgb.min() < 0 or rgb.max() > 255 or np.any(rgb != np.round(rgb)):
         raise ValueError("colours must be whole numbers 0..255")
-    vel = np.gradient(pos, t, axis=0, edge_order=1)
-    h = np.diff(t)
-    ctrl = hermite_to_bezier(pos[:-1], vel[:-1], pos[1:], vel[1:], h)
+    # Knots at least KNOT_SPACING apart: the rows are rounded to the millimetre, and a
+    # curve through every row of a 24 fps export would turn that rounding into up to
+    # 6 x 0.5 mm / (1/24 s)^2 = 1.7 m/s^2 of acceleration that nobody planned.
+    stride = max(1, math.ceil(KNOT_SPACING / float(np.median(np.diff(t))) - 1e-9))
+    idx = np.arange(0, len(t), stride)
+    if idx[-1] != len(t) - 1:
+        idx = np.append(idx, len(t) - 1)
+    tk, pk = t[idx], pos[idx]
+    vel = np.gradient(pk, tk, axis=0, edge_order=1)
+    h = np.diff(tk)
+    ctrl = hermite_to_bezier(pk[:-1], vel[:-1], pk[1:], vel[1:], h)
     keys = tuple(LightKey(float(ti), (int(c[0]), int(c[1]), int(c[2])))
                  for ti, c in zip(t, rgb, strict=True))
-    return SkyDrone(name=Path(name).stem, home=pos[0].copy(), track=BezierTrack(t, ctrl),
+    return SkyDrone(name=Path(name).stem, home=pos[0].copy(), track=BezierTrack(tk, ctrl),
                     lights=keys)
+
+
+#: The header Skybrush Studio writes.
+HEADER = "Time [msec],x [m],y [m],z [m],Red,Green,Blue"
+
+
+def write_csv_show(show: SkyShow, folder: str | Path, fps: float = 10.0) -> Path:
+    """``show`` as a CSV export in ``folder``: one file per drone, a row per frame at
+    ``fps`` (times in whole milliseconds, positions to the millimetre, colour bytes)."""
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    end = max(d.track.end for d in show.drones)
+    frames = int(np.floor(end * fps + 1e-9)) + 1
+    t = np.round(np.arange(frames) / fps, 3)
+    if t[-1] < end - 1e-9:
+        t = np.append(t, round(end, 3))
+    for d in show.drones:
+        pos, _ = d.track.evaluate(t)
+        kt = np.array([k.t for k in d.lights]) if d.lights else np.array([0.0])
+        kc = np.array([k.rgb for k in d.lights], dtype=float) if d.lights else np.zeros((1, 3))
+        rgb = np.column_stack([np.interp(t, kt, kc[:, c]) for c in range(3)])
+        lines = [HEADER]
+        for ti, p, c in zip(t, pos, np.round(rgb).astype(int), strict=True):
+            lines.append(f"{round(ti * 1000)},{p[0]:.3f},{p[1]:.3f},{p[2]:.3f},"
+                         f"{c[0]},{c[1]},{c[2]}")
+        (out / f"{d.name}.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return out
