@@ -100,8 +100,8 @@ def is_import(path: Path) -> bool:
 def run_plan(args: argparse.Namespace) -> int:
     """``groundctl plan SHOW.skyc|CSV [-o OUT.skyc|OUT.npz] [--repair]``."""
     path = Path(args.show)
-    _origin_note(args, args.json)
     result = _import(args, path)
+    _origin_note(args, args.json)
     plan = result.plan
     out = Path(args.output) if args.output else path.with_name(path.stem + ".plan.npz")
     written = None
@@ -170,8 +170,8 @@ def flight_plan(args: argparse.Namespace) -> Plan:
     """The plan a flying command flies for a Skybrush show; UnsafePlan listing every
     conflict unless it is safe (or ``--repair`` made it so)."""
     quiet = getattr(args, "quiet", False)
-    _origin_note(args, quiet)
     result = _import(args, Path(args.show))
+    _origin_note(args, quiet)
     if not result.safe:
         raise UnsafePlan(result.lines())
     if not quiet:

@@ -163,7 +163,10 @@ def _evaluate_all(tracks: list[BezierTrack], t: FloatArray, side: str
         pos[i], vel[i] = tr.evaluate(t, side)
     # Before its own start (a later takeoffTime) or after its end a drone stands still.
     for i, tr in enumerate(tracks):
-        vel[i, (t < tr.start) | (t > tr.end)] = 0.0
+        if side == "right":
+            vel[i, (t < tr.start) | (t >= tr.end)] = 0.0
+        else:
+            vel[i, (t <= tr.start) | (t > tr.end)] = 0.0
     return pos, vel
 
 
@@ -181,9 +184,9 @@ def sky_to_plan(show: SkyShow, origin: GeoOrigin, limits: Limits,
     pos_r, vel_r = _evaluate_all(tracks, knots, "right")
     pos_l, vel_l = _evaluate_all(tracks, knots, "left")
     height = pos_r[:, :, 2] - home[:, None, 2]
-    up = (height > LIFTED).all(axis=0)
-    rest_r = (np.linalg.norm(vel_r, axis=2) <= REST_SPEED).all(axis=0)
-    rest_l = (np.linalg.norm(vel_l, axis=2) <= REST_SPEED).all(axis=0)
+    up: NDArray[np.bool_] = np.asarray((height > LIFTED).all(axis=0), dtype=bool)
+    rest_r = np.asarray((np.linalg.norm(vel_r, axis=2) <= REST_SPEED).all(axis=0), dtype=bool)
+    rest_l = np.asarray((np.linalg.norm(vel_l, axis=2) <= REST_SPEED).all(axis=0), dtype=bool)
     # The show starts at the first instant every drone is up and at rest, or, if some
     # drone moves sideways before any such instant (a show sampled too coarsely to see
     # its rest, one that flies off from the climb), at the last knot before that.
@@ -196,8 +199,12 @@ def sky_to_plan(show: SkyShow, origin: GeoOrigin, limits: Limits,
         i0 = int(starts[0])
     elif 0 < first_away < len(knots) and up[first_away - 1]:
         i0 = first_away - 1
+    elif first_away == len(knots):
+        raise ConversionError(f"no instant at which all {n} drones are up (more than "
+                              f"{LIFTED} m above home) and at rest after taking off, and "
+                              "none flies off sideways: not a show groundctl can start")
     else:
-        k = min(first_away, len(knots) - 1)
+        k = first_away
         i = int(np.argmax(side_home[:, k]))
         raise ConversionError(
             f"drone {i + 1} ({show.drones[i].name}) is {side_home[i, k]:.2f} m sideways from "
@@ -214,8 +221,9 @@ def sky_to_plan(show: SkyShow, origin: GeoOrigin, limits: Limits,
     elif last_move + 1 < len(knots) and up[last_move + 1]:
         i1 = last_move + 1
     else:
-        raise ConversionError("the drones are not all up when the last of them stops moving "
-                              "sideways before landing: groundctl lands straight down")
+        raise ConversionError(f"no instant at which all {n} drones are up and at rest before "
+                              "they land (once none moves sideways any more): groundctl lands "
+                              "straight down from rest")
     if i1 <= i0:
         raise ConversionError("the show never moves between taking off and landing")
     t0, t_end = float(knots[i0]), float(knots[i1])

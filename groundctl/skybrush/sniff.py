@@ -8,11 +8,14 @@ directory) only, at most a few KiB of it and a zip's directory (bounded by
 from __future__ import annotations
 
 import enum
-import tomllib
+import re
 from pathlib import Path
 
 from groundctl.files import FileProblem, MiB, open_regular_file
 from groundctl.skybrush.archive import ArchiveProblem, SafeZip, is_zip
+
+#: A show file's ``[show]`` table header (or its formations), on a line of its own.
+_SHOW_TABLE = re.compile(r"^[ \t]*\[(?:show|\[formation\])\][ \t]*(?:#.*)?$", re.MULTILINE)
 
 
 class Kind(enum.Enum):
@@ -26,7 +29,6 @@ class Kind(enum.Enum):
     CSV_ZIP = "a Skybrush CSV export (a zip of .csv files)"
     ZIP = "a zip archive that is neither a plan nor a Skybrush show"
     DIRECTORY = "a directory without .csv files"
-    TOML = "a TOML file without a [show] table"
     TEXT = "a text file"
     BINARY = "binary data"
     SPECIAL = "not a regular file"
@@ -75,10 +77,6 @@ def sniff(path: str | Path) -> Kind:
         text = data.decode("utf-8")
     except UnicodeDecodeError:
         return Kind.BINARY
-    if len(data) <= 1 * MiB:
-        try:
-            doc = tomllib.loads(text)
-        except (tomllib.TOMLDecodeError, RecursionError, ValueError):
-            return Kind.TEXT
-        return Kind.TOML_SHOW if isinstance(doc.get("show"), dict) else Kind.TOML
-    return Kind.TEXT
+    # Never parsed here: tomllib's time grows with the square of a dotted key's length,
+    # which the show loader bounds before it parses (see groundctl.show.loader).
+    return Kind.TOML_SHOW if _SHOW_TABLE.search(text) else Kind.TEXT
