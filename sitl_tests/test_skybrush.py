@@ -399,3 +399,17 @@ def test_bad_origin_is_refused() -> None:
     out = _run("plan", "x.skyc", "--origin", "95,8,400")
     assert out.returncode == EXIT_USAGE
     assert "--origin" in out.stderr and "lat" in out.stderr
+
+
+def test_the_shows_geofence_is_checked_and_written_back(tmp_path: Path) -> None:
+    doc = show_doc(calm_drones())
+    doc["settings"]["geofence"] = {"version": 1, "polygons": [  # type: ignore[index]
+        {"isInclusion": True, "points": [[-2, -2, 0], [6, -2, 0], [6, 8, 0], [-2, 8, 0]]}]}
+    path = write_skyc(tmp_path / "fenced.skyc", doc)
+    out = _run("plan", str(path))
+    assert out.returncode == EXIT_UNSAFE
+    assert any("outside the geofence" in ln for ln in out.stdout.splitlines())
+    r = import_show(path)
+    assert r.plan.limits.geofence == ((-2.0, -2.0), (6.0, -2.0), (6.0, 8.0), (-2.0, 8.0))
+    again = import_show(export_skyc(r.plan, tmp_path / "again.skyc"))
+    assert again.plan.limits.geofence == r.plan.limits.geofence

@@ -104,7 +104,7 @@ class Imported:
 
 def limits_for(show: SkyShow, base: Limits) -> Limits:
     """``base`` with what the show's ``settings.validation`` says instead."""
-    values: dict[str, float] = {}
+    values: dict[str, float | tuple[tuple[float, float], ...]] = {}
     if show.min_distance is not None:
         values["min_separation"] = show.min_distance
     if show.max_altitude is not None and show.max_altitude > base.min_alt:
@@ -115,6 +115,8 @@ def limits_for(show: SkyShow, base: Limits) -> Limits:
         values["max_speed_up"] = values["max_speed_down"] = show.max_velocity_z
     if show.max_velocity_z_up is not None:
         values["max_speed_up"] = show.max_velocity_z_up
+    if show.geofence is not None:
+        values["geofence"] = show.geofence
     from dataclasses import replace
     return replace(base, **values)  # type: ignore[arg-type]
 
@@ -351,5 +353,5 @@ def plan_to_sky(plan: Plan) -> tuple[SkyShow, float]:
     sky = SkyShow(title=plan.show_name, drones=tuple(drones),
                   min_distance=lim.min_separation, max_altitude=lim.max_alt,
                   max_velocity_xy=lim.max_speed_h, max_velocity_z=lim.max_speed_down,
-                  max_velocity_z_up=lim.max_speed_up)
+                  max_velocity_z_up=lim.max_speed_up, geofence=lim.geofence)
     return sky, climb_s

@@ -115,3 +115,5 @@ class SkyShow:
     """settings.validation.maxVelocityZ, m/s (up and down unless ``max_velocity_z_up``)."""
     max_velocity_z_up: float | None = None
     """settings.validation.maxVelocityZUp, m/s."""
+    geofence: tuple[tuple[float, float], ...] | None = None
+    """settings.geofence's inclusion polygon (x, y), m (None: not given)."""

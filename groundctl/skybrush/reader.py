@@ -39,7 +39,13 @@ import numpy as np
 
 from groundctl.errors import ImportedShowError
 from groundctl.files import FileProblem
-from groundctl.show.ranges import MAX_COORD, MAX_DRONE_STEPS, MAX_DRONES, MAX_NAME_CHARS
+from groundctl.show.ranges import (
+    MAX_COORD,
+    MAX_DRONE_STEPS,
+    MAX_DRONES,
+    MAX_GEOFENCE_CORNERS,
+    MAX_NAME_CHARS,
+)
 from groundctl.skybrush import lights as ledctrl
 from groundctl.skybrush.archive import ArchiveProblem, SafeZip, open_zip
 from groundctl.skybrush.model import BezierTrack, SkyDrone, SkyShow, cubic_from_points
@@ -163,7 +169,35 @@ def _read(zf: SafeZip, stem: str) -> SkyShow:
                    max_altitude=opt("maxAltitude", MAX_COORD),
                    max_velocity_xy=opt("maxVelocityXY", 50.0),
                    max_velocity_z=opt("maxVelocityZ", 50.0),
-                   max_velocity_z_up=opt("maxVelocityZUp", 50.0))
+                   max_velocity_z_up=opt("maxVelocityZUp", 50.0),
+                   geofence=_geofence(settings.get("geofence")))
+
+
+def _geofence(raw: object) -> tuple[tuple[float, float], ...] | None:
+    """The inclusion polygon of ``settings.geofence`` (exclusion polygons are refused:
+    groundctl's fence is one polygon to stay inside)."""
+    if raw is None:
+        return None
+    fence = _object(raw, "'settings.geofence'")
+    polygons = fence.get("polygons", [])
+    if not isinstance(polygons, list):
+        raise _Bad("'settings.geofence.polygons' must be a list")
+    inside = []
+    for k, poly in enumerate(polygons[:MAX_GEOFENCE_CORNERS]):
+        where = f"settings.geofence polygon {k + 1}"
+        poly = _object(poly, where)
+        if poly.get("isInclusion", True) is not True:
+            raise _Bad(f"{where} is an exclusion polygon; groundctl keeps drones inside one "
+                       "inclusion polygon only")
+        points = poly.get("points")
+        if not isinstance(points, list) or not 3 <= len(points) <= MAX_GEOFENCE_CORNERS:
+            raise _Bad(f"{where} must have 3 to {MAX_GEOFENCE_CORNERS} points")
+        inside.append(tuple((float(p[0]), float(p[1])) for p in
+                            (_point(q, f"{where} point") for q in points)))
+    if len(inside) > 1:
+        raise _Bad("settings.geofence has more than one polygon; groundctl keeps drones "
+                   "inside one")
+    return inside[0] if inside else None
 
 
 def _drone(zf: SafeZip, raw: object, index: int, budget: list[int]) -> SkyDrone:

@@ -51,10 +51,14 @@ def show_json(show: SkyShow) -> dict[str, Any]:
                                     ("maxVelocityXY", show.max_velocity_xy),
                                     ("maxVelocityZ", show.max_velocity_z),
                                     ("maxVelocityZUp", show.max_velocity_z_up)) if v is not None}
+    settings: dict[str, Any] = {"cues": {"version": 1, "items": []}, "validation": validation}
+    if show.geofence is not None:
+        settings["geofence"] = {"version": 1, "polygons": [
+            {"isInclusion": True, "points": [[x, y, 0.0] for x, y in show.geofence]}]}
     return {"version": 1,
             "environment": {"type": "outdoor"},
             "meta": {"title": show.title, "sources": ["groundctl"]},
-            "settings": {"cues": {"version": 1, "items": []}, "validation": validation},
+            "settings": settings,
             "swarm": {"drones": [drone_json(d) for d in show.drones]}}
 
 
