@@ -740,9 +740,9 @@ def _fifo_toml(d: Path) -> Path:
 
 
 def _skyc_case(name: str, members: Callable[[zipfile.ZipFile], None],
-               command: str = "plan") -> Case:
+               command: str = "plan", suffix: str = ".skyc") -> Case:
     def make(d: Path) -> Argv:
-        path = d / f"{name}.skyc"
+        path = d / f"{name}{suffix}"
         with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
             members(zf)
         if command == "dry-run":
@@ -796,6 +796,11 @@ def skyc_cases() -> Iterator[Case]:
         '"points": [[0, [0, 0, 0], []], [3, [0, 0, 5], []]]}, "lights": {"version": 1, '
         '"data": "EgA="}}}]}}'))
     yield _skyc_case("skyc-not-a-show-check", _doc("{}"), "check")
+    yield _skyc_case("csv-zip-bomb-512mib", _zeros("Drone 1.csv", 512 << 20), suffix=".zip")
+    yield _skyc_case("csv-zip-traversal", _doc("0,0,0,0,0,0,0\n", "../Drone 1.csv"),
+                     suffix=".zip")
+    yield _skyc_case("csv-zip-not-numbers", _doc("0,0,0,0,0,0,0\n1,a,b,c,d,e,f\n",
+                                                 "Drone 1.csv"), suffix=".zip")
 
 
 def corpus() -> list[Case]:

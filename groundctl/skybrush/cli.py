@@ -87,6 +87,15 @@ def refuse_for_plan(path: Path) -> None:
         raise WrongFileKind(path, kind.value, "a show", "'groundctl plan' reads a show file "
                             "(TOML), a Skybrush .skyc or a Skybrush CSV export; re-verify a "
                             f"plan with 'groundctl check {path}'")
+    if kind is Kind.ZIP:
+        from groundctl.errors import ImportedShowError
+        from groundctl.files import FileProblem
+        from groundctl.skybrush.archive import ArchiveProblem, open_zip
+        try:
+            open_zip(path).close()
+        except (ArchiveProblem, FileProblem) as exc:
+            raise ImportedShowError(path, f"a zip archive groundctl does not open: {exc}") \
+                from None
     if kind in (Kind.ZIP, Kind.DIRECTORY):
         raise WrongFileKind(path, kind.value, "a show", "'groundctl plan' reads a show file "
                             "(TOML), a Skybrush .skyc (a zip with show.json) or a Skybrush "

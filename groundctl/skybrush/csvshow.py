@@ -29,8 +29,11 @@ from groundctl.skybrush.lights import LightKey
 from groundctl.skybrush.model import BezierTrack, SkyDrone, SkyShow, hermite_to_bezier
 from groundctl.skybrush.reader import MAX_SHOW_SECONDS
 
-#: Largest CSV file of one drone.
-MAX_CSV_BYTES = 64 * MiB
+#: Largest CSV file of one drone (a 10-minute show at 24 fps is about 0.6 MiB).
+MAX_CSV_BYTES = 16 * MiB
+#: Largest sum of the CSV files (the rows groundctl may plan, MAX_DRONE_STEPS, are
+#: about 60 MiB of CSV).
+MAX_CSV_TOTAL = 64 * MiB
 #: Knots of a CSV drone's curve are at least this far apart (every few rows), s.
 KNOT_SPACING = 0.2
 
@@ -50,14 +53,9 @@ def read_csv_show(path: str | Path) -> SkyShow:
             if len(names) > MAX_DRONES:
                 raise ImportedShowError(path, f"{len(names)} CSV files, more than the "
                                               f"{MAX_DRONES} drones groundctl flies")
-            total = 0
             for c in names:
-                data = read_regular_file(c, MAX_CSV_BYTES)
-                total += len(data)
-                if total > 4 * MAX_CSV_BYTES:
-                    raise ImportedShowError(path, "the CSV files hold more than "
-                                                  f"{4 * MAX_CSV_BYTES // MiB} MiB")
-                files.append((c.name, data))
+                files.append((c.name, read_regular_file(c, MAX_CSV_BYTES)))
+                _total(path, files)
         else:
             with open_zip(p) as zf:
                 members = sorted((m for m in zf.members if m.lower().endswith(".csv")
@@ -66,7 +64,9 @@ def read_csv_show(path: str | Path) -> SkyShow:
                 if len(members) > MAX_DRONES:
                     raise ImportedShowError(path, f"{len(members)} CSV files, more than the "
                                                   f"{MAX_DRONES} drones groundctl flies")
-                files = [(m.rsplit("/", 1)[-1], zf.read(m, MAX_CSV_BYTES)) for m in members]
+                for m in members:
+                    files.append((m.rsplit("/", 1)[-1], zf.read(m, MAX_CSV_BYTES)))
+                    _total(path, files)
     except FileProblem as exc:
         raise ImportedShowError(path, f"CSV show: {exc}") from None
     except ArchiveProblem as exc:
@@ -86,6 +86,12 @@ def read_csv_show(path: str | Path) -> SkyShow:
             raise ImportedShowError(path, f"more than {MAX_DRONE_STEPS} samples in all")
         drones.append(drone)
     return SkyShow(title=p.stem[:100] or "csv", drones=tuple(drones))
+
+
+def _total(path: str | Path, files: list[tuple[str, bytes]]) -> None:
+    if sum(len(d) for _, d in files) > MAX_CSV_TOTAL:
+        raise ImportedShowError(path, f"the CSV files hold more than {MAX_CSV_TOTAL // MiB} "
+                                      "MiB")
 
 
 def _drone(name: str, data: bytes) -> SkyDrone:
@@ -110,6 +116,8 @@ def _drone(name: str, data: bytes) -> SkyDrone:
         if not all(math.isfinite(v) for v in values):
             raise ValueError(f"line {n}: a value is not finite")
         rows.append(values)
+        if len(rows) > MAX_DRONE_STEPS:
+            raise ValueError(f"more than {MAX_DRONE_STEPS} rows")
     if len(rows) < 2:
         raise ValueError("fewer than two samples")
     a = np.array(rows)
