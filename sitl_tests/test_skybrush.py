@@ -413,3 +413,30 @@ def test_the_shows_geofence_is_checked_and_written_back(tmp_path: Path) -> None:
     assert r.plan.limits.geofence == ((-2.0, -2.0), (6.0, -2.0), (6.0, 8.0), (-2.0, 8.0))
     again = import_show(export_skyc(r.plan, tmp_path / "again.skyc"))
     assert again.plan.limits.geofence == r.plan.limits.geofence
+
+
+def test_wait_until_gray_and_white_decode() -> None:
+    # SET_GRAY 128 for 10 units, WAIT_UNTIL 1000 ms (varint e8 07), FADE_TO_WHITE over 25.
+    keys = lights.decode(bytes([0x05, 128, 10, 0x03, 0xE8, 0x07, 0x0B, 25, 0x00]))
+    assert lights.LightKey(1.0, (128, 128, 128)) in keys
+    assert keys[-1] == lights.LightKey(1.5, (255, 255, 255))
+
+
+def test_straight_segments_with_corners_are_reported(tmp_path: Path) -> None:
+    doc = show_doc(calm_drones())
+    pts = doc["swarm"]["drones"][0]["settings"]["trajectory"]["points"]
+    pts[3] = [15.0, pts[3][1], []]  # the 5 -> 15 s move as a straight segment: corners
+    out = _run("plan", str(write_skyc(tmp_path / "corner.skyc", doc)))
+    assert out.returncode == EXIT_UNSAFE
+    corners = [ln for ln in out.stdout.splitlines() if "changes velocity by" in ln]
+    assert len(corners) == 2 and "drone 1 (d1) changes velocity by 0.60 m/s" in corners[0]
+
+
+def test_a_takeoff_altitude_below_the_show_climbs_the_rest_in_the_plan(tmp_path: Path) -> None:
+    path = write_skyc(tmp_path / "calm.skyc", show_doc(calm_drones()))
+    r = import_show(path, takeoff_altitude=3.0)
+    plan = r.plan
+    assert plan.takeoff_altitude == 3.0 and r.imported.climb_s > 0
+    np.testing.assert_allclose(plan.trajectories.pos[:, 0], plan.home + np.array([0.0, 0.0, 3.0]))
+    np.testing.assert_allclose(plan.trajectories.evaluate(r.imported.climb_s)[0][:, 2], 5.0)
+    assert r.safe, r.lines()
