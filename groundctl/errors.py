@@ -8,6 +8,8 @@ The tree::
     ├── PlanningError                   the optimiser failed (transition, status)
     ├── PlanFileError                   a plan file that cannot be read (path, message)
     │   └── UntrustedPlan               a plan not tied to the show it is flown with (path, show)
+    ├── ImportedShowError               a Skybrush .skyc or CSV show that cannot be used
+    ├── WrongFileKind                   a file of another kind than the command reads
     ├── UnsafePlan                      verification found violations (violations)
     ├── LinkError                       MAVLink transport and protocol
     │   ├── CommandRefused              a vehicle answered a command with a refusal
@@ -165,6 +167,32 @@ class UntrustedPlan(PlanFileError):
     def __init__(self, path: str | Path, message: str, show: str | Path = "") -> None:
         self.show = str(show)
         super().__init__(path, message)
+
+
+class ImportedShowError(GroundctlError):
+    """A Skybrush show (``.skyc``, or a CSV export) that cannot be read or used."""
+
+    exit_code = EXIT_USAGE
+
+    def __init__(self, path: str | Path, message: str) -> None:
+        self.path = str(path)
+        self.message = message
+        super().__init__(f"{self.path}: {message}")
+
+
+class WrongFileKind(GroundctlError):
+    """A file that is something else than what the command reads (a show given to
+    ``check``, a plan given to ``plan``): says what it is and what is expected."""
+
+    exit_code = EXIT_USAGE
+
+    def __init__(self, path: str | Path, kind: str, expected: str, hint: str = "") -> None:
+        self.path = str(path)
+        self.kind = kind
+        self.expected = expected
+        self.hint = hint
+        msg = f"{self.path}: is {kind}, not {expected}"
+        super().__init__(f"{msg}; {hint}" if hint else msg)
 
 
 class UnsafePlan(GroundctlError):

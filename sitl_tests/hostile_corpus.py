@@ -739,9 +739,73 @@ def _fifo_toml(d: Path) -> Path:
     return path
 
 
+def _skyc_case(name: str, members: Callable[[zipfile.ZipFile], None],
+               command: str = "plan", suffix: str = ".skyc") -> Case:
+    def make(d: Path) -> Argv:
+        path = d / f"{name}{suffix}"
+        with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+            members(zf)
+        if command == "dry-run":
+            return ["dry-run", str(path), "--no-record", "-q", "--no-console"]
+        return [command, str(path)]
+    return Case(name, make)
+
+
+def _zeros(name: str, size: int) -> Callable[[zipfile.ZipFile], None]:
+    def write(zf: zipfile.ZipFile) -> None:
+        chunk = bytes(1 << 20)
+        with zf.open(name, "w", force_zip64=True) as f:
+            for _ in range(size >> 20):
+                f.write(chunk)
+    return write
+
+
+def _doc(text: str, name: str = "show.json") -> Callable[[zipfile.ZipFile], None]:
+    def write(zf: zipfile.ZipFile) -> None:
+        zf.writestr(name, text)
+    return write
+
+
+def _skyc_drone(points: str = "[[0, [0, 0, 0], []], [3, [0, 0, 5], []]]") -> str:
+    return ('{"type": "generic", "settings": {"trajectory": {"version": 1, "points": '
+            + points + '}}}')
+
+
+def skyc_cases() -> Iterator[Case]:
+    """Skybrush .skyc archives: zip bombs, names leaving the archive, too many drones."""
+    yield _skyc_case("skyc-bomb-512mib", _zeros("show.json", 512 << 20))
+    yield _skyc_case("skyc-bomb-512mib-dry-run", _zeros("show.json", 512 << 20), "dry-run")
+    yield _skyc_case("skyc-traversal", _doc("{}", "../../../etc/show.json"))
+    yield _skyc_case("skyc-absolute-name", _doc("{}", "/etc/show.json"))
+    yield _skyc_case("skyc-no-show-json", _doc("{}", "other.json"))
+    yield _skyc_case("skyc-deep-json", _doc("[" * 200_000 + "]" * 200_000))
+    yield _skyc_case("skyc-1001-drones", _doc('{"version": 1, "swarm": {"drones": ['
+                                              + ", ".join([_skyc_drone()] * 1001) + "]}}"))
+    yield _skyc_case("skyc-nan-point", _doc('{"version": 1, "swarm": {"drones": ['
+                                            + _skyc_drone("[[0, [0, 0, 0], []], [3, [NaN, 0,"
+                                                          " 5], []]]") + "]}}"))
+    yield _skyc_case("skyc-huge-number", _doc('{"version": 1, "swarm": {"drones": ['
+                                              + _skyc_drone("[[0, [0, 0, 0], []], [1e999, "
+                                                            "[0, 0, 5], []]]") + "]}}"))
+    yield _skyc_case("skyc-bad-base64", _doc(
+        '{"version": 1, "swarm": {"drones": [{"settings": {"trajectory": {"version": 1, '
+        '"points": [[0, [0, 0, 0], []], [3, [0, 0, 5], []]]}, "lights": {"version": 1, '
+        '"data": "***"}}}]}}'))
+    yield _skyc_case("skyc-endless-light-loop", _doc(
+        '{"version": 1, "swarm": {"drones": [{"settings": {"trajectory": {"version": 1, '
+        '"points": [[0, [0, 0, 0], []], [3, [0, 0, 5], []]]}, "lights": {"version": 1, '
+        '"data": "EgA="}}}]}}'))
+    yield _skyc_case("skyc-not-a-show-check", _doc("{}"), "check")
+    yield _skyc_case("csv-zip-bomb-512mib", _zeros("Drone 1.csv", 512 << 20), suffix=".zip")
+    yield _skyc_case("csv-zip-traversal", _doc("0,0,0,0,0,0,0\n", "../Drone 1.csv"),
+                     suffix=".zip")
+    yield _skyc_case("csv-zip-not-numbers", _doc("0,0,0,0,0,0,0\n1,a,b,c,d,e,f\n",
+                                                 "Drone 1.csv"), suffix=".zip")
+
+
 def corpus() -> list[Case]:
     """Every hostile case, plan files first."""
-    return [*plan_cases(), *show_cases()]
+    return [*plan_cases(), *show_cases(), *skyc_cases()]
 
 
 @dataclass

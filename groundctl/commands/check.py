@@ -34,7 +34,9 @@ def run(args: argparse.Namespace) -> int:
     from groundctl.plan.plan import Plan
     from groundctl.plan.provenance import plan_source
     from groundctl.plan.verify import verify
+    from groundctl.skybrush.cli import refuse_for_check
 
+    refuse_for_check(args.plan)  # a show (TOML or Skybrush) is not a plan: say so
     loaded = Plan.load(args.plan)
     try:
         source = plan_source(loaded, args.plan, args.plan_show, args.accept_plan_limits,

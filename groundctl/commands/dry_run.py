@@ -28,6 +28,7 @@ from groundctl.commands.options import non_negative, positive, probability, push
 from groundctl.errors import GroundctlError
 from groundctl.link.flavours import Flavour
 from groundctl.sim.config import PROFILE_NAMES
+from groundctl.skybrush.cli import add_import_options
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -37,7 +38,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                     "takeoff slots, fly the whole show through the real executor over UDP "
                     "and report what was flown. Exit 0 only if the flight was safe.")
     p.add_argument("show", nargs="?", type=Path, default=BUNDLED_DEMO,
-                   help="show file (TOML) or plan file (.npz); default: the bundled demo")
+                   help="show file (TOML), plan file (.npz), Skybrush .skyc or CSV export; "
+                        "default: the bundled demo")
     p.add_argument("--autopilot", choices=[f.value for f in Flavour], default="ardupilot",
                    help="autopilot the simulated vehicles imitate (default ardupilot)")
     p.add_argument("--speed", type=positive, default=1.0, metavar="K",
@@ -69,6 +71,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                         "ardupilot-4.8 or px4-1.15)")
     p.add_argument("--no-record", action="store_true", help="record nothing")
     add_plan_options(p)
+    add_import_options(p)
     add_runner_options(p)
     add_console_options(p)
     p.set_defaults(func=run)

@@ -126,7 +126,12 @@ def load_or_plan(path: Path, quiet: bool, *, show_file: Path | None = None,
 
 
 def plan_for(args: argparse.Namespace) -> Plan:
-    """:func:`load_or_plan` with the options :func:`add_plan_options` registered."""
+    """:func:`load_or_plan` with the options :func:`add_plan_options` registered (a
+    Skybrush .skyc or CSV show is imported and verified instead)."""
+    from groundctl.skybrush.importing import is_skybrush
+    if is_skybrush(args.show):
+        from groundctl.skybrush.cli import flight_plan
+        return flight_plan(args)
     return load_or_plan(args.show, args.quiet, show_file=args.plan_show,
                         accept_plan_limits=args.accept_plan_limits, points_dirs=args.points_dir)
 

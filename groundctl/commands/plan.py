@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 from groundctl.commands.options import add_points_dir, add_rerun_option, rerun_target, workers
 from groundctl.commands.progress import ProgressBar
 from groundctl.errors import EXIT_OK, EXIT_UNSAFE
+from groundctl.skybrush.cli import add_import_options
 
 if TYPE_CHECKING:
     from groundctl.plan.plan import Plan
@@ -18,13 +19,16 @@ if TYPE_CHECKING:
 
 def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
     p = sub.add_parser("plan", help="plan and verify a show, write the plan file")
-    p.add_argument("show", help="show file (TOML)")
+    p.add_argument("show", help="show file (TOML), Skybrush .skyc, or Skybrush CSV export "
+                                "(folder or zip)")
     p.add_argument("-o", "--output", metavar="PLAN",
-                   help="plan file to write (default: SHOW with .plan.npz)")
+                   help="plan file to write (default: SHOW with .plan.npz); a name ending "
+                        "in .skyc writes a Skybrush compiled show instead")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object")
     p.add_argument("--workers", type=workers, default=None, metavar="N",
                    help="parallel processes for transitions, 1..64 (default: one per core)")
     add_points_dir(p)
+    add_import_options(p)
     add_rerun_option(p, "the planned show (paths, slots, each transition's closest approach)",
                      "PLAN with .rrd")
     p.set_defaults(func=run)
@@ -39,7 +43,11 @@ def run(args: argparse.Namespace) -> int:
     from groundctl.plan.planner import plan_show
     from groundctl.plan.report import report_dict, report_table
     from groundctl.show.loader import load_show
+    from groundctl.skybrush import cli as skybrush
 
+    skybrush.refuse_for_plan(Path(args.show))  # a plan file, a stray zip: one clear line
+    if skybrush.is_import(Path(args.show)):
+        return skybrush.run_plan(args)
     out = Path(args.output) if args.output else default_plan_path(args.show)
     rerun = rerun_target(args.rerun, out.with_suffix(".rrd"))
     show = load_show(args.show, args.points_dir)
@@ -48,7 +56,11 @@ def run(args: argparse.Namespace) -> int:
         result = plan_show(show, workers=args.workers, progress=bar)
     finally:
         bar.close()
-    result.plan.save(out)
+    if out.suffix.lower() == ".skyc":
+        from groundctl.skybrush.importing import export_skyc
+        export_skyc(result.plan, out)
+    else:
+        result.plan.save(out)
     report = report_dict(result)
     report["plan_file"] = str(out)
     if args.json:

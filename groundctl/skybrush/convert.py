@@ -1,0 +1,357 @@
+"""A Skybrush show to a groundctl plan, and a plan to a Skybrush show.
+
+**Skybrush to plan.**  A Skybrush trajectory starts on the ground at home and
+ends on the ground; a groundctl plan starts at each home raised to the takeoff
+altitude (groundctl's executor takes off and lands the vehicles itself).  So:
+
+* the plan begins at ``T0``, the first instant at which every drone is at
+  least :data:`LIFTED` above its home and at rest, and ends at ``T_end``, the
+  last such instant before the landing; before ``T0`` and after ``T_end`` every
+  drone must move vertically only (within :data:`VERTICAL_TOL`), as groundctl's
+  takeoff and landing do;
+* the takeoff altitude is the lowest height above home at ``T0`` (or the one
+  asked for); a drone that is higher (or lower) there gets a rest-to-rest
+  vertical stretch at the start of the plan from its takeoff altitude to where
+  the show has it, and the same at the end down to its landing point raised to
+  the takeoff altitude -- its own climb and descent, re-timed;
+* between them the trajectories are the show's own curves, exactly: every
+  drone's cubic Bezier segments are split at the union of all drones' knots,
+  and a cubic on a sub-interval is exactly the cubic Hermite curve of its end
+  positions and velocities, which is groundctl's trajectory representation.
+  Where a drone's velocity jumps at one of its knots (a corner: unbounded
+  acceleration, which no vehicle flies) that is reported as a violation, and
+  the plan carries the mean of the two velocities there;
+* colours: every drone's keys (linear in between, a step shown 1 ms wide),
+  evaluated at the union of all drones' key times, so exact at every key.
+
+**Plan to Skybrush.**  Each drone climbs from its home to its first plan point
+with a rest-to-rest cubic (within the plan's limits), flies the plan -- every
+cubic Hermite segment written as its cubic Bezier control points -- and
+descends from its last plan point to the ground; lights are the plan's colour
+keys as 20 ms bytecode.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from groundctl.plan.plan import FormationWindow, Plan
+from groundctl.plan.planfile import MAX_COLOR_KEYS, MAX_DRONE_KNOTS, MAX_KNOTS
+from groundctl.plan.trajectory import Trajectories, concatenate
+from groundctl.show.model import GeoOrigin, Limits, MpcSettings
+from groundctl.skybrush.lights import UNIT_S, LightKey
+from groundctl.skybrush.model import BezierTrack, SkyDrone, SkyShow, hermite_to_bezier
+
+FloatArray = NDArray[np.float64]
+
+#: Height above home from which a drone counts as taken off, m.
+LIFTED = 0.5
+#: Speed under which a drone counts as at rest, m/s.
+REST_SPEED = 0.02
+#: How far a drone may drift sideways while taking off or landing, m.
+VERTICAL_TOL = 0.05
+#: A velocity jump at a knot larger than this is reported, m/s.
+JUMP_TOL = 0.1
+#: Width given to a colour step, s.
+COLOR_STEP = 1e-3
+#: Offsets below this need no re-timed climb or descent, m.
+SAME_POINT = 1e-3
+
+
+class ConversionError(ValueError):
+    """A show that cannot become a plan; the message says which drone and why."""
+
+
+@dataclass(frozen=True)
+class Imported:
+    """A Skybrush show as a plan, and how it was mapped."""
+
+    plan: Plan
+    """The plan (show time 0 = the Skybrush show's ``t0``, less ``climb_s``)."""
+    t0: float
+    """Skybrush time at which the plan begins (every drone up and at rest), s."""
+    t_end: float
+    """Skybrush time at which the plan ends, s."""
+    climb_s: float
+    """Length of the re-timed climb at the plan's start (0: none needed), s."""
+    descent_s: float
+    """Length of the re-timed descent at its end, s."""
+    jumps: tuple[str, ...]
+    """One line per velocity jump (a corner) found in the trajectories."""
+
+    def skyc_time(self, plan_time: float) -> float:
+        """The Skybrush show's time of plan time ``plan_time``."""
+        return plan_time - self.climb_s + self.t0
+
+    @property
+    def fits_plan_file(self) -> str | None:
+        """Why the plan cannot be saved as a plan file that groundctl reads back, or None."""
+        p = self.plan
+        if len(p.trajectories.times) > MAX_KNOTS or p.drones * len(p.trajectories.times) \
+                > MAX_DRONE_KNOTS:
+            return f"{len(p.trajectories.times)} knots for {p.drones} drones, more than a " \
+                   "plan file holds"
+        if len(p.color_times) > MAX_COLOR_KEYS:
+            return f"{len(p.color_times)} colour keys, more than the {MAX_COLOR_KEYS} a " \
+                   "plan file holds"
+        return None
+
+
+def limits_for(show: SkyShow, base: Limits) -> Limits:
+    """``base`` with what the show's ``settings.validation`` says instead."""
+    values: dict[str, float | tuple[tuple[float, float], ...]] = {}
+    if show.min_distance is not None:
+        values["min_separation"] = show.min_distance
+    if show.max_altitude is not None and show.max_altitude > base.min_alt:
+        values["max_alt"] = show.max_altitude
+    if show.max_velocity_xy is not None:
+        values["max_speed_h"] = show.max_velocity_xy
+    if show.max_velocity_z is not None:
+        values["max_speed_up"] = values["max_speed_down"] = show.max_velocity_z
+    if show.max_velocity_z_up is not None:
+        values["max_speed_up"] = show.max_velocity_z_up
+    if show.geofence is not None:
+        values["geofence"] = show.geofence
+    from dataclasses import replace
+    return replace(base, **values)  # type: ignore[arg-type]
+
+
+def _rest_to_rest_time(delta: FloatArray, limits: Limits) -> float:
+    """Shortest duration of the cubic rest-to-rest move ``delta`` (n, 3) for everyone
+    (peak speed 1.5 d / T, peak acceleration 6 d / T^2), rounded up to 0.1 s."""
+    dz = delta[:, 2]
+    need = [1.5 * float(np.linalg.norm(delta[:, :2], axis=1).max()) / limits.max_speed_h,
+            1.5 * float(max(dz.max(), 0.0)) / limits.max_speed_up,
+            1.5 * float(max(-dz.min(), 0.0)) / limits.max_speed_down,
+            math.sqrt(6 * float(np.linalg.norm(delta, axis=1).max()) / limits.max_accel)]
+    return max(0.1, math.ceil(max(need) * 1.02 * 10 - 1e-9) / 10)
+
+
+def _hermite_time(a: FloatArray, va: FloatArray, b: FloatArray, vb: FloatArray,
+                  limits: Limits) -> float:
+    """Shortest duration (0.1 s steps) of the cubic Hermite moves ``a, va -> b, vb``
+    (n, 3) that keeps the speed and acceleration limits (checked on 64 samples)."""
+    T = _rest_to_rest_time(b - a, limits)
+    s = np.linspace(0.0, 1.0, 65)[None, :, None]
+    for _ in range(200):
+        tr = Trajectories(np.array([0.0, T]), np.stack([a, b], 1), np.stack([va, vb], 1))
+        _, v, acc = tr.evaluate(s[0, :, 0] * T)
+        ok = (np.linalg.norm(v[..., :2], axis=2).max() <= limits.max_speed_h
+              and v[..., 2].max() <= limits.max_speed_up
+              and -v[..., 2].min() <= limits.max_speed_down
+              and np.linalg.norm(acc, axis=2).max() <= limits.max_accel)
+        if ok:
+            return T
+        T = round(T + 0.1, 6)
+    return T
+
+
+def _union_knots(tracks: list[BezierTrack]) -> FloatArray:
+    t = np.unique(np.concatenate([tr.times for tr in tracks]))
+    keep = np.concatenate([[True], np.diff(t) > 1e-9])
+    return t[keep]
+
+
+def _evaluate_all(tracks: list[BezierTrack], t: FloatArray, side: str
+                  ) -> tuple[FloatArray, FloatArray]:
+    pos = np.empty((len(tracks), len(t), 3))
+    vel = np.empty_like(pos)
+    for i, tr in enumerate(tracks):
+        pos[i], vel[i] = tr.evaluate(t, side)
+    # Before its own start (a later takeoffTime) or after its end a drone stands still.
+    for i, tr in enumerate(tracks):
+        if side == "right":
+            vel[i, (t < tr.start) | (t >= tr.end)] = 0.0
+        else:
+            vel[i, (t <= tr.start) | (t > tr.end)] = 0.0
+    return pos, vel
+
+
+def sky_to_plan(show: SkyShow, origin: GeoOrigin, limits: Limits,
+                takeoff_altitude: float | None = None) -> Imported:
+    """``show`` as a groundctl plan (see the module's docstring); ConversionError if its
+    takeoff or landing is not one groundctl can fly."""
+    tracks = [d.track for d in show.drones]
+    n = len(tracks)
+    home = np.stack([d.home for d in show.drones])
+    knots = _union_knots(tracks)
+    if n * len(knots) > MAX_DRONE_KNOTS:
+        raise ConversionError(f"{n} drones x {len(knots)} distinct knot times is more than "
+                              f"the {MAX_DRONE_KNOTS} groundctl plans hold")
+    pos_r, vel_r = _evaluate_all(tracks, knots, "right")
+    pos_l, vel_l = _evaluate_all(tracks, knots, "left")
+    height = pos_r[:, :, 2] - home[:, None, 2]
+    up: NDArray[np.bool_] = np.asarray((height > LIFTED).all(axis=0), dtype=bool)
+    rest_r = np.asarray((np.linalg.norm(vel_r, axis=2) <= REST_SPEED).all(axis=0), dtype=bool)
+    rest_l = np.asarray((np.linalg.norm(vel_l, axis=2) <= REST_SPEED).all(axis=0), dtype=bool)
+    # The show starts at the first instant every drone is up and at rest, or, if some
+    # drone moves sideways before any such instant (a show sampled too coarsely to see
+    # its rest, one that flies off from the climb), at the last knot before that.
+    side_home = np.linalg.norm(pos_r[:, :, :2] - home[:, None, :2], axis=2)
+    away = np.flatnonzero((side_home > VERTICAL_TOL).any(axis=0))
+    first_away = int(away[0]) if len(away) else len(knots)
+    starts = np.flatnonzero(up & rest_r)
+    starts = starts[starts < first_away]
+    if len(starts):
+        i0 = int(starts[0])
+    elif 0 < first_away < len(knots) and up[first_away - 1]:
+        i0 = first_away - 1
+    elif first_away == len(knots):
+        raise ConversionError(f"no instant at which all {n} drones are up (more than "
+                              f"{LIFTED} m above home) and at rest after taking off, and "
+                              "none flies off sideways: not a show groundctl can start")
+    else:
+        k = first_away
+        i = int(np.argmax(side_home[:, k]))
+        raise ConversionError(
+            f"drone {i + 1} ({show.drones[i].name}) is {side_home[i, k]:.2f} m sideways from "
+            f"its home at t = {knots[k]:.2f} s, before every drone is up (more than {LIFTED} "
+            "m above home): groundctl takes off straight up")
+    final = pos_l[:, -1:, :2]
+    side_end = np.linalg.norm(pos_l[:, :, :2] - final, axis=2)
+    moving = np.flatnonzero((side_end > VERTICAL_TOL).any(axis=0))
+    last_move = int(moving[-1]) if len(moving) else -1
+    ends = np.flatnonzero(up & rest_l)
+    ends = ends[ends > last_move]
+    if len(ends):
+        i1 = int(ends[-1])
+    elif last_move + 1 < len(knots) and up[last_move + 1]:
+        i1 = last_move + 1
+    else:
+        raise ConversionError(f"no instant at which all {n} drones are up and at rest before "
+                              "they land (once none moves sideways any more): groundctl lands "
+                              "straight down from rest")
+    if i1 <= i0:
+        raise ConversionError("the show never moves between taking off and landing")
+    t0, t_end = float(knots[i0]), float(knots[i1])
+    h = float(height[:, i0].min()) if takeoff_altitude is None else float(takeoff_altitude)
+
+    # The show's own curves between t0 and t_end on the union of knots.
+    mid_t = knots[i0:i1 + 1]
+    mid_p = pos_r[:, i0:i1 + 1].copy()
+    vr, vl = vel_r[:, i0:i1 + 1], vel_l[:, i0:i1 + 1]
+    mid_v = 0.5 * (vr + vl)
+    mid_v[:, 0], mid_v[:, -1] = vr[:, 0], vl[:, -1]
+    mid_p[:, -1] = pos_l[:, i1]
+    jump = np.linalg.norm(vr - vl, axis=2)
+    jump[:, [0, -1]] = 0.0
+    jumps = []
+    for i, k in np.argwhere(jump > JUMP_TOL)[:50]:
+        jumps.append(f"drone {i + 1} ({show.drones[i].name}) changes velocity by "
+                     f"{jump[i, k]:.2f} m/s at once at t = {mid_t[k]:.2f} s (a corner: "
+                     "unbounded acceleration)")
+    extra = int((jump > JUMP_TOL).sum()) - len(jumps)
+    if extra > 0:
+        jumps.append(f"and {extra} more velocity jumps")
+
+    parts: list[Trajectories] = []
+    top = home + np.array([0.0, 0.0, h])
+    climb = mid_p[:, 0] - top
+    climb_s = 0.0
+    if np.abs(climb).max() > SAME_POINT:
+        climb_s = _hermite_time(top, np.zeros_like(top), mid_p[:, 0], mid_v[:, 0], limits)
+        parts.append(Trajectories(np.array([0.0, climb_s]), np.stack([top, mid_p[:, 0]], 1),
+                                  np.stack([np.zeros_like(top), mid_v[:, 0]], 1)))
+    else:
+        mid_p[:, 0] = top
+    parts.append(Trajectories(mid_t - t0 + climb_s, mid_p, mid_v))
+    bottom = np.column_stack([mid_p[:, -1, :2], home[:, 2] + h])
+    descent = bottom - mid_p[:, -1]
+    descent_s = 0.0
+    if np.abs(descent).max() > SAME_POINT:
+        descent_s = _hermite_time(mid_p[:, -1], mid_v[:, -1], bottom, np.zeros_like(bottom),
+                                  limits)
+        end = parts[-1].end
+        parts.append(Trajectories(np.array([end, end + descent_s]),
+                                  np.stack([mid_p[:, -1], bottom], 1),
+                                  np.stack([mid_v[:, -1], np.zeros_like(bottom)], 1)))
+    else:
+        parts[-1].pos[:, -1] = bottom
+    traj = concatenate(parts)
+    duration = traj.end
+
+    color_times, colors = _colors(show.drones, lambda t: t - t0 + climb_s, duration)
+    goals = traj.pos[:, -1].copy()
+    window = FormationWindow(index=1, name=show.title[:100], start=0.0, arrive=duration,
+                             end=duration, goals=goals)
+    plan = Plan(show_name=show.title, origin=origin, limits=limits, model="quadrotor",
+                home=home.copy(), takeoff_altitude=h, trajectories=traj,
+                color_times=color_times, colors=colors, formations=(window,),
+                mpc=MpcSettings(), show_digest="")
+    return Imported(plan=plan, t0=t0, t_end=t_end, climb_s=climb_s, descent_s=descent_s,
+                    jumps=tuple(jumps))
+
+
+def _drone_keys(keys: tuple[LightKey, ...]) -> tuple[FloatArray, FloatArray]:
+    """Strictly increasing (times, colours 0..1) of one drone, a step 1 ms wide."""
+    if not keys:
+        return np.array([0.0]), np.zeros((1, 3))
+    ts: list[float] = []
+    cs: list[tuple[int, int, int]] = []
+    for k in keys:
+        if ts and k.t <= ts[-1]:
+            # A step: the colour before it holds until COLOR_STEP earlier.
+            if len(ts) >= 2 and k.t - COLOR_STEP > ts[-2]:
+                ts[-1] = k.t - COLOR_STEP
+            else:
+                ts.pop()
+                cs.pop()
+        ts.append(k.t)
+        cs.append(k.rgb)
+    return np.array(ts), np.array(cs, dtype=float) / 255.0
+
+
+def _colors(drones: tuple[SkyDrone, ...], shift: Callable[[FloatArray], FloatArray],
+            duration: float) -> tuple[FloatArray, FloatArray]:
+    """Shared colour keys on the plan's clock (``shift``: Skybrush time to plan time)."""
+    per = [_drone_keys(d.lights) for d in drones]
+    times = np.unique(np.concatenate([shift(t) for t, _ in per] + [np.array([0.0, duration])]))
+    times = times[(times >= 0.0) & (times <= duration)]
+    keep = np.concatenate([[True], np.diff(times) > 1e-9])
+    times = times[keep]
+    colors = np.empty((len(drones), len(times), 3))
+    for i, (t, c) in enumerate(per):
+        tp = shift(t)
+        for ch in range(3):
+            colors[i, :, ch] = np.interp(times, tp, c[:, ch])
+    return times, np.clip(colors, 0.0, 1.0)
+
+
+# -- plan to Skybrush ----------------------------------------------------------------------
+
+
+def plan_to_sky(plan: Plan) -> tuple[SkyShow, float]:
+    """``plan`` as a Skybrush show, and the climb's length (plan time 0 is that Skybrush
+    time)."""
+    tr = plan.trajectories
+    start, end = tr.pos[:, 0], tr.pos[:, -1]
+    climb = start - plan.home
+    descent = plan.landing - end
+    lim = plan.limits
+    climb_s = math.ceil(_rest_to_rest_time(climb, lim) / UNIT_S - 1e-9) * UNIT_S
+    descent_s = math.ceil(_rest_to_rest_time(descent, lim) / UNIT_S - 1e-9) * UNIT_S
+    h = np.diff(tr.times)
+    body = hermite_to_bezier(tr.pos[:, :-1], tr.vel[:, :-1], tr.pos[:, 1:], tr.vel[:, 1:],
+                             h[None, :])
+    zero = np.zeros_like(start)
+    up = hermite_to_bezier(plan.home, zero, start, zero, np.array(climb_s))
+    down = hermite_to_bezier(end, zero, plan.landing, zero, np.array(descent_s))
+    times = np.concatenate([[0.0], tr.times + climb_s, [tr.end + climb_s + descent_s]])
+    drones = []
+    rgb = np.clip(np.round(plan.colors * 255.0), 0, 255).astype(int)
+    for i in range(plan.drones):
+        ctrl = np.concatenate([up[i][None], body[i], down[i][None]])
+        keys = tuple(LightKey(float(t + climb_s), (int(c[0]), int(c[1]), int(c[2])))
+                     for t, c in zip(plan.color_times, rgb[i], strict=True))
+        drones.append(SkyDrone(name=f"drone_{i + 1}", home=plan.home[i].copy(),
+                               track=BezierTrack(times, ctrl), lights=keys))
+    sky = SkyShow(title=plan.show_name, drones=tuple(drones),
+                  min_distance=lim.min_separation, max_altitude=lim.max_alt,
+                  max_velocity_xy=lim.max_speed_h, max_velocity_z=lim.max_speed_down,
+                  max_velocity_z_up=lim.max_speed_up, geofence=lim.geofence)
+    return sky, climb_s

@@ -1,0 +1,112 @@
+"""A Skybrush show in, verified (and repaired); a plan out as ``.skyc``: what the CLI calls."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from groundctl.errors import ImportedShowError
+from groundctl.plan.plan import Plan
+from groundctl.plan.verify import Verification, verify
+from groundctl.show.model import GeoOrigin, Limits
+from groundctl.skybrush.conflicts import Conflict, find_conflicts
+from groundctl.skybrush.convert import (
+    ConversionError,
+    Imported,
+    limits_for,
+    plan_to_sky,
+    sky_to_plan,
+)
+from groundctl.skybrush.csvshow import read_csv_show
+from groundctl.skybrush.model import SkyShow
+from groundctl.skybrush.reader import read_skyc
+from groundctl.skybrush.repair import Repair, repair
+from groundctl.skybrush.sniff import Kind, sniff
+from groundctl.skybrush.writer import write_skyc
+
+#: Where an imported show is anchored when no ``--origin`` is given: the bundled shows'
+#: field.  A .skyc carries no geodetic origin (Skybrush Live sets it at the field).
+DEFAULT_ORIGIN = GeoOrigin(lat=47.3977, lon=8.5456, alt=488.0, heading_deg=0.0)
+
+
+@dataclass(frozen=True)
+class ImportResult:
+    """An imported show, its check, and its repair if one was asked for."""
+
+    source: SkyShow
+    """The show as read."""
+    imported: Imported
+    """Its conversion to a plan (before any repair)."""
+    conflicts: tuple[Conflict, ...]
+    """Every separation conflict found in it."""
+    repaired: Repair | None
+    """What ``--repair`` did (None: not asked, or nothing to repair)."""
+    verification: Verification
+    """The verifier's verdict on :attr:`plan`."""
+    problems: tuple[str, ...] = field(default=())
+    """Violations the verifier does not see: velocity jumps."""
+
+    @property
+    def plan(self) -> Plan:
+        return self.repaired.plan if self.repaired is not None else self.imported.plan
+
+    @property
+    def safe(self) -> bool:
+        remaining = self.repaired.remaining if self.repaired is not None else self.conflicts
+        return self.verification.safe and not remaining and not self.problems
+
+    def lines(self) -> list[str]:
+        """Every conflict and violation, one line each (times on the plan's clock and, in
+        brackets, the Skybrush show's)."""
+        names = tuple(d.name for d in self.source.drones)
+        limit = self.imported.plan.limits.min_separation
+        off = self.imported.t0 - self.imported.climb_s
+        out = [c.line(limit, names) + f" [show time {c.time + off:.2f} s]"
+               for c in self.conflicts]
+        out += [f"violation: {p}" for p in self.problems]
+        if self.repaired is not None:
+            for w in self.repaired.windows:
+                out.append(f"repaired: drones {', '.join(str(d + 1) for d in w.drones)} "
+                           f"re-planned from t = {w.start:.2f} to {w.end:.2f} s [show time "
+                           f"{w.start + off:.2f} to {w.end + off:.2f} s]")
+            out += ["still " + c.line(limit, names) for c in self.repaired.remaining]
+        listed = self.repaired.remaining if self.repaired is not None else self.conflicts
+        out += [f"violation: {v}" for v in self.verification.violations
+                if not (listed and v.startswith("drones ") and " apart at t = " in v)]
+        return out
+
+
+def is_skybrush(path: str | Path) -> bool:
+    """True for a ``.skyc`` (or anything named so) and a CSV export (folder or zip)."""
+    return Path(path).suffix.lower() == ".skyc" or sniff(path).skybrush
+
+
+def read_any(path: str | Path) -> SkyShow:
+    """A ``.skyc`` or a CSV export, by what the file is."""
+    kind = sniff(path)
+    if kind in (Kind.CSV_DIR, Kind.CSV_ZIP):
+        return read_csv_show(path)
+    return read_skyc(path)
+
+
+def import_show(path: str | Path, origin: GeoOrigin | None = None, *,
+                limits: Limits | None = None, takeoff_altitude: float | None = None,
+                do_repair: bool = False) -> ImportResult:
+    """Read, convert, check and (with ``do_repair``) repair the Skybrush show at ``path``."""
+    show = read_any(path)
+    lim = limits_for(show, limits or Limits())
+    try:
+        imported = sky_to_plan(show, origin or DEFAULT_ORIGIN, lim, takeoff_altitude)
+    except (ConversionError, ValueError) as exc:
+        raise ImportedShowError(path, str(exc)) from None
+    conflicts = tuple(find_conflicts(imported.plan.trajectories, lim.min_separation))
+    fixed = repair(imported.plan, list(conflicts)) if do_repair and conflicts else None
+    plan = fixed.plan if fixed is not None else imported.plan
+    return ImportResult(source=show, imported=imported, conflicts=conflicts, repaired=fixed,
+                        verification=verify(plan), problems=imported.jumps)
+
+
+def export_skyc(plan: Plan, path: str | Path) -> Path:
+    """Write ``plan`` as a ``.skyc`` at ``path``."""
+    sky, _ = plan_to_sky(plan)
+    return write_skyc(sky, path)
