@@ -142,6 +142,7 @@ def test_the_budget_stops_the_search_and_names_the_drones() -> None:
     with pytest.raises(SeparationConflict) as err:
         plan_quad_transition(2, "cross", start, goal, duration, LIMITS, PlannerSettings(),
                              budget_s=15.0, clock=lambda: float(next(ticks)))
+    assert PlannerSettings().budget_s == 40.0
     e = err.value
     assert e.reason == "no plan within the 15 s budget (1 SCP iterations)"
     assert e.conflicts >= 6 and len(e.pairs) == 4
@@ -175,3 +176,18 @@ def test_the_pruned_straight_line_check_is_the_full_one(seed: int,
         monkeypatch.setattr(straight, "PRUNE_ABOVE", 10)
         assert straight.check_straight_lines(start, goal, limit, margin) == full
         monkeypatch.setattr(straight, "PRUNE_ABOVE", 10**9)
+
+
+def test_the_budget_is_a_show_file_setting(tmp_path: object) -> None:
+    from pathlib import Path
+
+    from groundctl.errors import ShowFileError
+    from groundctl.show.loader import load_show
+    src = (Path(__file__).resolve().parent.parent / "shows" / "quick.toml").read_text()
+    assert "\n[planner]\n" in src
+    base = Path(str(tmp_path))
+    (base / "ok.toml").write_text(src.replace("\n[planner]\n", "\n[planner]\nbudget = 90\n"))
+    assert load_show(base / "ok.toml").planner.budget_s == 90.0
+    (base / "bad.toml").write_text(src.replace("\n[planner]\n", "\n[planner]\nbudget = 0.1\n"))
+    with pytest.raises(ShowFileError, match="budget"):
+        load_show(base / "bad.toml")

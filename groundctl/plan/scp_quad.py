@@ -95,10 +95,11 @@ LINK_MARGIN = 0.05
 #: pieces solved one after another against each other (Gauss-Seidel), as separate
 #: groups are: the KKT factorisation of a 100-drone group takes minutes.
 MAX_GROUP = 4
-#: Wall time one transition may spend looking for a plan that keeps every pair apart
-#: (both attempts, with and without the tracking margin), s.  Past it the transition
-#: fails with the drones still in conflict named: 1000 drones refused inside a minute.
-BUDGET_S = 40.0
+#: Default of ``[planner] budget``: wall time one transition may spend looking for a
+#: plan that keeps every pair apart (both attempts, with and without the tracking
+#: margin), s.  Past it the transition fails with the drones still in conflict named:
+#: 1000 drones refused inside a minute.
+BUDGET_S = PlannerSettings().budget_s
 #: Times OSQP may give up on one group before the transition fails.
 GROUP_FAILURES = 3
 
@@ -225,7 +226,7 @@ def _build_group(members: NDArray[np.intp], inside: NDArray[np.bool_],
 def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatArray,
                          duration: float, limits: Limits,
                          settings: PlannerSettings, lines_at_limit: bool = True,
-                         budget_s: float = BUDGET_S,
+                         budget_s: float | None = None,
                          clock: Callable[[], float] = time.perf_counter) -> TransitionResult:
     """Plan one quadrotor transition from ``start`` to ``goal`` (n, 3) in ``duration`` s.
 
@@ -234,9 +235,11 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
     Straight lines that keep every pair at its target are flown as they are; if
     the optimiser fails, lines that keep only the limit are flown unless
     ``lines_at_limit`` is False (a return flown unrehearsed wants its margin).
-    Past ``budget_s`` of ``clock`` the search stops with a SeparationConflict.
+    Past ``budget_s`` (default ``settings.budget_s``) of ``clock`` the search stops with a
+    SeparationConflict.
     """
     t0 = time.perf_counter()
+    budget_s = settings.budget_s if budget_s is None else budget_s
     deadline = clock() + budget_s
     steps, _, _, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
                                            settings)

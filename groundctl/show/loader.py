@@ -17,7 +17,8 @@ optional)::
                 min_separation, min_altitude, max_altitude, geofence = [[x, y], ...],
                 land_battery_pct = 20, max_flight_time = 900
     [model]     kind = "quadrotor" | "unicycle"; unicycle: speed, r_min, max_turn_rate
-    [planner]   dt, steps, max_iterations, tolerance, pattern_tolerance, alpha, beta
+    [planner]   dt, steps, max_iterations, tolerance, pattern_tolerance, alpha, beta,
+                tracking_margin, budget
     [takeoff]   layout = "grid" | "points" | "random", layout keys, headings
     [[formation]] shape, transition, name, center, plane, rotation, hold,
                 color | gradient (+ gradient_axis) | colors, shape keys
@@ -211,7 +212,7 @@ def _read_model(t: Table) -> Model:
 
 def _read_planner(t: Table) -> PlannerSettings:
     t.check_keys(("dt", "steps", "max_iterations", "tolerance", "pattern_tolerance",
-                  "alpha", "beta", "tracking_margin"))
+                  "alpha", "beta", "tracking_margin", "budget"))
     d = PlannerSettings()
     weight = Range(0.0, 1e6)
     return PlannerSettings(
@@ -228,6 +229,7 @@ def _read_planner(t: Table) -> PlannerSettings:
         beta=t.ranged("beta", d.beta, weight),
         tracking_margin=t.number("tracking_margin", d.tracking_margin, minimum=0.0,
                                  maximum=1.0),
+        budget_s=t.number("budget", d.budget_s, minimum=1.0, maximum=3600.0),
     )
 
 

@@ -149,6 +149,11 @@ class PlannerSettings:
     0.1-0.2 (the bundled ones do).  Off by default because it costs planning
     time: more pairs are near their rows, so QP groups grow (grid -> sphere,
     100 drones: 0.18 s -> 2.5 s at 0.1 m, 13 s at 0.2 m)."""
+    budget_s: float = 40.0
+    """Quadrotor: wall time one transition may spend looking for a plan that keeps every
+    pair apart, s; past it the transition fails naming the drones still in conflict.
+    Wall time: a show planned near its budget may plan on an idle machine and not on a
+    busy one, so give it room."""
 
     def steps_for(self, duration: float) -> int:
         """QP steps N of a transition lasting ``duration`` s: ``steps``, or dt's worth
