@@ -97,6 +97,7 @@ from groundctl.link.fleet import FleetLink
 from groundctl.link.state import VehicleState
 from groundctl.plan.plan import Plan
 from groundctl.record.events import EventSink
+from groundctl.show.model import VehicleSettings
 
 log = logging.getLogger(__name__)
 
@@ -189,6 +190,9 @@ class RunnerConfig:
     velocity and acceleration until this long without one (the default 3 s): through a
     link drop the fleet would fly straight lines off its curved paths into each other.
     Shorter, a vehicle that stops hearing us stops sooner and holds where it is."""
+    vehicle: VehicleSettings | None = None
+    """The show's ``[vehicle]`` table: parameters read, set (when allowed) and the fence
+    uploaded before arming (:mod:`groundctl.execute.vehset`); None: nothing checked."""
     mpc_deadline_s: float = 0.2
     """An MPC batch not back within this many wall seconds is discarded (the vehicles
     keep flying their last trajectory, then their path)."""
@@ -470,6 +474,29 @@ class ShowRunner:
                                      grounded_tracks=self._excluded_tracks())
         return self.sequence
 
+    async def _vehicle_settings(self, seq: ShowSequence) -> None:
+        """The show's ``[vehicle]`` table on every vehicle, before arming; PreflightFailed
+        with each refused vehicle's reasons."""
+        if self.config.vehicle is None:
+            return
+        from groundctl.execute.vehset import enforce
+        flavours = {s: v.flavour for s, v in seq.vehicles.items()}
+        self._say(f"vehicle settings: checking {len(flavours)} vehicle(s)", "vehicle_settings")
+        outcomes = await enforce(self.link, self.clock, flavours, self.config.vehicle,
+                                 self.plan.origin, self.plan.limits)
+        for sysid, out in sorted(outcomes.items()):
+            if out.changed or out.fence:
+                self._say(f"vehicle {sysid}: " + ", ".join(
+                    [*(["fence uploaded"] if out.fence else []), *out.changed]),
+                    "vehicle_settings_set", system_id=sysid, changed=out.changed,
+                    fence=out.fence)
+        failures = {s: o.problems for s, o in outcomes.items() if o.problems}
+        if failures:
+            self._say("pre-flight refused: vehicle settings\n" + "\n".join(
+                f"vehicle {s}: " + "; ".join(why) for s, why in sorted(failures.items())),
+                "preflight_failed", failures=failures)
+            raise PreflightFailed(failures)
+
     async def _configure(self, seq: ShowSequence) -> None:
         """Parameters the show relies on, set before arming (ArduPilot GUID_TIMEOUT)."""
         timeout = self.config.guided_timeout_s
@@ -500,6 +527,7 @@ class ShowRunner:
             self.replanner = Replanner(self.plan, self.plan.mpc, cfg.rate_hz,
                                        cfg.mpc_deadline_s)
             self.replanner.start()  # its worker loads while the fleet arms
+        await self._vehicle_settings(seq)
         await self._configure(seq)
         now = self.clock.now()
         self._say(f"arming {len(seq.vehicles)} vehicle(s)", "sequence_started")
