@@ -32,6 +32,7 @@ from groundctl.record.events import read_events
 from groundctl.show.loader import load_show
 from groundctl.show.model import GeoOrigin, Limits, VehicleSettings
 from groundctl.sim import SimConfig, SimFleet
+from groundctl.sim.fence import FenceServer
 
 AP, PX4 = Flavour.ARDUPILOT, Flavour.PX4
 INT8, INT32 = mavlink.MAV_PARAM_TYPE_INT8, mavlink.MAV_PARAM_TYPE_INT32
@@ -140,6 +141,50 @@ def test_the_fence_lies_the_margin_beyond_the_geofence() -> None:
     assert len(verts) == 4 and all(abs(lat - 47.3977) < 2e-4 for lat, _ in verts)
 
 
+# -- the fence upload against the simulator's fence server, in memory ----------------------------
+
+def _exchange(up: FenceUpload, server: FenceServer, drop: set[int]) -> int:
+    """Run ``up`` against ``server`` with a 0.25 s step; messages numbered in ``drop`` (both
+    ways, counted together) are lost.  Returns the number of messages."""
+    gcs = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    n, t = 0, 0.0
+    while not up.done and t < 60.0:
+        for msg in up.poll(t):
+            n += 1
+            if n in drop:
+                continue
+            for reply in server.handle(gcs.decode(bytearray(msg.pack(gcs))), t):
+                n += 1
+                if n not in drop:
+                    up.receive(reply, t)
+        for reply in server.tick(t):
+            n += 1
+            if n not in drop:
+                up.receive(reply, t)
+        t += 0.25
+    return n
+
+
+def test_a_fence_upload_survives_a_lost_count_and_a_lost_ack() -> None:
+    verts = fence_vertices(ORIGIN, SQUARE, 1.0)
+    server = FenceServer(1)
+    up = FenceUpload(1, verts, timeout_s=1.0)
+    # 1 the count (lost), 2 the count again, 3 request 0 ... 9 item 3, 10 the ACK (lost).
+    _exchange(up, server, drop={1, 10})
+    assert up.ok, up.error
+    assert np.allclose(server.vertices, verts, atol=2e-7)
+
+
+def test_a_refused_fence_names_the_result_and_silence_fails_after_the_last_try() -> None:
+    server = FenceServer(1)
+    too_many = FenceUpload(1, tuple((47.0 + i * 1e-5, 8.0) for i in range(300)))
+    _exchange(too_many, server, drop=set())
+    assert too_many.error == "fence upload refused: MAV_MISSION_NO_SPACE"
+    silent = FenceUpload(1, fence_vertices(ORIGIN, SQUARE, 1.0), timeout_s=1.0, attempts=3)
+    _exchange(silent, server, drop=set(range(1, 100)))
+    assert silent.error == "fence upload: no answer to MISSION_COUNT after 3 tries of 1 s"
+
+
 # -- over UDP against the simulator ------------------------------------------------------------
 
 async def _with_fleet(flavour: Flavour, count: int = 2, **cfg: object):  # type: ignore[no-untyped-def]
@@ -178,7 +223,8 @@ async def test_fence_upload_and_parameters_against_the_simulator(flavour: Flavou
             assert (v.params["GF_ACTION"], v.params["NAV_DLL_ACT"], v.params["RTL_RETURN_ALT"],
                     v.params["GF_MAX_VER_DIST"]) == (5, 3, 20.0, 42.0)
             assert "GF_ACTION 2 -> 5" in out[2].changed
-        assert v.fence_bits(fleet.time)[0]  # SYS_STATUS: fence present
+        if flavour is AP:  # PX4 reports no GEOFENCE bit in SYS_STATUS
+            assert v.fence_bits(fleet.time)[0]
         # A second pass finds everything as the show needs it: nothing changed.
         again = await enforce(link, link.clock, {1: flavour}, settings, ORIGIN, limits)
         assert again[1].changed == [] and again[1].problems == []
@@ -294,5 +340,19 @@ def test_a_dry_run_with_a_differing_parameter_and_set_false_is_refused(tmp_path:
     assert result.error.failures[1] == [
         "FS_GCS_ENABLE is 0, show needs 5 (land); not allowed to change it "
         "([vehicle] set = false)"]
-    assert not result.flown
+    assert not result.flown  # refused before anything was armed
+    assert "pre-flight checks failed: vehicle 1: FS_GCS_ENABLE is 0" in \
+        result.report["unsafe_reasons"][0]
+
+
+@pytest.mark.slow
+def test_the_cli_refuses_a_show_whose_vehicles_differ_with_their_reason(tmp_path: Path) -> None:
+    path = tmp_path / "show.toml"
+    path.write_text(QUICK_SHOW.read_text() + '\n[vehicle]\ngcs_failsafe = "land"\nset = false\n')
+    proc = subprocess.run([sys.executable, "-m", "groundctl", "dry-run", str(path), "--speed",
+                           "4", "--ready-delay", "2", "--record", str(tmp_path / "rec")],
+                          capture_output=True, text=True, timeout=180, cwd=REPO)
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert ("vehicle 4: FS_GCS_ENABLE is 0, show needs 5 (land); not allowed to change it "
+            "([vehicle] set = false)") in proc.stderr
 

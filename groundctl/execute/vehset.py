@@ -171,7 +171,9 @@ async def _one(link: FleetLink, clock: Clock, sysid: int, flavour: Flavour,
     targets = targets_for(settings, flavour, limits)
     if not targets:
         return out
-    client = ParamClient(sysid, flavour)
+    # Five tries: a read is lost only when all five requests or answers are (0.6 % of
+    # reads at 20 % loss each way, against 4.7 % with three).
+    client = ParamClient(sysid, flavour, attempts=5)
     for t in targets:
         client.read(t.name)
     await run_params(link, client, clock, deadline_s)

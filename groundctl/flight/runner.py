@@ -474,13 +474,17 @@ class ShowRunner:
                                      grounded_tracks=self._excluded_tracks())
         return self.sequence
 
-    async def _vehicle_settings(self, seq: ShowSequence) -> None:
+    async def _vehicle_settings(self) -> None:
         """The show's ``[vehicle]`` table on every vehicle, before arming; PreflightFailed
         with each refused vehicle's reasons."""
         if self.config.vehicle is None:
             return
         from groundctl.execute.vehset import enforce
-        flavours = {s: v.flavour for s, v in seq.vehicles.items()}
+        flavours: dict[int, Flavour] = {}
+        for sysid in self._tracks():
+            flavour = self.link.vehicles[sysid].flavour
+            assert flavour is not None  # the pre-flight's autopilot check
+            flavours[sysid] = flavour
         self._say(f"vehicle settings: checking {len(flavours)} vehicle(s)", "vehicle_settings")
         outcomes = await enforce(self.link, self.clock, flavours, self.config.vehicle,
                                  self.plan.origin, self.plan.limits)
@@ -516,6 +520,7 @@ class ShowRunner:
 
     async def fly(self) -> None:
         """Arm, take off, fly the show, land; returns once every vehicle is down."""
+        await self._vehicle_settings()
         seq = self._build()
         cfg = self.config
         period = 1.0 / cfg.rate_hz
@@ -527,7 +532,6 @@ class ShowRunner:
             self.replanner = Replanner(self.plan, self.plan.mpc, cfg.rate_hz,
                                        cfg.mpc_deadline_s)
             self.replanner.start()  # its worker loads while the fleet arms
-        await self._vehicle_settings(seq)
         await self._configure(seq)
         now = self.clock.now()
         self._say(f"arming {len(seq.vehicles)} vehicle(s)", "sequence_started")

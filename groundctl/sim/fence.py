@@ -6,7 +6,9 @@ Upload, as ArduPilot (``AP_Mission`` / ``AC_PolyFence_loader``) and PX4
 clears the fence and is ACKed at once); the vehicle asks for each item with
 MISSION_REQUEST_INT, again after ``retry_s`` without an answer; an item of the
 wrong sequence number is answered by asking again for the one expected; the
-last item is ACKed ACCEPTED and only then does the new fence replace the old.
+last item is ACKed ACCEPTED and only then does the new fence replace the old (a
+repeat of the last item after that, the ground station not having heard the
+ACK, is ACKed again).
 An item that is not an inclusion-polygon vertex (or whose vertex count
 disagrees with the first) is refused with MAV_MISSION_UNSUPPORTED /
 MAV_MISSION_INVALID_PARAM1.  Download (MISSION_REQUEST_LIST, then
@@ -94,7 +96,10 @@ class FenceServer:
 
     def _on_item(self, msg: Msg, now: float) -> list[Msg]:
         if self._incoming is None:
-            return []  # no transfer (or a late repeat of the last item): ignored
+            if self.vertices and msg.seq == len(self.vertices) - 1:
+                # The last item again: our ACK was lost, so the ground station repeats it.
+                return [self._ack(mavlink.MAV_MISSION_ACCEPTED)]
+            return []  # no transfer: ignored
         seq = len(self._incoming)
         if msg.seq != seq:
             return [self._request(seq, now)]

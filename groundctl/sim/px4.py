@@ -296,11 +296,6 @@ class PX4Vehicle(Vehicle):
         elif not lost:
             self._dl_lost = False
 
-    def fence_bits(self, now: float) -> tuple[bool, bool, bool]:
-        present = self._geofence_present()
-        enabled = present and int(self.params["GF_ACTION"]) != 0
-        return present, enabled, not (present and self.geofence_breached)
-
     def _geofence_present(self) -> bool:
         return (self.fence_polygon() is not None or self.params["GF_MAX_HOR_DIST"] > 0
                 or self.params["GF_MAX_VER_DIST"] > 0)
