@@ -28,6 +28,7 @@ from groundctl.execute.preflight import Thresholds
 from groundctl.flight.report import render_report
 from groundctl.flight.runner import RunnerConfig, ShowRunner
 from groundctl.plan.plan import Plan
+from groundctl.show.model import VehicleSettings
 
 if TYPE_CHECKING:
     from groundctl.viz.live import LiveRerun
@@ -85,7 +86,20 @@ def runner_config(args: argparse.Namespace, tracks: dict[int, int] | None = None
                         mpc=args.mpc,
                         preflight_timeout_s=args.preflight_timeout,
                         excluded=frozenset(args.exclude), tracks=tracks,
-                        thresholds=Thresholds(min_battery_pct=args.min_battery))
+                        thresholds=Thresholds(min_battery_pct=args.min_battery),
+                        vehicle=vehicle_settings(args))
+
+
+def vehicle_settings(args: argparse.Namespace) -> VehicleSettings | None:
+    """The show's ``[vehicle]`` table: from the show file flown, or for a ``.npz`` plan
+    from ``--show`` (or its sibling ``X.toml``); None without one."""
+    from groundctl.show.loader import load_vehicle_settings
+    path: Path | None = args.show
+    if path is not None and path.suffix == ".npz":
+        path = getattr(args, "plan_show", None) or path.with_suffix(".toml")
+        if getattr(args, "accept_plan_limits", False) or not path.is_file():
+            return None
+    return None if path is None else load_vehicle_settings(path)
 
 
 def load_or_plan(path: Path, quiet: bool, *, show_file: Path | None = None,

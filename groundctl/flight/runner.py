@@ -97,6 +97,7 @@ from groundctl.link.fleet import FleetLink
 from groundctl.link.state import VehicleState
 from groundctl.plan.plan import Plan
 from groundctl.record.events import EventSink
+from groundctl.show.model import VehicleSettings
 
 log = logging.getLogger(__name__)
 
@@ -189,6 +190,9 @@ class RunnerConfig:
     velocity and acceleration until this long without one (the default 3 s): through a
     link drop the fleet would fly straight lines off its curved paths into each other.
     Shorter, a vehicle that stops hearing us stops sooner and holds where it is."""
+    vehicle: VehicleSettings | None = None
+    """The show's ``[vehicle]`` table: parameters read, set (when allowed) and the fence
+    uploaded before arming (:mod:`groundctl.execute.vehset`); None: nothing checked."""
     mpc_deadline_s: float = 0.2
     """An MPC batch not back within this many wall seconds is discarded (the vehicles
     keep flying their last trajectory, then their path)."""
@@ -470,6 +474,33 @@ class ShowRunner:
                                      grounded_tracks=self._excluded_tracks())
         return self.sequence
 
+    async def _vehicle_settings(self) -> None:
+        """The show's ``[vehicle]`` table on every vehicle, before arming; PreflightFailed
+        with each refused vehicle's reasons."""
+        if self.config.vehicle is None:
+            return
+        from groundctl.execute.vehset import enforce
+        flavours: dict[int, Flavour] = {}
+        for sysid in self._tracks():
+            flavour = self.link.vehicles[sysid].flavour
+            assert flavour is not None  # the pre-flight's autopilot check
+            flavours[sysid] = flavour
+        self._say(f"vehicle settings: checking {len(flavours)} vehicle(s)", "vehicle_settings")
+        outcomes = await enforce(self.link, self.clock, flavours, self.config.vehicle,
+                                 self.plan.origin, self.plan.limits)
+        for sysid, out in sorted(outcomes.items()):
+            if out.changed or out.fence:
+                self._say(f"vehicle {sysid}: " + ", ".join(
+                    [*(["fence uploaded"] if out.fence else []), *out.changed]),
+                    "vehicle_settings_set", system_id=sysid, changed=out.changed,
+                    fence=out.fence)
+        failures = {s: o.problems for s, o in outcomes.items() if o.problems}
+        if failures:
+            self._say("pre-flight refused: vehicle settings\n" + "\n".join(
+                f"vehicle {s}: " + "; ".join(why) for s, why in sorted(failures.items())),
+                "preflight_failed", failures=failures)
+            raise PreflightFailed(failures)
+
     async def _configure(self, seq: ShowSequence) -> None:
         """Parameters the show relies on, set before arming (ArduPilot GUID_TIMEOUT)."""
         timeout = self.config.guided_timeout_s
@@ -489,6 +520,7 @@ class ShowRunner:
 
     async def fly(self) -> None:
         """Arm, take off, fly the show, land; returns once every vehicle is down."""
+        await self._vehicle_settings()
         seq = self._build()
         cfg = self.config
         period = 1.0 / cfg.rate_hz

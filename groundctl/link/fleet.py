@@ -190,6 +190,7 @@ class FleetLink:
         self._conflicts_by_id: dict[int, int] = {}
         self._unknown_ids: dict[int, int] = {}
         self._exchanges: dict[tuple[int, int], tuple[CommandExchange, asyncio.Event]] = {}
+        self._listeners: dict[int, list[Callable[[mavlink.MAVLink_message, float], None]]] = {}
         self._command_locks: dict[tuple[int, int], asyncio.Lock] = {}
         self._heard = asyncio.Event()
         self.last_packet_at: float | None = None
@@ -342,6 +343,8 @@ class FleetLink:
         kind = msg.get_type()
         if not state.trust.last_trusted and kind != "STATUSTEXT":
             return  # not believed: no answer, no ACK taken from it
+        for listener in tuple(self._listeners.get(sysid, ())):
+            listener(msg, now)  # protocol clients (parameters, fence upload)
         if kind == "TIMESYNC":
             reply = timesync_answer(msg.tc1, msg.ts1, now)
             if reply is not None:
@@ -750,6 +753,17 @@ class FleetLink:
                     return True
                 await asyncio.sleep(self.clock.wall_interval(0.02))
         return False
+
+    def subscribe(self, sysid: int, listener: Callable[[mavlink.MAVLink_message, float], None]
+               ) -> Callable[[], None]:
+        """Call ``listener(msg, now)`` with every trusted message from ``sysid`` (a protocol
+        client: parameters, fence upload); returns the function that stops it."""
+        self._listeners.setdefault(sysid, []).append(listener)
+
+        def stop() -> None:
+            with contextlib.suppress(KeyError, ValueError):
+                self._listeners[sysid].remove(listener)
+        return stop
 
     def send_message(self, sysid: int, msg: mavlink.MAVLink_message) -> None:
         """Send any message object to vehicle ``sysid`` (escape hatch)."""

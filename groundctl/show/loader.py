@@ -25,6 +25,9 @@ optional)::
     [landing]   transition, hold = 0, color = "#000000"
     [mpc]       enabled = true, horizon = 3, trigger_error = 0.4, release_error = 0.15,
                 release_after = 2
+    [vehicle]   fence = false, fence_action = "land", fence_margin = 2, gcs_failsafe,
+                gcs_timeout, offboard_loss, rtl_alt, land_speed, set = true,
+                params = { NAME = value, ardupilot = {...}, px4 = {...} }
 
 Every number has a range (:mod:`groundctl.show.ranges`, the README's "Ranges"),
 checked before a shape is generated or a matrix allocated; point files must be
@@ -62,6 +65,7 @@ from groundctl.show.model import (
     QuadrotorModel,
     Show,
     UnicycleModel,
+    VehicleSettings,
 )
 from groundctl.show.ranges import (
     DT,
@@ -71,11 +75,14 @@ from groundctl.show.ranges import (
     MAX_FORMATIONS,
     MAX_GEOFENCE_CORNERS,
     MAX_NAME_CHARS,
+    MAX_RAW_PARAMS,
     MAX_SHOW_FILE_BYTES,
     MAX_STEPS,
     MPC_RANGES,
     ORIGIN_RANGES,
+    PARAM_VALUE,
     TAKEOFF_ALTITUDE,
+    VEHICLE_RANGES,
     Range,
     above_zero,
 )
@@ -83,7 +90,14 @@ from groundctl.show.reader import MISSING, Table, closest, describe, fmt
 from groundctl.show.takeoff import read_headings, read_home
 
 TOP_LEVEL = ("show", "origin", "limits", "model", "planner", "takeoff", "formation", "landing",
-             "mpc")
+             "mpc", "vehicle")
+FENCE_ACTIONS = ("land", "rtl", "brake", "report")
+GCS_FAILSAFES = ("off", "land", "rtl", "brake")
+OFFBOARD_LOSS = ("land", "rtl", "hold")
+_VEHICLE_KEYS = ("fence", "fence_action", "fence_margin", "gcs_failsafe", "gcs_timeout",
+                 "offboard_loss", "rtl_alt", "land_speed", "set", "params")
+#: A parameter id: at most 16 characters (MAVLink's param_id), upper case, digits, _.
+_PARAM_NAME = re.compile(r"[A-Z][A-Z0-9_]{0,15}")
 MODEL_KINDS = ("quadrotor", "unicycle")
 _UNICYCLE_KEYS = ("speed", "r_min", "max_turn_rate")
 #: Show-file key -> Limits field.
@@ -140,6 +154,20 @@ def load_show(path: str | Path, points_dirs: Sequence[str | Path] = ()) -> Show:
         raise ShowFileError(p, "", "TOML syntax error: arrays or inline tables nested too "
                                    "deeply") from None
     return parse_show(data, str(p), p.parent, points_dirs=points_dirs, source=raw)
+
+
+def load_vehicle_settings(path: str | Path) -> VehicleSettings | None:
+    """The ``[vehicle]`` table of the show file at ``path`` (None: it has none), read
+    without planning anything (the flying commands, once the show was loaded)."""
+    p = Path(path)
+    try:
+        raw = read_regular_file(p, MAX_SHOW_FILE_BYTES)
+        data = tomllib.loads(raw.decode("utf-8"))
+    except FileProblem as exc:
+        raise ShowFileError(p, "", str(exc)) from None
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError, RecursionError):
+        return load_show(p).vehicle  # its own precise message
+    return read_vehicle_settings(data, str(p))
 
 
 def _syntax_error(path: Path, exc: tomllib.TOMLDecodeError) -> ShowFileError:
@@ -252,6 +280,74 @@ def _read_mpc(t: Table) -> MpcSettings:
                                                 MPC_RANGES["release_after_s"]))
 
 
+def _flag(t: Table, key: str, default: bool) -> bool:
+    value = t.get(key, default)
+    if not isinstance(value, bool):
+        raise t.error(f"'{key}' must be true or false, got {describe(value)}")
+    return value
+
+
+def _raw_params(t: Table, key: str, value: object) -> tuple[tuple[str, float], ...]:
+    if not isinstance(value, dict):
+        raise t.error(f"'{key}' must be a table of NAME = number, got {describe(value)}")
+    if len(value) > MAX_RAW_PARAMS:
+        raise t.error(f"'{key}' must have at most {MAX_RAW_PARAMS} parameters, got "
+                      f"{len(value)}")
+    out = []
+    for name, x in value.items():
+        if not _PARAM_NAME.fullmatch(name):
+            raise t.error(f"'{key}' parameter name {describe(name)} must be 1-16 characters "
+                          "A-Z, 0-9 or _, starting with a letter (e.g. FENCE_ACTION)")
+        problem = PARAM_VALUE.problem(f"{key}.{name}", x)
+        if problem:
+            raise t.error(problem)
+        out.append((name, float(x)))
+    return tuple(out)
+
+
+def _read_vehicle(t: Table, limits: Limits) -> VehicleSettings:
+    t.check_keys(_VEHICLE_KEYS)
+    d = VehicleSettings()
+    fence = _flag(t, "fence", d.fence)
+    if fence and limits.geofence is None:
+        raise t.error("'fence' = true needs a [limits] geofence to upload; add "
+                      "geofence = [[x, y], ...] or set fence = false")
+
+    def optional(key: str) -> float | None:
+        return t.ranged(key, MISSING, VEHICLE_RANGES[key]) if t.has(key) else None
+
+    def choice(key: str, choices: tuple[str, ...]) -> Any:
+        return t.string(key, MISSING, choices=choices) if t.has(key) else None
+
+    raw = t.get("params", {})
+    if not isinstance(raw, dict):
+        raise t.error(f"'params' must be a table of NAME = number, got {describe(raw)}")
+    flat = {k: v for k, v in raw.items() if k not in ("ardupilot", "px4")}
+    return VehicleSettings(
+        fence=fence,
+        fence_action=t.string("fence_action", d.fence_action,  # type: ignore[arg-type]
+                              choices=FENCE_ACTIONS),
+        fence_margin=t.ranged("fence_margin", d.fence_margin, VEHICLE_RANGES["fence_margin"]),
+        gcs_failsafe=choice("gcs_failsafe", GCS_FAILSAFES),
+        gcs_timeout=optional("gcs_timeout"),
+        offboard_loss=choice("offboard_loss", OFFBOARD_LOSS),
+        rtl_alt=optional("rtl_alt"),
+        land_speed=optional("land_speed"),
+        set=_flag(t, "set", d.set),
+        params=_raw_params(t, "params", flat),
+        params_ardupilot=_raw_params(t, "params.ardupilot", raw.get("ardupilot", {})),
+        params_px4=_raw_params(t, "params.px4", raw.get("px4", {})),
+    )
+
+
+def read_vehicle_settings(data: dict[str, Any], path: str) -> VehicleSettings | None:
+    """Only the ``[vehicle]`` table of a parsed show file (None: the show has none)."""
+    if "vehicle" not in data:
+        return None
+    return _read_vehicle(_table(data, "vehicle", path), _read_limits(_table(data, "limits",
+                                                                            path)))
+
+
 def _landing(t: Table, home: np.ndarray, takeoff_altitude: float, index: int,
              unicycle: bool, max_flight_time: float) -> Formation:
     t.check_keys(("transition", "hold", "color"))
@@ -354,10 +450,13 @@ def parse_show(data: dict[str, Any], path: str, base_dir: str | Path = ".", *,
         formations.append(landing)
 
     mpc = _read_mpc(_table(data, "mpc", path))
+    vehicle = _read_vehicle(_table(data, "vehicle", path), limits) if "vehicle" in data \
+        else None
     digest = "" if source is None else _digest(source, ctx.files_read)
     show = Show(name=name, drones=drones, origin=origin, limits=limits, model=model, home=home,
                 takeoff_altitude=takeoff_altitude, formations=tuple(formations),
-                planner=planner, start_headings=headings, mpc=mpc, source=path, digest=digest)
+                planner=planner, start_headings=headings, mpc=mpc, vehicle=vehicle,
+                source=path, digest=digest)
     _check_budget(show, path)
     _check_transitions(show, path)
     return show

@@ -122,6 +122,47 @@ class MpcSettings:
             raise ValueError("`release_after_s` must be non-negative")
 
 
+FenceAction = Literal["land", "rtl", "brake", "report"]
+GcsFailsafe = Literal["off", "land", "rtl", "brake"]
+OffboardLoss = Literal["land", "rtl", "hold"]
+
+
+@dataclass(frozen=True)
+class VehicleSettings:
+    """The vehicles' own safety settings the show enforces before arming (``[vehicle]``).
+
+    The operator-level keys are mapped to each autopilot's own parameters by
+    :mod:`groundctl.execute.vehset`; None leaves that setting as the vehicle has it.
+    """
+
+    fence: bool = False
+    """Upload the show's ``[limits] geofence`` (plus ``fence_margin``) and the altitude
+    ceiling as the vehicles' own fence, and enable it."""
+    fence_action: FenceAction = "land"
+    """What a vehicle does on its own when it breaches that fence."""
+    fence_margin: float = 2.0
+    """How far beyond the planner's geofence and ceiling the vehicles' fence lies, m, so
+    that a good show never trips it."""
+    gcs_failsafe: GcsFailsafe | None = None
+    """What a vehicle does when it stops hearing the ground station (None: as it is)."""
+    gcs_timeout: float | None = None
+    """After this long without the ground station's HEARTBEAT, s (None: as it is)."""
+    offboard_loss: OffboardLoss | None = None
+    """PX4: what it does when offboard setpoints stop (COM_OBL_RC_ACT; None: as it is)."""
+    rtl_alt: float | None = None
+    """Return-to-launch height above home, m (None: as it is)."""
+    land_speed: float | None = None
+    """Final landing descent rate, m/s (None: as it is)."""
+    set: bool = True
+    """May groundctl change a parameter that differs (False: only check, and refuse)."""
+    params: tuple[tuple[str, float], ...] = ()
+    """Raw parameters every vehicle must have, whatever its autopilot."""
+    params_ardupilot: tuple[tuple[str, float], ...] = ()
+    """Raw parameters for ArduPilot vehicles only (``params.ardupilot``)."""
+    params_px4: tuple[tuple[str, float], ...] = ()
+    """Raw parameters for PX4 vehicles only (``params.px4``)."""
+
+
 @dataclass(frozen=True)
 class PlannerSettings:
     """Knobs of the SCP planner (all optional in the show file)."""
@@ -207,6 +248,8 @@ class Show:
     """(drones,) initial headings in radians for the unicycle model (None: face +y)."""
     mpc: MpcSettings = field(default_factory=MpcSettings)
     """MPC replanning in flight."""
+    vehicle: VehicleSettings | None = None
+    """The vehicles' own safety settings (``[vehicle]``); None: not checked."""
     source: str = ""
     """Path of the show file it came from ("" if built in code)."""
     digest: str = ""

@@ -114,3 +114,13 @@ ANGLE_DEG = Range(-360.0, 360.0)
 SIZE = above_zero(MAX_COORD)
 SPACING = above_zero(1000.0)
 DT = Range(0.01, 5.0)
+#: VehicleSettings number -> its range.
+VEHICLE_RANGES: dict[str, Range] = {
+    "fence_margin": Range(0.0, 100.0),
+    "gcs_timeout": Range(1.0, 120.0),
+    "rtl_alt": Range(2.0, 300.0),
+    "land_speed": Range(0.1, 5.0),
+}
+#: A raw parameter's value (ArduPilot and PX4 parameters are 32-bit).
+PARAM_VALUE = Range(-1e9, 1e9)
+MAX_RAW_PARAMS = 200

@@ -41,6 +41,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from groundctl.link.flavours import Flavour
 from groundctl.sim import physics as P
+from groundctl.sim.fence import inside
 from groundctl.sim.vehicle import (
     ACCEPTED,
     FAILED,
@@ -68,11 +69,11 @@ FENCE_ALT_MAX = 1
 FENCE_CIRCLE = 2
 FENCE_POLYGON = 4
 FENCE_ALT_MIN = 8
-#: Types that count as present (AC_Fence::present(): a polygon only once one is uploaded,
-#: and this simulator stores none).
+#: Types that count as present without an upload (AC_Fence::present(): a polygon only
+#: once one is uploaded, see ``_fence_present``).
 _FENCE_PRESENT = FENCE_ALT_MAX | FENCE_CIRCLE | FENCE_ALT_MIN
 #: FENCE_ENABLE enables the configured fences except the floor (enabled on reaching it).
-_FENCE_ENABLED_BY_PARAM = FENCE_ALT_MAX | FENCE_CIRCLE
+_FENCE_ENABLED_BY_PARAM = FENCE_ALT_MAX | FENCE_CIRCLE | FENCE_POLYGON
 
 #: GCS::send_textv: the text is formatted into 256 bytes and queued in at most this many
 #: chunks (the SITL / small-board statustext queue capacity).
@@ -167,16 +168,22 @@ class ArduPilotVehicle(Vehicle):
     def fence_bits(self, now: float) -> tuple[bool, bool, bool]:
         """AC_Fence::sys_status_present / _enabled / !_failed."""
         configured = int(self.params["FENCE_TYPE"])
-        present = bool(configured & _FENCE_PRESENT)
+        present = bool(configured & self._fence_present())
         enabled = (present and self._fence_enabled_types() != 0
                    and int(self.params["FENCE_ACTION"]) != 0)
         healthy = not (present and self.fence_breaches)
         return present, enabled, healthy
 
+    def _fence_present(self) -> int:
+        return _FENCE_PRESENT | (FENCE_POLYGON if self.fence_polygon() is not None else 0)
+
     def _fence_enabled_types(self) -> int:
         if int(self.params["FENCE_ENABLE"]) != 1:
             return 0
-        return int(self.params["FENCE_TYPE"]) & _FENCE_ENABLED_BY_PARAM
+        return int(self.params["FENCE_TYPE"]) & _FENCE_ENABLED_BY_PARAM & self._fence_present()
+
+    def _on_fence_changed(self) -> None:
+        self.params.values["FENCE_TOTAL"] = float(len(self.fence.vertices))
 
     def _auto_yaw(self) -> None:
         """AutoYaw::set_mode_to_default for GUIDED: WP_YAW_BEHAVIOR 0 holds the heading."""
@@ -332,10 +339,17 @@ class ArduPilotVehicle(Vehicle):
             if enabled & FENCE_CIRCLE and math.hypot(rel[0], rel[1]) >= self.params[
                     "FENCE_RADIUS"]:
                 breaches |= FENCE_CIRCLE
+            poly = self.fence_polygon()
+            pos = self.ph.est_pos[self.i]
+            if enabled & FENCE_POLYGON and poly is not None and not inside(
+                    poly, float(pos[0]), float(pos[1])):
+                breaches |= FENCE_POLYGON
         new = breaches & ~self.fence_breaches
         self.fence_breaches = breaches
         if not new or not self.armed:
             return  # breaches are tracked while disarmed, acted on only when armed
+        if self.flying:
+            self.statustext(mavlink.MAV_SEVERITY_NOTICE, "Fence Breached")  # Copter::fence_check
         mode = _FENCE_ACTION_MODE.get(int(self.params["FENCE_ACTION"]))
         if mode is None:
             return  # report only

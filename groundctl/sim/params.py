@@ -73,7 +73,7 @@ ARDUPILOT_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("FENCE_ENABLE", 0, INT8, "used: geofence 0 off, 1 on"),
     ParamSpec("FENCE_TYPE", 7, INT8,
               "used: fence types bitmask: 1 max altitude, 2 circle around home, 4 polygon "
-              "(none uploaded here), 8 min altitude"),
+              "(once uploaded with the mission protocol), 8 min altitude"),
     ParamSpec("FENCE_ACTION", 1, INT8,
               "used: breach action 0 report only, 1 RTL or land, 2 land, 3 SmartRTL or RTL "
               "(RTL here), 4 brake or land, 5 SmartRTL or land (land here)"),
@@ -83,7 +83,7 @@ ARDUPILOT_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("FENCE_MARGIN", 2.0, REAL32, "reported: distance kept from the fence (m)"),
     ParamSpec("FENCE_AUTOENABLE", 0, INT8, "reported: auto-enable (0 off)"),
     ParamSpec("FENCE_OPTIONS", 0, INT16, "reported: fence options bitmask"),
-    ParamSpec("FENCE_TOTAL", 0, INT8, "reported: polygon points stored"),
+    ParamSpec("FENCE_TOTAL", 0, INT8, "reported: polygon points stored (set by an upload)"),
     ParamSpec("FS_GCS_ENABLE", 0, INT8,
               "used: GCS failsafe 0 off, 1 RTL, 2 RTL (continue in AUTO), 3 SmartRTL or RTL "
               "(RTL here), 4 SmartRTL or land (land here), 5 land, 6 RTL, 7 brake or land"),
@@ -167,9 +167,10 @@ PX4_PARAMS: tuple[ParamSpec, ...] = (
     ParamSpec("RTL_TYPE", 0, INT32, "reported: 0 return to home"),
     ParamSpec("RTL_CONE_ANG", 45, INT32, "reported: return cone half-angle (deg)"),
     ParamSpec("GF_ACTION", 2, INT32,
-              "reported: geofence breach action (2 hold; no geofence is simulated)"),
-    ParamSpec("GF_MAX_HOR_DIST", 0.0, REAL32, "reported: maximum distance from home (m, 0 off)"),
-    ParamSpec("GF_MAX_VER_DIST", 0.0, REAL32, "reported: maximum height above home (m, 0 off)"),
+              "used: geofence breach action 0 none, 1 warning, 2 hold, 3 return, "
+              "4 terminate (disarm here), 5 land"),
+    ParamSpec("GF_MAX_HOR_DIST", 0.0, REAL32, "used: maximum distance from home (m, 0 off)"),
+    ParamSpec("GF_MAX_VER_DIST", 0.0, REAL32, "used: maximum height above home (m, 0 off)"),
     ParamSpec("GF_ALTMODE", 0, INT32, "reported: geofence altitude reference"),
     ParamSpec("GF_SOURCE", 0, INT32, "reported: geofence position source"),
     ParamSpec("MPC_XY_VEL_MAX", 12.0, REAL32, "reported: horizontal speed limit (m/s)"),

@@ -36,6 +36,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from groundctl.link.flavours import Flavour
 from groundctl.sim import physics as P
+from groundctl.sim.fence import inside
 from groundctl.sim.vehicle import (
     ACCEPTED,
     FORCE_MAGIC,
@@ -92,6 +93,8 @@ class PX4Vehicle(Vehicle):
         self._took_off = False
         self._battery_warned = False
         self._dl_lost = False
+        self.geofence_breached = False
+        """Outside the uploaded polygon or beyond GF_MAX_HOR_DIST / GF_MAX_VER_DIST now."""
 
     def _boot_messages(self, now: float) -> None:
         for msgid, hz in _DEFAULT_STREAMS.items():
@@ -250,6 +253,7 @@ class PX4Vehicle(Vehicle):
             if not spooling and delay > 0 and ph.ground_time[i] >= delay:
                 self.disarm(now)
         self._datalink_loss(now)
+        self._geofence(now)
         self._battery(now)
 
     def _offboard_loss(self, now: float) -> None:
@@ -291,6 +295,37 @@ class PX4Vehicle(Vehicle):
             self.failsafe = True
         elif not lost:
             self._dl_lost = False
+
+    def _geofence_present(self) -> bool:
+        return (self.fence_polygon() is not None or self.params["GF_MAX_HOR_DIST"] > 0
+                or self.params["GF_MAX_VER_DIST"] > 0)
+
+    def _geofence(self, now: float) -> None:
+        """Navigator's geofence check and the commander's breach action (GF_ACTION): a
+        warning, then (2) hold, (3) return, (4) terminate, (5) land, once per breach."""
+        action = int(self.params["GF_ACTION"])
+        if action == 0 or not self._geofence_present():
+            self.geofence_breached = False
+            return
+        pos = self.ph.est_pos[self.i]
+        rel = pos - self.home_enu
+        poly = self.fence_polygon()
+        max_h, max_v = self.params["GF_MAX_HOR_DIST"], self.params["GF_MAX_VER_DIST"]
+        breached = ((poly is not None and not inside(poly, float(pos[0]), float(pos[1])))
+                    or (max_h > 0 and math.hypot(rel[0], rel[1]) > max_h)
+                    or (max_v > 0 and rel[2] > max_v))
+        new = breached and not self.geofence_breached
+        self.geofence_breached = breached
+        if not new or not self.armed or not self.flying:
+            return
+        self.statustext(mavlink.MAV_SEVERITY_CRITICAL, "Geofence violated")
+        if action == 4:
+            self.disarm(now)
+            return
+        mode = {2: "AUTO.LOITER", 3: "AUTO.RTL", 5: "AUTO.LAND"}.get(action)
+        if mode is not None:
+            self.set_mode(mode, now)
+            self.failsafe = True
 
     def _battery(self, now: float) -> None:
         if self._battery_warned or self.ph.battery[self.i] >= self.params["BAT_LOW_THR"]:

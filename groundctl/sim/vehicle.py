@@ -27,6 +27,7 @@ from groundctl.link.messages import FORCE_MAGIC
 from groundctl.sim import physics as P
 from groundctl.sim import telemetry as T
 from groundctl.sim.config import SimConfig
+from groundctl.sim.fence import FENCE, FenceServer
 from groundctl.sim.frames import FleetFrames
 from groundctl.sim.params import ParamStore
 
@@ -190,6 +191,9 @@ class Vehicle:
         self._next_timesync = boot_time + TIMESYNC_PERIOD
         self._origin_announced = False
         self._booted = False
+        self.fence = FenceServer(sysid)
+        """The uploaded fence (mission protocol, MAV_MISSION_TYPE_FENCE)."""
+        self._fence_enu: tuple[int, np.ndarray | None] = (-1, None)
 
     # -- facts --------------------------------------------------------------------------------
 
@@ -269,6 +273,7 @@ class Vehicle:
         if self.armed and self.ph.crashed[self.i]:
             self.statustext(mavlink.MAV_SEVERITY_EMERGENCY, "Crash: Disarming")
             self.disarm(now)
+        self._out.extend(self.fence.tick(now))
         self._flight_logic(now)
         dt = 0.0 if self._last_tick is None else max(0.0, now - self._last_tick)
         self._last_tick = now
@@ -647,9 +652,31 @@ class Vehicle:
             self._out.append(mavlink.MAVLink_ping_message(
                 msg.time_usec, msg.seq, msg.get_srcSystem(), msg.get_srcComponent()))
 
+    def _on_fence_message(self, msg: Msg, now: float) -> None:
+        if self._for_me(msg.target_system):
+            self._out.extend(self.fence.handle(msg, now))
+            self._on_fence_changed()
+
+    def _on_fence_changed(self) -> None:
+        """The flavour's bookkeeping after a fence upload (ArduPilot: FENCE_TOTAL)."""
+
+    def fence_polygon(self) -> np.ndarray | None:
+        """The uploaded inclusion polygon in the simulator's ENU frame, (n, 2); None: none."""
+        version, poly = self._fence_enu
+        if version != self.fence.version:
+            poly = None
+            if len(self.fence.vertices) >= 3:
+                poly = np.array([self.frames.from_geodetic(lat, lon, self.home_lla[2])[:2]
+                                 for lat, lon in self.fence.vertices])
+            self._fence_enu = (self.fence.version, poly)
+        return poly
+
     def _on_mission_request_list(self, msg: Msg, now: float) -> None:
         # Ground stations download the mission on connect; this vehicle has none.
         if not self._for_me(msg.target_system):
+            return
+        if msg.mission_type == FENCE:
+            self._out.extend(self.fence.handle(msg, now))
             return
         self._out.append(mavlink.MAVLink_mission_count_message(
             msg.get_srcSystem(), msg.get_srcComponent(), 0, msg.mission_type))
@@ -753,6 +780,9 @@ Vehicle._HANDLERS = {
     "TIMESYNC": Vehicle._on_timesync,
     "LED_CONTROL": Vehicle._on_led_control,
     "MISSION_REQUEST_LIST": Vehicle._on_mission_request_list,
+    "MISSION_COUNT": Vehicle._on_fence_message,
+    "MISSION_ITEM_INT": Vehicle._on_fence_message,
+    "MISSION_REQUEST_INT": Vehicle._on_fence_message,
     "SET_MODE": Vehicle._on_set_mode,
     "PING": Vehicle._on_ping,
 }

@@ -1,0 +1,216 @@
+"""The vehicles' own safety settings (the show's ``[vehicle]`` table), enforced before arming.
+
+:func:`targets_for` maps the operator's keys to each autopilot's parameters
+and enum values (pure); :func:`fence_vertices` turns the show's geofence, grown
+by ``fence_margin``, into the latitude/longitude polygon the vehicles get;
+:func:`enforce` reads every parameter, sets those that differ (when ``set`` allows),
+uploads the fence and returns each vehicle's problems as one line each:
+``FENCE_ACTION is 0, show needs 2 (land); not allowed to change it ([vehicle] set = false)``.
+
+The mapping, from ArduCopter 4.x (``AC_Fence``, ``Copter::failsafe_gcs``) and
+PX4 v1.15 (``geofence_params``, ``commander_params``, ``navigator_params``):
+
+* ``fence = true``: ArduPilot FENCE_ENABLE 1, FENCE_TYPE 5 (altitude + polygon),
+  FENCE_ALT_MAX = ceiling + margin, and the polygon; PX4 the polygon and
+  GF_MAX_VER_DIST = ceiling + margin.
+* ``fence_action``: ArduPilot FENCE_ACTION land 2, rtl 1, brake 4 (brake or land),
+  report 0; PX4 GF_ACTION land 5, rtl 3, brake 2 (hold), report 1 (warning).
+* ``gcs_failsafe``: ArduPilot FS_GCS_ENABLE off 0, rtl 1, land 5, brake 7 (brake or
+  land); PX4 NAV_DLL_ACT off 0, brake 1 (hold), rtl 2, land 3.
+* ``gcs_timeout``: ArduPilot FS_GCS_TIMEOUT (s); PX4 COM_DL_LOSS_T (whole s).
+* ``offboard_loss``: PX4 COM_OBL_RC_ACT land 4, rtl 3, hold 5 (ArduPilot's GUIDED has
+  no such action: GUID_TIMEOUT, which the runner sets).
+* ``rtl_alt``: ArduPilot RTL_ALT (cm); PX4 RTL_RETURN_ALT (m).
+* ``land_speed``: ArduPilot LAND_SPEED (cm/s); PX4 MPC_LAND_SPEED (m/s).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from groundctl.clock import Clock
+from groundctl.execute.frames import show_to_geodetic
+from groundctl.link.fence import FenceUpload, upload_fence
+from groundctl.link.flavours import Flavour
+from groundctl.link.fleet import FleetLink
+from groundctl.link.params import ParamClient, run_params, same_value
+from groundctl.show.model import GeoOrigin, Limits, VehicleSettings
+
+#: FENCE_TYPE bits: 1 maximum altitude, 4 polygon.
+ARDUPILOT_FENCE_TYPE = 1 | 4
+_ARDU_FENCE_ACTION = {"land": 2, "rtl": 1, "brake": 4, "report": 0}
+_PX4_GF_ACTION = {"land": 5, "rtl": 3, "brake": 2, "report": 1}
+_ARDU_GCS = {"off": 0, "rtl": 1, "land": 5, "brake": 7}
+_PX4_DLL = {"off": 0, "brake": 1, "rtl": 2, "land": 3}
+_PX4_OBL = {"land": 4, "rtl": 3, "hold": 5}
+#: A miter longer than this many margins is cut (a sharp corner would reach far out).
+_MITER_LIMIT = 4.0
+
+
+@dataclass(frozen=True)
+class ParamTarget:
+    """One parameter value the show needs."""
+
+    name: str
+    """The autopilot's parameter id."""
+    value: float
+    """The value needed, in the parameter's own unit."""
+    why: str = ""
+    """What it means, for messages ("land", "[vehicle] rtl_alt 20 m")."""
+
+    def needs(self) -> str:
+        return f"{self.value:g}" + (f" ({self.why})" if self.why else "")
+
+
+def targets_for(settings: VehicleSettings, flavour: Flavour, limits: Limits) -> list[ParamTarget]:
+    """The parameters ``settings`` asks of a vehicle of ``flavour``, in a fixed order."""
+    s = settings
+    out: list[ParamTarget] = []
+    ceiling = limits.max_alt + s.fence_margin
+    if flavour is Flavour.ARDUPILOT:
+        if s.fence:
+            out += [ParamTarget("FENCE_ENABLE", 1, "fence on"),
+                    ParamTarget("FENCE_TYPE", ARDUPILOT_FENCE_TYPE, "altitude + polygon"),
+                    ParamTarget("FENCE_ALT_MAX", ceiling, "ceiling + margin, m"),
+                    ParamTarget("FENCE_ACTION", _ARDU_FENCE_ACTION[s.fence_action],
+                                s.fence_action)]
+        if s.gcs_failsafe is not None:
+            out.append(ParamTarget("FS_GCS_ENABLE", _ARDU_GCS[s.gcs_failsafe], s.gcs_failsafe))
+        if s.gcs_timeout is not None:
+            out.append(ParamTarget("FS_GCS_TIMEOUT", s.gcs_timeout, "s"))
+        if s.rtl_alt is not None:
+            out.append(ParamTarget("RTL_ALT", round(s.rtl_alt * 100), "cm"))
+        if s.land_speed is not None:
+            out.append(ParamTarget("LAND_SPEED", round(s.land_speed * 100), "cm/s"))
+        raw = s.params_ardupilot
+    else:
+        if s.fence:
+            out += [ParamTarget("GF_MAX_VER_DIST", ceiling, "ceiling + margin, m"),
+                    ParamTarget("GF_ACTION", _PX4_GF_ACTION[s.fence_action], s.fence_action)]
+        if s.gcs_failsafe is not None:
+            out.append(ParamTarget("NAV_DLL_ACT", _PX4_DLL[s.gcs_failsafe], s.gcs_failsafe))
+        if s.gcs_timeout is not None:
+            out.append(ParamTarget("COM_DL_LOSS_T", math.ceil(s.gcs_timeout), "s"))
+        if s.offboard_loss is not None:
+            out.append(ParamTarget("COM_OBL_RC_ACT", _PX4_OBL[s.offboard_loss],
+                                   s.offboard_loss))
+        if s.rtl_alt is not None:
+            out.append(ParamTarget("RTL_RETURN_ALT", s.rtl_alt, "m"))
+        if s.land_speed is not None:
+            out.append(ParamTarget("MPC_LAND_SPEED", s.land_speed, "m/s"))
+        raw = s.params_px4
+    names = {t.name for t in out}
+    for name, value in (*s.params, *raw):
+        if name in names:  # a raw parameter wins over the operator-level key
+            out = [t for t in out if t.name != name]
+        out.append(ParamTarget(name, value, "[vehicle] params"))
+        names.add(name)
+    return out
+
+
+def offset_polygon(xy: np.ndarray, margin: float) -> np.ndarray:
+    """``xy`` (n, 2) grown outward by ``margin`` (each edge moved out, corners mitred, a
+    miter longer than four margins cut to that)."""
+    pts = np.asarray(xy, dtype=float)
+    if margin == 0:
+        return pts.copy()
+    area2 = float(np.dot(pts[:, 0], np.roll(pts[:, 1], -1))
+                  - np.dot(pts[:, 1], np.roll(pts[:, 0], -1)))
+    sign = 1.0 if area2 > 0 else -1.0  # counter-clockwise: outward is to the right
+    edge = np.roll(pts, -1, axis=0) - pts
+    length = np.maximum(np.linalg.norm(edge, axis=1, keepdims=True), 1e-12)
+    normal = sign * np.stack([edge[:, 1], -edge[:, 0]], axis=1) / length  # of edge i -> i+1
+    prev = np.roll(normal, 1, axis=0)
+    bis = prev + normal
+    cos = np.clip(np.einsum("ij,ij->i", prev, normal), -0.999, 1.0)
+    scale = margin / (1.0 + cos)  # |bis| * scale = margin / cos(half angle)
+    offset = bis * scale[:, None]
+    reach = np.linalg.norm(offset, axis=1, keepdims=True)
+    offset = np.where(reach > _MITER_LIMIT * margin,
+                      offset / np.maximum(reach, 1e-12) * _MITER_LIMIT * margin, offset)
+    return pts + offset
+
+
+def fence_vertices(origin: GeoOrigin, geofence: Sequence[tuple[float, float]],
+                   margin: float) -> tuple[tuple[float, float], ...]:
+    """The show's geofence (show-frame x, y), grown by ``margin``, as (lat, lon) degrees."""
+    grown = offset_polygon(np.array(geofence, dtype=float), margin)
+    xyz = np.column_stack([grown, np.zeros(len(grown))])
+    lat, lon, _ = show_to_geodetic(origin, xyz)
+    return tuple((float(a), float(b)) for a, b in zip(lat, lon, strict=True))
+
+
+@dataclass
+class VehicleOutcome:
+    """What :func:`enforce` found and did on one vehicle."""
+
+    problems: list[str]
+    """Why the vehicle may not fly (empty: it may)."""
+    changed: list[str]
+    """Parameters set and confirmed, ``NAME a -> b``."""
+    fence: bool = False
+    """The fence was uploaded and accepted."""
+
+
+async def _one(link: FleetLink, clock: Clock, sysid: int, flavour: Flavour,
+               settings: VehicleSettings, origin: GeoOrigin, limits: Limits,
+               deadline_s: float) -> VehicleOutcome:
+    out = VehicleOutcome([], [])
+    if settings.fence and limits.geofence is not None:
+        upload = FenceUpload(sysid, fence_vertices(origin, limits.geofence,
+                                                   settings.fence_margin))
+        # Bounded by itself: each message is sent at most `attempts` times.
+        out.fence = await upload_fence(link, upload, clock)
+        if not out.fence:
+            out.problems.append(upload.error or "fence upload failed")
+    targets = targets_for(settings, flavour, limits)
+    if not targets:
+        return out
+    # Five tries: a read is lost only when all five requests or answers are (0.6 % of
+    # reads at 20 % loss each way, against 4.7 % with three).
+    client = ParamClient(sysid, flavour, attempts=5)
+    for t in targets:
+        client.read(t.name)
+    await run_params(link, client, clock, deadline_s)
+    wanted: dict[str, ParamTarget] = {}
+    for t in targets:
+        got = client.values.get(t.name)
+        if got is None:
+            out.problems.append(client.failed.get(t.name, f"{t.name} not read") +
+                                f" (show needs {t.needs()})")
+            continue
+        if same_value(got.value, t.value, got.type):
+            continue
+        if not settings.set:
+            out.problems.append(f"{t.name} is {got.value:g}, show needs {t.needs()}; not "
+                                "allowed to change it ([vehicle] set = false)")
+            continue
+        wanted[t.name] = t
+        client.set(t.name, t.value, got.type)
+    if wanted:
+        before = {n: client.values[n].value for n in wanted}
+        await run_params(link, client, clock, deadline_s)
+        for name, t in wanted.items():
+            if name in client.confirmed:
+                out.changed.append(f"{name} {before[name]:g} -> {t.value:g}")
+            else:
+                out.problems.append(client.failed.get(name, f"{name} not confirmed"))
+    return out
+
+
+async def enforce(link: FleetLink, clock: Clock, flavours: Mapping[int, Flavour],
+                  settings: VehicleSettings, origin: GeoOrigin, limits: Limits, *,
+                  deadline_s: float = 20.0) -> dict[int, VehicleOutcome]:
+    """Read, set (when allowed) and check every vehicle's parameters and upload the fence,
+    all vehicles at once (each with its own window of requests); ``deadline_s`` of
+    ``clock`` per parameter stage and vehicle (the fence upload is bounded by its own
+    retries)."""
+    ids = sorted(flavours)
+    results = await asyncio.gather(*(_one(link, clock, s, flavours[s], settings, origin,
+                                          limits, deadline_s) for s in ids))
+    return dict(zip(ids, results, strict=True))
