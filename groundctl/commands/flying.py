@@ -94,7 +94,10 @@ def vehicle_settings(args: argparse.Namespace) -> VehicleSettings | None:
     """The show's ``[vehicle]`` table: from the show file flown, or for a ``.npz`` plan
     from ``--show`` (or its sibling ``X.toml``); None without one."""
     from groundctl.show.loader import load_vehicle_settings
+    from groundctl.skybrush.importing import is_skybrush
     path: Path | None = args.show
+    if path is not None and is_skybrush(path):
+        return None  # a Skybrush show carries no [vehicle] table
     if path is not None and path.suffix == ".npz":
         path = getattr(args, "plan_show", None) or path.with_suffix(".toml")
         if getattr(args, "accept_plan_limits", False) or not path.is_file():
