@@ -11,7 +11,13 @@ from groundctl.plan.assign import assign
 from groundctl.plan.conflicts import close_pair_segments
 from groundctl.plan.profile import rest_to_rest
 from groundctl.plan.scp_quad import plan_quad_transition
-from groundctl.plan.scp_unicycle import UnicycleQP, plan_unicycle_transition, rollout, within
+from groundctl.plan.scp_unicycle import (
+    UnicycleQP,
+    pattern_half_width,
+    plan_unicycle_transition,
+    rollout,
+    within,
+)
 from groundctl.show.model import Limits, PlannerSettings, UnicycleModel
 
 LIM = Limits(min_separation=1.5, min_alt=0.0, max_alt=100.0)
@@ -191,8 +197,9 @@ def test_unicycle_polishing_model_passes_through_the_new_rollout() -> None:
     step = dt * speed * np.stack([-np.sin(theta0[:, :steps]) * dth,
                                   np.cos(theta0[:, :steps]) * dth], axis=2)
     dp_end = step.sum(axis=1)
-    # The pattern rows read goal - (base end) +- eps/2, base = what the model puts at dp = 0.
-    half = 0.05
+    # The pattern rows read goal - (base end) +- the half-width, base = what the model
+    # puts at dp = 0.
+    half = pattern_half_width(0.1)
     lo = qp.l[qp.term_rows]
     base_end = goal - np.column_stack([lo[:n], lo[n:]]) - half
     assert np.allclose(base_end + dp_end, P1[:, -1], atol=1e-9)

@@ -9,7 +9,8 @@ are linearised around the previous iterate's headings; after every QP the
 headings are rolled out through the *nonlinear* dynamics, so each iterate
 (and the result) flies at exactly V.  The QP (:class:`UnicycleQP`) is written in
 the step from that rollout, with u and the fixed start eliminated.  The
-pattern constraint |p[N] - target| <= eps is a box of half-width eps/2
+pattern constraint |p[N] - target| <= eps aims at eps/2: a box inscribed in
+that circle (half-width eps/2 / sqrt(2), see :func:`pattern_half_width`),
 softened by a penalised slack, and separation uses the same segment rows as
 the quadrotor.
 
@@ -30,7 +31,9 @@ along the whole straight segment between samples.  A feasible iterate ends the
 SCP when no sample moved more than the tolerance (the paper's test) or when it
 follows a feasible iterate and lowered the cost J by less than COST_TOL: once
 feasible, the trust region shrinks geometrically and the remaining iterations
-only polish J by a few per cent (paper transitions: 9 iterations -> 5-7).
+only polish J by a few per cent (paper transitions: 9 iterations -> 5-7).  An
+iterate that would end the SCP with an end point further than eps/2 from its
+slot (the rollout off the linear model's pattern box) gets one more iteration.
 After a feasible iterate the QP keeps its Jacobian (dynamics coefficients and
 separation normals: no KKT refactorisation) but is shifted to pass through the
 new rollout, a simplified Newton step; the trust region moves with it.
@@ -38,8 +41,8 @@ Relinearising in this polishing phase as well bought nothing but refactorisation
 and longer ADMM restarts; keeping the Jacobian from the first iterate on, on
 the other hand, converged to plans with 45 % more turning effort (a fixed point
 of simplified Newton is feasible but not optimal), so the Jacobian is fresh
-until the fleet is feasible.  Paper star and transitions: 4-7 iterations,
-0.04-0.08 s (`benchmarks/bench_plan.py`).
+until the fleet is feasible.  Paper star and transitions: 3-5 iterations,
+0.03-0.08 s, pattern error <= 0.05 m (`benchmarks/bench_plan.py`).
 """
 
 from __future__ import annotations
@@ -76,6 +79,8 @@ FloatArray = NDArray[np.float64]
 
 #: Weight of the terminal slack (m^-2): the pattern error dominates any effort.
 TERMINAL_WEIGHT = 1e3
+#: How far inside eps/2 the pattern box's corners are, m (see :func:`pattern_half_width`).
+AIM_MARGIN = 2e-3
 #: Max heading change per SCP iteration, rad (keeps the linearisation honest).
 HEADING_TRUST = 0.5
 #: Factor applied to the heading trust region after every feasible iteration.  Once
@@ -86,7 +91,7 @@ HEADING_TRUST = 0.5
 TRUST_DECAY = 0.3
 #: Relative cost decrease below which a feasible iterate that follows a feasible one
 #: ends the SCP (see the module docstring).
-COST_TOL = 1e-2
+COST_TOL = 1.5e-2
 #: OSQP settings of the unicycle QP.  The QP only proposes headings: positions are
 #: rolled out through the nonlinear dynamics and checked after every solve, so
 #: ADMM's accuracy only has to be good enough to make progress.  Measured on the
@@ -111,6 +116,24 @@ UNICYCLE_OSQP_SETTINGS: dict[str, float | int | bool] = {
     **{k: v for k, v in OSQP_SETTINGS.items() if k != "rho"}, "polishing": False,
     "adaptive_rho_interval": 50, "eps_abs": 1e-2, "eps_rel": 1e-3,
     "check_termination": 10, "scaling": 1}
+
+
+def pattern_half_width(eps: float) -> float:
+    """Half-width of the pattern box: its corners lie on the circle of radius eps/2.
+
+    The QP aims every end point at eps/2 of its slot (half the paper's eps; the rest
+    is room for the linearisation).  A box of half-width eps/2 let the end point sit
+    in a corner, eps/2 sqrt(2) = 0.071 m off for eps 0.1, and the cost does push it
+    there: the constant-speed drones save turning by arriving short or wide (paper
+    star and transitions: 0.068-0.072 m, the README's old figures).  An octagon
+    (two more rows per drone, sides at cos(pi/8) eps/2) gives more room but cost
+    more ADMM iterations per solve (paper circle 0.062 -> 0.103 s); the inscribed
+    box did not (`benchmarks/bench_plan.py`).  The corners sit AIM_MARGIN inside
+    the circle: the rows are soft (the slack e costs TERMINAL_WEIGHT e^2 against
+    the effort it saves), and the rollouts landed 0.3-0.4 mm past a box on the
+    circle itself.
+    """
+    return float(np.sqrt(0.5) * (eps / 2 - AIM_MARGIN))
 
 
 def _wrap(a: FloatArray) -> FloatArray:
@@ -177,7 +200,7 @@ class UnicycleQP:
         |thbar[k+1] + dth[k+1] - thbar[k] - dth[k]| <= dt u_max        (turn rate)
         |dth[k]| <= trust_i                                            (trust region)
         n.(dp_i - dp_j) + s >= d_sep - n.(Pbar_i - Pbar_j), s >= 0    (separation)
-        Pbar[N] + dp[N] - e in target +- eps/2                         (pattern)
+        Pbar[N] + dp[N] - e in target +- pattern_half_width(eps)       (pattern)
 
     The last heading theta[N] moves no position; its only cost is the last turn,
     so it equals theta[N-1] and is no variable either.  The turn rate u is no
@@ -366,11 +389,10 @@ class UnicycleQP:
         """Right-hand sides and position cost for positions ``base`` + dp."""
         N = self.N
         self.q[: self.nP] = (2 * self.beta * self.dt * (base[:, 1:] - self.ref[:, 1:])).ravel()
-        half = self.eps / 2
-        end = base[:, N]
-        self.l[self.term_rows] = np.concatenate([self.goal[:, 0] - end[:, 0],
-                                                 self.goal[:, 1] - end[:, 1]]) - half
-        self.u[self.term_rows] = self.l[self.term_rows] + 2 * half
+        half = pattern_half_width(self.eps)
+        miss = (self.goal - base[:, N]).T.ravel()       # x of every drone, then y
+        self.l[self.term_rows] = miss - half
+        self.u[self.term_rows] = miss + half
         segs = self.segs
         if len(segs):
             ii, jj, ends = self._sep_ends
@@ -449,6 +471,7 @@ def plan_unicycle_transition(index: int, name: str, start: FloatArray, goal: Flo
     trust = np.full(n, HEADING_TRUST)
     errs = np.full(n, np.inf)
     prev_cost, feasible, prev_feasible = np.inf, False, False
+    aim, retried = settings.pattern_tolerance / 2, False
     for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 (used after)
         need = segment_keys(within(P, near, d_sep + NEED_MARGIN), n, steps)
         if qp is None or not np.all(np.isin(need, have)):
@@ -482,10 +505,15 @@ def plan_unicycle_transition(index: int, name: str, start: FloatArray, goal: Flo
             trust = np.where(worse, np.maximum(trust * 0.5, 1e-3),
                              np.minimum(trust * 1.2, HEADING_TRUST))
         # Converged: a feasible iterate that either stopped moving (the paper's test)
-        # or, following a feasible one, improved the cost by less than COST_TOL.
+        # or, following a feasible one, improved the cost by less than COST_TOL.  One
+        # whose end points are not all within the QP's aim (eps/2: the rollout can
+        # land a little off the linear model's pattern box) gets one more iteration,
+        # in the already shrunk trust region, to correct that.
         if feasible and (change < settings.tolerance
                          or (prev_feasible and prev_cost - cost < COST_TOL * prev_cost)):
-            break
+            if err <= aim or retried:
+                break
+            retried = True
         prev_cost, prev_feasible = cost, feasible
     if not feasible:
         raise PlanningError(index, "did not converge",
