@@ -97,6 +97,7 @@ from groundctl.link.fleet import FleetLink
 from groundctl.link.state import VehicleState
 from groundctl.plan.plan import Plan
 from groundctl.record.events import EventSink
+from groundctl.record.logstreams import request_log_extras
 
 log = logging.getLogger(__name__)
 
@@ -244,6 +245,9 @@ class ShowRunner:
         """Per tick: how long after its scheduled instant the tick's last setpoint left, s."""
         self.overruns = 0
         """Ticks skipped because the loop fell a whole period behind."""
+        self.rtk: Any = None
+        """The RTK forwarder (:class:`groundctl.rtk.forwarder.RtkForwarder`) when
+        ``--rtk`` is given: the report and the console read its counts and ages."""
         self.on_tick: Callable[[float, float], None] | None = None
         """Called after every tick with (now, show time): the dry-run's truth probe."""
         self.loop_lag_s: list[float] = []
@@ -436,6 +440,7 @@ class ShowRunner:
             log.debug("vehicle %s: streams not set yet: %s", sysid, exc)
         else:
             done.add(sysid)
+            self._spawn(request_log_extras(self.link, sysid))  # the tlog's extras, once
 
     def _tracks(self) -> dict[int, int]:
         assert self.assignment is not None
