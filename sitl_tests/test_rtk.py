@@ -236,16 +236,18 @@ def test_ntrip_client_against_a_local_caster(version: str) -> None:
 
 
 # -- end to end -------------------------------------------------------------------------
-def _dry_run(*extra: str) -> subprocess.CompletedProcess[str]:
+def _dry_run(*extra: str, record: Path | None = None) -> subprocess.CompletedProcess[str]:
+    rec = ["--no-record"] if record is None else ["--record", str(record)]
     return subprocess.run([*GROUNDCTL, "dry-run", str(QUICK_SHOW), "--speed", "4",
-                           "--ready-delay", "2", "--json", "--no-console", "--no-record",
+                           "--ready-delay", "2", "--json", "--no-console", *rec,
                            *extra], capture_output=True, text=True, cwd=REPO, timeout=300,
                           check=False)
 
 
 @pytest.mark.slow
-def test_dry_run_with_rtk_file_every_frame_intact_and_fixed() -> None:
-    run = _dry_run("--rtk", str(FIXTURE), "--require-rtk", "fixed", "--gcs-sysid", "200")
+def test_dry_run_with_rtk_file_every_frame_intact_and_fixed(tmp_path: Path) -> None:
+    run = _dry_run("--rtk", str(FIXTURE), "--require-rtk", "fixed", "--gcs-sysid", "200",
+                   record=tmp_path / "rec")
     assert run.returncode == 0, run.stderr[-2000:]
     report = json.loads(run.stdout)
     assert report["safe"]
@@ -263,6 +265,16 @@ def test_dry_run_with_rtk_file_every_frame_intact_and_fixed() -> None:
         assert stats["fix_type"] == 6
     for v in report["vehicles"]:
         assert v["fix_type"] == 6 and v["rtk_correction_age_s"] is not None
+    # The tlog holds what a log analyst expects, and the corrections, under our system id.
+    from pymavlink import mavutil
+    log = mavutil.mavlink_connection(str(tmp_path / "rec" / "flight.tlog"))
+    seen: dict[str, set[int]] = {}
+    while (msg := log.recv_match()) is not None:
+        seen.setdefault(msg.get_type(), set()).add(msg.get_srcSystem())
+    for kind in ("ATTITUDE", "BATTERY_STATUS", "EXTENDED_SYS_STATE", "EKF_STATUS_REPORT",
+                 "PARAM_VALUE"):
+        assert seen.get(kind, set()) >= set(range(1, 10)), kind
+    assert seen["GPS_RTCM_DATA"] == {200}
 
 
 @pytest.mark.slow
