@@ -297,3 +297,41 @@ def test_sim_streams_the_log_messages() -> None:
     from groundctl.sim import telemetry as T
     assert mavlink.MAVLINK_MSG_ID_EKF_STATUS_REPORT in T.BUILDERS
     assert mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS in T.BUILDERS
+
+
+def test_forwarder_survives_a_dead_source_and_counts_drops() -> None:
+    import socket
+
+    from groundctl.link.fleet import FleetLink
+    from groundctl.rtk.forwarder import RtkForwarder
+
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+
+    async def main() -> dict[str, object]:
+        clock = ScaledClock(1.0)
+        link = FleetLink(("127.0.0.1", 0), clock=clock)
+        await link.start()
+        notes: list[str] = []
+        fwd = RtkForwarder(RtkSource(parse_source(f"tcp:127.0.0.1:{port}"), clock,
+                                     connect_timeout_s=1.0), link, clock, retry_s=0.05,
+                           max_rate_Bps=1000.0, notify=notes.append)
+        fwd.start()
+        for _ in range(400):
+            if fwd.source_errors >= 3:
+                break
+            await asyncio.sleep(0.01)
+        fwd.forward(frame(bytes(800)))  # over four fragments
+        for _ in range(5):
+            fwd.forward(frame(bytes(400)))  # 2030 bytes at once against 1000 B/s
+        await fwd.stop()
+        await link.close()
+        assert len(notes) == 1 and "corrections stopped" in notes[0]
+        return fwd.report()
+
+    report = asyncio.run(main())
+    assert isinstance(report["source_errors"], int) and report["source_errors"] >= 3
+    assert report["too_large"] == 1
+    assert report["messages_sent"] == 2 and report["rate_dropped"] == 3
+    assert report["bytes_sent"] == 812

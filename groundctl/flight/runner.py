@@ -1239,7 +1239,15 @@ class ShowRunner:
     # -- status -------------------------------------------------------------------------
     def status_line(self) -> str:
         """One line for a plain terminal: phase, show clock, vehicle phases, separation;
-        before the show, the pre-flight checks still pending, fleet-wide."""
+        before the show, the pre-flight checks still pending, fleet-wide (and with
+        ``--rtk`` the vehicles' fix types and correction age)."""
+        line = self._status_text()
+        if self.rtk is not None:
+            line += "; " + self.rtk.summary(
+                {s: v.gps_fix_type for s, v in sorted(self.link.vehicles.items())})
+        return line
+
+    def _status_text(self) -> str:
         seq = self.sequence
         if seq is None:
             n = len(self.link.vehicles)

@@ -92,6 +92,9 @@ class RtkForwarder:
                 why = "the source ended"
             except (GroundctlError, OSError, ValueError, asyncio.IncompleteReadError) as exc:
                 why = str(exc)
+            except Exception as exc:  # a source's own bug must not end the corrections
+                log.exception("rtk source failed")
+                why = f"{type(exc).__name__}: {exc}"
             self.source_errors += 1
             text = f"rtk: corrections stopped ({why}); retrying every {self.retry_s:g} s"
             if self.source_errors == 1 and self.notify is not None:
@@ -145,6 +148,23 @@ class RtkForwarder:
         if at is None:
             return None
         return max(0.0, (self.clock.now() if now is None else now) - at)
+
+    def summary(self, fixes: dict[int, int | None], now: float | None = None) -> str:
+        """One fleet-wide phrase for the plain status line: ``rtk fixed 8/9 float 1/9 (3D:
+        7), age <= 0.4 s``."""
+        from groundctl.rtk.options import fix_name
+
+        n = len(fixes)
+        fixed = [s for s, f in fixes.items() if f == 6]
+        floating = [s for s, f in fixes.items() if f == 5]
+        other = sorted(s for s in fixes if s not in fixed and s not in floating)
+        ages = [a for a in (self.age_of(s, now) for s in fixes) if a is not None]
+        text = f"rtk fixed {len(fixed)}/{n} float {len(floating)}/{n}"
+        if other:
+            shown = ", ".join(f"{s} {fix_name(fixes[s])}" for s in other[:4])
+            text += f" ({shown}{', ...' if len(other) > 4 else ''})"
+        text += f", age <= {max(ages):.1f} s" if ages else ", nothing sent yet"
+        return text
 
     def report(self) -> dict[str, Any]:
         """The report's ``rtk`` object."""
