@@ -112,10 +112,16 @@ def run(args: argparse.Namespace) -> int:
         link = FleetLink(args.connect, clock=clock,
                          endpoints=fleet.endpoints if fleet is not None else (),
                          expected_ids=ids, signing_key=args.signing_key,
-                         tlog=recording.tlog, events=events)
+                         tlog=recording.tlog, events=events, system_id=args.gcs_sysid)
         runner = ShowRunner(plan, link, clock, config, events=events, notify=notify,
                             expected_ids=ids)
         recording.follow(runner)  # the show clock, for a replay
+        rtk = None
+        if args.rtk is not None:
+            from groundctl.rtk.forwarder import RtkForwarder
+            from groundctl.rtk.sources import RtkSource
+            rtk = runner.rtk = RtkForwarder(RtkSource(args.rtk, clock), link, clock,
+                                            events=events, notify=notify)
         if live is not None:
             live.attach(runner)
         interrupts.attach(runner)
@@ -128,6 +134,8 @@ def run(args: argparse.Namespace) -> int:
                                        if session is None else asyncio.sleep(0))
         try:
             await link.start()
+            if rtk is not None:
+                rtk.start()
             notify(f"listening on {args.connect[0]}:{args.connect[1]} for "
                    f"{len(ids) if ids else plan.drones} vehicle(s)")
             await runner.run()
@@ -138,6 +146,8 @@ def run(args: argparse.Namespace) -> int:
             interrupts.uninstall()
             status.cancel()
             commands.cancel()
+            if rtk is not None:
+                await rtk.stop()
             await link.close()
             report = flight_report(runner, None if error is None else str(error))
             report["record_dir"] = str(record)

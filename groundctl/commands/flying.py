@@ -28,6 +28,7 @@ from groundctl.execute.preflight import Thresholds
 from groundctl.flight.report import render_report
 from groundctl.flight.runner import RunnerConfig, ShowRunner
 from groundctl.plan.plan import Plan
+from groundctl.rtk.options import REQUIRE_RTK, add_rtk_options
 from groundctl.show.model import VehicleSettings
 
 if TYPE_CHECKING:
@@ -64,6 +65,7 @@ def add_runner_options(p: argparse.ArgumentParser) -> None:
                    help="MAVLink 2 signing key, 64 hex digits")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
     add_rerun_option(p, "stream the flight, live,", "live.rrd in the recording directory")
+    add_rtk_options(p)
 
 
 def lead_ms(text: str) -> float | None:
@@ -86,7 +88,9 @@ def runner_config(args: argparse.Namespace, tracks: dict[int, int] | None = None
                         mpc=args.mpc,
                         preflight_timeout_s=args.preflight_timeout,
                         excluded=frozenset(args.exclude), tracks=tracks,
-                        thresholds=Thresholds(min_battery_pct=args.min_battery),
+                        thresholds=Thresholds(
+                            min_battery_pct=args.min_battery,
+                            require_fix_type=REQUIRE_RTK.get(args.require_rtk or "")),
                         vehicle=vehicle_settings(args))
 
 

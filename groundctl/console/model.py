@@ -36,7 +36,7 @@ LOSSY = 0.05
 #: Fleet table columns: key, title, width (fixed: cells are updated in place).
 COLUMNS: tuple[tuple[str, str, int], ...] = (
     ("sysid", "id", 4), ("track", "trk", 4), ("phase", "phase", 9), ("mode", "mode", 10),
-    ("armed", "arm", 5), ("battery", "batt", 5), ("gps", "gps", 7), ("loss", "loss", 6),
+    ("armed", "arm", 5), ("battery", "batt", 5), ("gps", "gps/rtk age", 12), ("loss", "loss", 6),
     ("rtt", "rtt", 4), ("error", "err m", 6), ("max_error", "max m", 6), ("led", "led", 4),
     ("alarm", "alarm", 48))
 #: Sort orders of the fleet table (``s`` cycles through them).
@@ -119,6 +119,8 @@ class VehicleRow:
     alarm: str
     """What is wrong ("" if nothing)."""
     severity: Severity
+    rtk_age_s: float | None = None
+    """Seconds since RTK corrections last went to it (None: no ``--rtk`` or none yet)."""
 
     def cells(self) -> dict[str, str]:
         """The row as text, one entry per :data:`COLUMNS` key (the LED as ``#rrggbb``)."""
@@ -126,6 +128,9 @@ class VehicleRow:
             return "-" if x is None else format(x, fmt) + unit
         gps = "-" if self.gps_fix is None else \
             f"{_FIX.get(self.gps_fix, str(self.gps_fix))}/{self.satellites or 0}"
+        if self.rtk_age_s is not None:
+            gps += f" {min(self.rtk_age_s, 99.0):.0f}s" if self.rtk_age_s >= 10 \
+                else f" {self.rtk_age_s:.1f}s"
         return {
             "sysid": str(self.sysid), "track": "-" if self.track is None else str(self.track),
             "phase": self.phase, "mode": self.mode, "armed": "ARMED" if self.armed else "-",
@@ -369,7 +374,8 @@ class ConsoleModel:
                           state.battery_remaining_pct, state.gps_fix_type,
                           state.gps_satellites, state.loss_ratio,
                           None if rtt is None else rtt * 1000.0, error, max_err, led, alarm,
-                          severity)
+                          severity,
+                          runner.rtk.age_of(sysid, now) if runner.rtk is not None else None)
 
     @staticmethod
     def _alarm(runner: ShowRunner, sysid: int, state: VehicleState | None,

@@ -45,6 +45,9 @@ class Thresholds:
     """Max fraction of packets lost."""
     max_rtt_s: float = 0.25
     """Max TIMESYNC round-trip time, s."""
+    require_fix_type: int | None = None
+    """``--require-rtk``: min GPS_RAW_INT.fix_type (5 RTK float, 6 RTK fixed); None: no
+    ``rtk`` check."""
 
 
 @dataclass(frozen=True)
@@ -82,6 +85,17 @@ def check_gps(state: VehicleState, th: Thresholds) -> CheckResult:
     if fix < th.min_fix_type:
         return CheckResult("gps", False, f"fix type {fix} (need {th.min_fix_type}: 3D fix)")
     return CheckResult("gps", True, f"fix type {fix}")
+
+
+def check_rtk(state: VehicleState, th: Thresholds) -> CheckResult:
+    """``--require-rtk``: the GPS has an RTK float (5) or fixed (6) solution."""
+    from groundctl.rtk.options import fix_name
+
+    need = th.require_fix_type or 0
+    fix = state.gps_fix_type
+    if fix is None or fix < need:
+        return CheckResult("rtk", False, f"fix {fix_name(fix)}, need {fix_name(need)}")
+    return CheckResult("rtk", True, f"fix {fix_name(fix)}")
 
 
 def check_position(state: VehicleState) -> CheckResult:
@@ -163,9 +177,11 @@ def check_vehicle(state: VehicleState, assignment: Assignment, now: float,
                   thresholds: Thresholds | None = None) -> list[CheckResult]:
     """Every pre-flight check on one vehicle, in a fixed order."""
     th = thresholds or Thresholds()
+    rtk = [check_rtk(state, th)] if th.require_fix_type is not None else []
     return [
         check_heartbeat(state, now, th),
         check_gps(state, th),
+        *rtk,
         check_position(state),
         check_battery(state, th),
         check_slot(state.system_id, assignment, th),

@@ -34,6 +34,8 @@ from groundctl.link.flavours import Flavour
 from groundctl.link.fleet import FleetLink
 from groundctl.plan.plan import Plan
 from groundctl.record.recording import Recording
+from groundctl.rtk.forwarder import RtkForwarder
+from groundctl.rtk.sources import RtkSource, SourceSpec
 from groundctl.sim import LinkFaults, SimConfig
 from groundctl.sim.config import profile_for
 from groundctl.sim.process import SimProcess
@@ -93,6 +95,12 @@ class DryRunOptions:
     from the start (``--weak``)."""
     profile: str | None = None
     """The simulated vehicles' dynamics profile (None: the flavour's calibrated one)."""
+    rtk: SourceSpec | None = None
+    """``--rtk``: corrections forwarded to the simulated fleet (which then models each fix
+    type's noise)."""
+    gcs_sysid: int = 255
+    """The ground station's system id (``--gcs-sysid``); the simulated ArduPilots'
+    SYSID_MYGCS follows it."""
 
     def __post_init__(self) -> None:
         if not self.speed > 0:
@@ -124,8 +132,14 @@ def sim_config(plan: Plan, options: DryRunOptions, gcs: tuple[str, int]) -> SimC
     if plan.drones > 254:
         raise SimulatorError(f"the dry-run simulates at most 254 vehicles (one system id "
                              f"each); the plan has {plan.drones}")
+    if 1 <= options.gcs_sysid <= plan.drones:
+        raise SimulatorError(f"--gcs-sysid {options.gcs_sysid} is a simulated vehicle's "
+                             f"system id (they are 1..{plan.drones})")
+    params = {"SYSID_MYGCS": float(options.gcs_sysid)} \
+        if options.flavour is Flavour.ARDUPILOT and options.gcs_sysid != 255 else {}
     o = plan.origin
     return SimConfig(
+        params=params, rtk_noise=options.rtk is not None,
         count=plan.drones, flavour=options.flavour, origin=(o.lat, o.lon, o.alt),
         positions=show_to_enu(o, plan.home), system_ids=list(range(1, plan.drones + 1)),
         gcs=gcs, bind_host=LOOPBACK, ekf_origin_delay_s=options.ekf_origin_delay_s,
@@ -156,7 +170,9 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
     tlog = None if recording is None else recording.tlog
     events = None if recording is None else recording.events
     link = FleetLink((LOOPBACK, 0), clock=clock, expected_ids=range(1, plan.drones + 1),
-                     signing_key=options.signing_key, tlog=tlog, events=events)
+                     signing_key=options.signing_key, tlog=tlog, events=events,
+                     system_id=options.gcs_sysid)
+    rtk: RtkForwarder | None = None
     fleet: SimProcess | None = None
     runner: ShowRunner | None = None
     helper: asyncio.Task[None] | None = None
@@ -172,6 +188,11 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
         runner = ShowRunner(plan, link, clock, options.runner, events=events, notify=notify,
                             expected_ids=config.sysids())
         runner.on_tick = _truth_probe(runner, fleet)
+        if options.rtk is not None:
+            rtk = RtkForwarder(RtkSource(options.rtk, clock), link, clock, events=events,
+                               notify=notify)
+            runner.rtk = rtk
+            rtk.start()
         if recording is not None:
             recording.follow(runner)  # the show clock, for a replay
         if on_runner is not None:
@@ -196,6 +217,8 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
             helper.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await helper
+        if rtk is not None:
+            await rtk.stop()
         truth: dict[str, Any] = {}
         if fleet is not None:
             try:
@@ -205,6 +228,8 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
                          "down_and_disarmed": sum(s.landed and not s.armed for s in states),
                          "sim_overruns": fleet.get("overruns"),
                          "sim_max_lag_s": round(fleet.get("max_lag"), 3)}
+                if rtk is not None:
+                    truth["rtk"] = {str(k): v for k, v in fleet.call("rtk_stats").items()}
             except SimulatorError as exc:  # a dead child too: its first failure is kept
                 truth["error"] = str(exc)
             try:

@@ -85,6 +85,9 @@ def flight_report(runner: ShowRunner, error: str | None = None,
             "link_conflicts": state.link_conflicts if state is not None else 0,
             "last_conflict": state.last_conflict if state is not None else None,
             "bad_signatures": state.bad_signatures if state is not None else 0,
+            "fix_type": state.gps_fix_type if state is not None else None,
+            "rtk_correction_age_s": _r(runner.rtk.age_of(sysid), 2)
+            if runner.rtk is not None else None,
         })
     landed = seq is not None and bool(flown) and all(
         v.phase is VehiclePhase.LANDED for v in flown.values())
@@ -144,12 +147,22 @@ def flight_report(runner: ShowRunner, error: str | None = None,
         else runner.mpc_summary if runner.mpc_summary is not None
         else Replanner.off_report(),
     }
+    if runner.rtk is not None:
+        report["rtk"] = runner.rtk.report()
     return report
 
 
 def _split(split: dict[str, float | None]) -> dict[str, float | None]:
     return {"along_rms_m": _r(split["along_rms_m"]), "cross_rms_m": _r(split["cross_rms_m"]),
             "ahead_ms": _ms(split["ahead_s"])}
+
+
+def _fix_age(v: dict[str, Any]) -> str:
+    """``RTK fixed 0.4s``: a vehicle's fix type and correction age, one column."""
+    from groundctl.rtk.options import fix_name
+
+    age = v.get("rtk_correction_age_s")
+    return fix_name(v.get("fix_type")) + ("" if age is None else f" {age:.1f}s")
 
 
 def render_report(report: dict[str, Any]) -> str:
@@ -211,8 +224,15 @@ def render_report(report: dict[str, Any]) -> str:
     link = report["link"]
     lines.append(f"link: {link['packets']} packets in, {link['sent']} out, {link['bad_packets']} "
                  f"bad, {link['unknown_system_packets']} from unknown systems")
+    rtk = report.get("rtk")
+    if rtk:
+        lines.append(f"RTK corrections ({rtk['kind']}): {rtk['messages_sent']} messages, "
+                     f"{rtk['bytes_sent']} bytes, {rtk['rate_bps']} bit/s; bad CRC "
+                     f"{rtk['bad_crc']}, too large {rtk['too_large']}, rate-dropped "
+                     f"{rtk['rate_dropped']}, source failures {rtk['source_errors']}")
     lines.append(f"{'sysid':>5} {'track':>5} {'phase':<9} {'max err':>7} {'rms':>6} "
-                 f"{'loss':>6} {'rtt ms':>6} {'lead ms':>7} {'refused':>7}  note")
+                 f"{'loss':>6} {'rtt ms':>6} {'lead ms':>7} {'refused':>7} {'fix/age':>14}"
+                 f"  note")
     for v in report["vehicles"]:
         def f(x: Any, fmt: str) -> str:
             return "-" if x is None else format(x, fmt)
@@ -222,5 +242,5 @@ def render_report(report: dict[str, Any]) -> str:
                      f"{f(v['max_tracking_error_m'], '.2f'):>7} "
                      f"{f(v['rms_tracking_error_m'], '.2f'):>6} {f(v['loss_ratio'], '.1%'):>6} "
                      f"{f(v['rtt_ms'], '.0f'):>6} {f(v.get('lead_ms'), '.0f'):>7} "
-                     f"{v['commands_refused']:>7}  {note}")
+                     f"{v['commands_refused']:>7} {_fix_age(v):>14}  {note}")
     return "\n".join(lines)

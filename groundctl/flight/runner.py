@@ -97,6 +97,7 @@ from groundctl.link.fleet import FleetLink
 from groundctl.link.state import VehicleState
 from groundctl.plan.plan import Plan
 from groundctl.record.events import EventSink
+from groundctl.record.logstreams import request_log_extras
 from groundctl.show.model import VehicleSettings
 
 log = logging.getLogger(__name__)
@@ -248,6 +249,9 @@ class ShowRunner:
         """Per tick: how long after its scheduled instant the tick's last setpoint left, s."""
         self.overruns = 0
         """Ticks skipped because the loop fell a whole period behind."""
+        self.rtk: Any = None
+        """The RTK forwarder (:class:`groundctl.rtk.forwarder.RtkForwarder`) when
+        ``--rtk`` is given: the report and the console read its counts and ages."""
         self.on_tick: Callable[[float, float], None] | None = None
         """Called after every tick with (now, show time): the dry-run's truth probe."""
         self.loop_lag_s: list[float] = []
@@ -440,6 +444,7 @@ class ShowRunner:
             log.debug("vehicle %s: streams not set yet: %s", sysid, exc)
         else:
             done.add(sysid)
+            self._spawn(request_log_extras(self.link, sysid))  # the tlog's extras, once
 
     def _tracks(self) -> dict[int, int]:
         assert self.assignment is not None
@@ -1266,7 +1271,15 @@ class ShowRunner:
     # -- status -------------------------------------------------------------------------
     def status_line(self) -> str:
         """One line for a plain terminal: phase, show clock, vehicle phases, separation;
-        before the show, the pre-flight checks still pending, fleet-wide."""
+        before the show, the pre-flight checks still pending, fleet-wide (and with
+        ``--rtk`` the vehicles' fix types and correction age)."""
+        line = self._status_text()
+        if self.rtk is not None:
+            line += "; " + self.rtk.summary(
+                {s: v.gps_fix_type for s, v in sorted(self.link.vehicles.items())})
+        return line
+
+    def _status_text(self) -> str:
         seq = self.sequence
         if seq is None:
             n = len(self.link.vehicles)

@@ -361,6 +361,9 @@ class SimConfig:
     """Flight dynamics; None: the flavour's calibrated default."""
     params: dict[str, float] = field(default_factory=dict)
     """Autopilot parameter overrides applied at boot (e.g. ``{"FS_GCS_ENABLE": 1}``)."""
+    rtk_noise: bool = False
+    """Each GPS fix type has its own estimate noise (3D ~1 m, RTK float ~0.3 m, fixed
+    ~0.02 m: :mod:`groundctl.sim.rtk`) instead of ``gps_noise_m``; the dry-run's ``--rtk``."""
     boot_text: bool = False
     """Vehicles send their autopilot's boot text as raw datagrams before MAVLink (as
     ArduPilot SITL does on its MAVLink port): a ground station counts them as bad packets."""

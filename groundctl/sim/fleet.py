@@ -172,6 +172,12 @@ class SimFleet:
             return (self.physics.pos.copy(),
                     [(v.led, v.led_changed_at) for v in self.vehicles])
 
+    def rtk_stats(self) -> dict[int, dict[str, int]]:
+        """System id -> RTCM frames received intact / bad, distinct frames, fix type now."""
+        with self._lock:
+            return {v.sysid: {**v.rtk.stats(), "fix_type": v.gps_fix(self.t)}
+                    for v in self.vehicles}
+
     def state(self, sysid: int) -> VehicleState:
         """Snapshot of the (first) vehicle with system id ``sysid``."""
         i = int(self._indices(sysid)[0])

@@ -210,6 +210,8 @@ class FleetPhysics:
         """Standard deviation of the slowly varying estimate error (m)."""
         self.gps_err = np.zeros((n, 3))
         """Slowly varying estimate error (m)."""
+        self.gps_noise_scale = np.ones(n)
+        """Per-vehicle factor on ``gps_noise_m`` (its GPS fix type: RTK)."""
         self.glitch = np.zeros((n, 3))
         """Injected GPS glitch offset (m)."""
 
@@ -394,8 +396,8 @@ class FleetPhysics:
         # Estimate error: slow OU process, as an EKF fed by a GPS wanders.
         if self.gps_noise_m > 0:
             k = dt / GPS_TAU
-            self.gps_err += -self.gps_err * k + self.gps_noise_m * np.sqrt(
-                2 * k) * self.rng.standard_normal((n, 3))
+            self.gps_err += -self.gps_err * k + (self.gps_noise_m * self.gps_noise_scale)[
+                :, None] * np.sqrt(2 * k) * self.rng.standard_normal((n, 3))
 
         # Battery: hover draw when flying, a tenth of it idling armed.
         draw = np.where(powered & ~self.on_ground, 1.0, np.where(self.mode > CTRL_OFF, 0.1, 0.0))

@@ -182,11 +182,10 @@ def vfr_hud(v: Vehicle, now: float) -> Msg:
 
 
 def gps_raw_int(v: Vehicle, now: float) -> Msg:
-    """GPS_RAW_INT: a 3D fix with SITL-like accuracy."""
+    """GPS_RAW_INT: a 3D fix with SITL-like accuracy (RTK float / fixed on corrections)."""
     _, vel = _est(v)
     lat, lon, alt = _geodetic(v)
-    fix = mavlink.GPS_FIX_TYPE_3D_FIX if v.time_since_boot(now) > 1.0 else \
-        mavlink.GPS_FIX_TYPE_NO_FIX
+    fix = v.gps_fix(now)
     cog = int(math.degrees(math.atan2(vel[0], vel[1])) % 360 * 100)
     return mavlink.MAVLink_gps_raw_int_message(
         int(v.time_since_boot(now) * 1e6), fix, round(lat * 1e7), round(lon * 1e7),
@@ -197,6 +196,27 @@ def extended_sys_state(v: Vehicle, now: float) -> Msg:
     """EXTENDED_SYS_STATE: multirotor, landed state."""
     return mavlink.MAVLink_extended_sys_state_message(
         mavlink.MAV_VTOL_STATE_UNDEFINED, v.landed_state())
+
+
+def ekf_status_report(v: Vehicle, now: float) -> Msg:
+    """EKF_STATUS_REPORT (ArduPilot): healthy attitude / velocity / position flags once the
+    origin is set, small variances."""
+    flags = mavlink.EKF_ATTITUDE | mavlink.EKF_VELOCITY_HORIZ | mavlink.EKF_VELOCITY_VERT
+    if v.origin_set(now):
+        flags |= (mavlink.EKF_POS_HORIZ_REL | mavlink.EKF_POS_HORIZ_ABS | mavlink.EKF_POS_VERT_ABS
+                  | mavlink.EKF_PRED_POS_HORIZ_REL | mavlink.EKF_PRED_POS_HORIZ_ABS)
+    return mavlink.MAVLink_ekf_status_report_message(flags, 0.05, 0.05, 0.05, 0.02, 0.0, 0.0)
+
+
+def estimator_status(v: Vehicle, now: float) -> Msg:
+    """ESTIMATOR_STATUS (PX4): solution flags and test ratios."""
+    flags = mavlink.ESTIMATOR_ATTITUDE | mavlink.ESTIMATOR_VELOCITY_HORIZ \
+        | mavlink.ESTIMATOR_VELOCITY_VERT
+    if v.origin_set(now):
+        flags |= (mavlink.ESTIMATOR_POS_HORIZ_REL | mavlink.ESTIMATOR_POS_HORIZ_ABS
+                  | mavlink.ESTIMATOR_POS_VERT_ABS)
+    return mavlink.MAVLink_estimator_status_message(
+        int(v.time_since_boot(now) * 1e6), flags, 0.1, 0.1, 0.1, 0.1, 0.1, 0.0, 0.5, 0.5)
 
 
 def system_time(v: Vehicle, now: float) -> Msg:
@@ -247,6 +267,8 @@ BUILDERS: dict[int, Callable[[Vehicle, float], Msg]] = {
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: home_position,
     mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN: gps_global_origin,
     mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION: autopilot_version,
+    mavlink.MAVLINK_MSG_ID_EKF_STATUS_REPORT: ekf_status_report,
+    mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: estimator_status,
 }
 
 #: Messages that exist only once the EKF has an origin (nothing to report before).

@@ -30,6 +30,7 @@ from groundctl.sim.config import SimConfig
 from groundctl.sim.fence import FENCE, FenceServer
 from groundctl.sim.frames import FleetFrames
 from groundctl.sim.params import ParamStore
+from groundctl.sim.rtk import NOISE_M, RtkReceiver
 
 Msg: TypeAlias = mavlink.MAVLink_message
 
@@ -194,6 +195,9 @@ class Vehicle:
         self.fence = FenceServer(sysid)
         """The uploaded fence (mission protocol, MAV_MISSION_TYPE_FENCE)."""
         self._fence_enu: tuple[int, np.ndarray | None] = (-1, None)
+        self.rtk = RtkReceiver()
+        """GPS_RTCM_DATA reassembly, CRC checks and the RTK fix (:mod:`groundctl.sim.rtk`)."""
+        self._rtk_fix: int | None = None
 
     # -- facts --------------------------------------------------------------------------------
 
@@ -279,8 +283,29 @@ class Vehicle:
         self._last_tick = now
         max_rate, gain = self.yaw_control()
         self.heading.step(dt, self.flying, max_rate, gain, self.travel_heading())
+        if self.config.rtk_noise:
+            self._rtk_noise(now)
         self._send_streams(now)
         return self._flush()
+
+    def gps_fix(self, now: float) -> int:
+        """GPS_RAW_INT.fix_type: 3D a second after boot, RTK float / fixed on corrections."""
+        base = mavlink.GPS_FIX_TYPE_3D_FIX if self.time_since_boot(now) > 1.0 else \
+            mavlink.GPS_FIX_TYPE_NO_FIX
+        return self.rtk.fix_type(now, base)
+
+    def _rtk_noise(self, now: float) -> None:
+        fix = self.gps_fix(now)
+        if fix == self._rtk_fix:
+            return
+        sigma = NOISE_M.get(fix, NOISE_M[3])
+        base = self.ph.gps_noise_m
+        if base > 0:
+            old = self.ph.gps_noise_m * self.ph.gps_noise_scale[self.i]
+            self.ph.gps_noise_scale[self.i] = sigma / base
+            if self._rtk_fix is not None and old > 0:
+                self.ph.gps_err[self.i] *= sigma / old  # the receiver's solution jumps
+        self._rtk_fix = fix
 
     def boot_lines(self) -> list[bytes]:
         """The boot text as raw datagrams (one line each), sent before any MAVLink."""
@@ -681,6 +706,10 @@ class Vehicle:
         self._out.append(mavlink.MAVLink_mission_count_message(
             msg.get_srcSystem(), msg.get_srcComponent(), 0, msg.mission_type))
 
+    def _on_gps_rtcm_data(self, msg: Msg, now: float) -> None:
+        n = max(0, min(int(msg.len), len(msg.data)))
+        self.rtk.receive(int(msg.flags), bytes(msg.data[:n]), now)
+
     def _on_set_mode(self, msg: Msg, now: float) -> None:
         # Legacy SET_MODE: ArduPilot ACKs it with COMMAND_ACK.command = the message id (11).
         if msg.target_system != self.sysid:
@@ -785,5 +814,6 @@ Vehicle._HANDLERS = {
     "MISSION_REQUEST_INT": Vehicle._on_fence_message,
     "SET_MODE": Vehicle._on_set_mode,
     "PING": Vehicle._on_ping,
+    "GPS_RTCM_DATA": Vehicle._on_gps_rtcm_data,
 }
 

@@ -1,0 +1,1 @@
+"""RTK corrections: RTCM3 sources, framing, GPS_RTCM_DATA fragmentation and forwarding."""
