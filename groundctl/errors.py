@@ -21,6 +21,7 @@ The tree::
     │   └── NoGo                        the operator did not give the go (the console)
     ├── SimulatorError                  the built-in simulator was misused
     ├── ConsoleUnavailable              --console without a terminal (or with --json)
+    ├── ClusterError                    --ray: no ray extra, or the cluster unreachable (address)
     └── RecordingError                  a recording that cannot be read (path, message)
         └── DamagedTlog                 a tlog readable only up to a point (path, offset, ...)
 
@@ -299,6 +300,17 @@ class ConsoleUnavailable(GroundctlError):
     """``--console`` asked for where it cannot be drawn (no terminal, or ``--json``)."""
 
     exit_code = EXIT_USAGE
+
+
+class ClusterError(GroundctlError):
+    """``--ray``: the ray extra is not installed, or the cluster cannot be reached."""
+
+    exit_code = EXIT_USAGE
+
+    def __init__(self, address: str, message: str) -> None:
+        self.address = address
+        self.message = message
+        super().__init__(message)
 
 
 class RecordingError(GroundctlError):

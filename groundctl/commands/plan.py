@@ -27,6 +27,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--json", action="store_true", help="print the report as one JSON object")
     p.add_argument("--workers", type=workers, default=None, metavar="N",
                    help="parallel processes for transitions, 1..64 (default: one per core)")
+    p.add_argument("--ray", metavar="ADDRESS", default=None,
+                   help="plan transitions on a Ray cluster: auto, ray://HOST:10001, HOST:6379, "
+                        "or local to start one here (needs the ray extra)")
     add_points_dir(p)
     add_import_options(p)
     add_rerun_option(p, "the planned show (paths, slots, each transition's closest approach)",
@@ -51,11 +54,18 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.output) if args.output else default_plan_path(args.show)
     rerun = rerun_target(args.rerun, out.with_suffix(".rrd"))
     show = load_show(args.show, args.points_dir)
+    executor = None
+    if args.ray is not None:
+        from groundctl.plan.distribute import RayExecutor
+
+        executor = RayExecutor(args.ray)
     bar = ProgressBar(f"planning {show.name}")
     try:
-        result = plan_show(show, workers=args.workers, progress=bar)
+        result = plan_show(show, workers=args.workers, progress=bar, executor=executor)
     finally:
         bar.close()
+        if executor is not None:
+            executor.close()
     if out.suffix.lower() == ".skyc":
         from groundctl.skybrush.importing import export_skyc
         export_skyc(result.plan, out)

@@ -12,8 +12,6 @@ import logging
 import os
 import time
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +19,7 @@ from numpy.typing import NDArray
 
 from groundctl.errors import PlanningError
 from groundctl.plan.assign import assign_chain
+from groundctl.plan.distribute import LocalExecutor, TransitionExecutor
 from groundctl.plan.plan import FormationWindow, Plan
 from groundctl.plan.scp_quad import TransitionResult, plan_quad_transition
 from groundctl.plan.scp_unicycle import plan_unicycle_transition
@@ -64,9 +63,20 @@ def _quad_job(args: tuple) -> TransitionResult:  # type: ignore[type-arg]
     return plan_quad_transition(*args)
 
 
+def _lost(job: tuple, why: str) -> PlanningError:  # type: ignore[type-arg]
+    """The one line for a transition whose worker died."""
+    return PlanningError(job[0], "planning worker died",
+                         f"the process planning the transition into '{job[1]}' {why}")
+
+
 def plan_show(show: Show, workers: int | None = None,
-              progress: Progress | None = None) -> PlanResult:
-    """Plan and verify ``show``.  Raises InfeasibleTransition or PlanningError."""
+              progress: Progress | None = None,
+              executor: TransitionExecutor | None = None) -> PlanResult:
+    """Plan and verify ``show``.  Raises InfeasibleTransition or PlanningError.
+
+    Quadrotor transitions run on ``executor`` (default: ``workers`` local processes,
+    one per core); the caller owns and closes an executor it passes.  Unicycle
+    transitions depend on each other and are planned here, in order."""
     t0 = time.perf_counter()
     goals, slots_of = _chain(show)
     starts = [show.start_positions, *goals[:-1]]
@@ -91,35 +101,10 @@ def plan_show(show: Show, workers: int | None = None,
     else:
         jobs = [(f.index, f.name, s, g, f.transition_s, show.limits, show.planner)
                 for f, s, g in zip(show.formations, starts, goals, strict=True)]
-        # Never more processes than transitions: each one is a whole interpreter.
-        workers = min(workers if workers is not None else os.cpu_count() or 1, len(jobs))
-        if workers > 1 and len(jobs) > 1:
-            try:
-                with ProcessPoolExecutor(max_workers=workers) as pool:
-                    for res in pool.map(_quad_job, jobs):
-                        results.append(res)
-                        if progress:
-                            progress(len(results), total)
-            except BrokenProcessPool:
-                # A worker died (killed, out of memory): what it had not delivered is
-                # planned again, one at a time in a fresh worker, so the transition's own
-                # result or error comes out -- or, if that one dies too, one line that
-                # names the transition (never this process killed in its place).
-                log.warning("a planning worker process died: planning the %d remaining "
-                            "transition(s) again, one at a time", len(jobs) - len(results))
-                for job in jobs[len(results):]:
-                    with ProcessPoolExecutor(max_workers=1) as single:
-                        try:
-                            results.append(single.submit(_quad_job, job).result())
-                        except BrokenProcessPool:
-                            raise PlanningError(
-                                job[0], "planning worker died",
-                                f"the process planning the transition into '{job[1]}' was "
-                                "killed twice (out of memory?)") from None
-                    if progress:
-                        progress(len(results), total)
-        for job in jobs[len(results):]:
-            results.append(_quad_job(job))
+        if executor is None:
+            executor = LocalExecutor(workers if workers is not None else os.cpu_count() or 1)
+        for res in executor.map(_quad_job, jobs, _lost):
+            results.append(res)
             if progress:
                 progress(len(results), total)
 
