@@ -64,7 +64,14 @@ def test_the_figures_per_segment_are_those_of_the_dense_samples() -> None:
     assert dense.seg_speed_h.max() == pytest.approx(np.hypot(vel[..., 0], vel[..., 1]).max())
     assert dense.seg_up.max() == pytest.approx(vel[..., 2].max())
     assert dense.seg_down.max() == pytest.approx(-vel[..., 2].min())
-    assert dense.seg_accel.max() == pytest.approx(np.linalg.norm(acc, axis=2).max())
+    # Acceleration is exact: its largest norm at either end of a segment's own cubic
+    # (the samples at a knot read the next segment's).
+    assert dense.seg_accel.max() >= np.linalg.norm(acc, axis=2).max() - 1e-9
+    h = np.diff(tr.times)[None, :, None]
+    c2 = 3 * (tr.pos[:, 1:] - tr.pos[:, :-1]) - 2 * tr.vel[:, :-1] * h - tr.vel[:, 1:] * h
+    c3 = 2 * (tr.pos[:, :-1] - tr.pos[:, 1:]) + (tr.vel[:, :-1] + tr.vel[:, 1:]) * h
+    ends = np.maximum(np.linalg.norm(2 * c2, axis=2), np.linalg.norm(2 * c2 + 6 * c3, axis=2))
+    assert np.allclose(dense.seg_accel, (ends / h[..., 0] ** 2).max(axis=0))
     assert dense.seg_min_alt.min() == pytest.approx(pos[..., 2].min())
     assert dense.seg_max_alt.max() == pytest.approx(pos[..., 2].max())
     path = np.linalg.norm(np.diff(pos, axis=1), axis=2).sum()
@@ -72,7 +79,25 @@ def test_the_figures_per_segment_are_those_of_the_dense_samples() -> None:
     assert dense.seg_outside.sum() == (~inside_polygon(fence, pos[..., :2])).sum() > 0
     # Segment 2 alone: its own samples, both knots included.
     seg = slice(2 * SAMPLES, 3 * SAMPLES + 1)
-    assert dense.seg_accel[2] == pytest.approx(np.linalg.norm(acc[:, seg], axis=2).max())
+    assert dense.seg_speed_h[2] == pytest.approx(
+        np.hypot(vel[:, seg, 0], vel[:, seg, 1]).max())
+
+
+def test_two_dips_in_one_segment_the_deeper_one_is_found() -> None:
+    # The relative path crosses near the other drone twice in one long segment; the
+    # shallower dip is the better one on a coarse grid (a review's counterexample).
+    times = np.array([0.0, 4.0])
+    pos = np.array([[[0.0, 0.0, 5.0], [0.0, 0.0, 5.0]],
+                    [[-20.0, 0.5138, 5.0], [20.0, 0.5138, 5.0]]])
+    vel = np.array([[[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]],
+                    [[30.0, 0.0, 0.0], [30.0, -0.5, 0.0]]])
+    tr = Trajectories(times, pos, vel)
+    brute, _ = _brute(tr, 200_000)
+    dense = _dense_pass(tr)
+    assert dense.seg_sep[0] <= brute[0] + 1e-9
+    assert dense.seg_sep[0] == pytest.approx(brute[0], abs=2e-6)
+    found = close_pairs(tr, float(brute[0]) + 1e-4)
+    assert [p[:2] for p in found] == [(1, 2)]
 
 
 def test_close_pairs_lists_every_pair_under_the_limit() -> None:

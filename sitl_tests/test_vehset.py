@@ -175,6 +175,21 @@ def test_a_fence_upload_survives_a_lost_count_and_a_lost_ack() -> None:
     assert np.allclose(server.vertices, verts, atol=2e-7)
 
 
+def test_a_vehicle_that_keeps_asking_again_cannot_hold_the_upload_for_ever() -> None:
+    # A review's case: re-requesting item 0 every 0.5 s reset the tries for ever.
+    up = FenceUpload(1, fence_vertices(ORIGIN, SQUARE, 1.0), timeout_s=1.0, attempts=3)
+    now = 0.0
+    up.poll(now)
+    while not up.done and now < 10_000.0:
+        now += 0.5
+        up.receive(mavlink.MAVLink_mission_request_int_message(
+            255, 190, 0, mavlink.MAV_MISSION_TYPE_FENCE), now)
+        up.poll(now)
+    assert up.done and not up.ok
+    assert up.error == f"fence upload: not finished within {up.budget_s:g} s"
+    assert now <= up.budget_s + 0.5
+
+
 def test_a_refused_fence_names_the_result_and_silence_fails_after_the_last_try() -> None:
     server = FenceServer(1)
     too_many = FenceUpload(1, tuple((47.0 + i * 1e-5, 8.0) for i in range(300)))

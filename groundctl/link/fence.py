@@ -75,12 +75,20 @@ class FenceUpload:
     _deadline: float = -math.inf
     _tries: int = 0
     _pending: list[Msg] = field(default_factory=list)
+    _give_up: float = math.inf
+    """The whole upload's deadline: every step may take all its tries, no more (a vehicle
+    that keeps asking for items again cannot hold pre-flight for ever)."""
 
     def __post_init__(self) -> None:
         if len(self.vertices) < 3:
             raise ValueError(f"`vertices` must be at least 3, got {len(self.vertices)}")
         if self.timeout_s <= 0:
             raise ValueError(f"`timeout_s` must be positive, got {self.timeout_s}")
+
+    @property
+    def budget_s(self) -> float:
+        """The whole upload's time: every step (count, items, ACK) all its tries."""
+        return self.attempts * self.timeout_s * (len(self.vertices) + 2)
 
     @property
     def done(self) -> bool:
@@ -96,6 +104,11 @@ class FenceUpload:
         """What to send now: the count at first, answers to requests, and a repeat of the
         last message when the vehicle has been quiet for ``timeout_s``."""
         if self.done:
+            return []
+        if self._last is None:
+            self._give_up = now + self.budget_s
+        elif now >= self._give_up:
+            self.error = f"fence upload: not finished within {self.budget_s:g} s"
             return []
         out, self._pending = self._pending, []
         if self._last is None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import osqp
 import scipy.sparse as sp
@@ -41,12 +43,20 @@ ACCEPTED_STATUS = ("solved", "solved inaccurate")
 RESUMES = 4
 
 
-def solve_checked(solver: osqp.OSQP, transition: int, what: str) -> NDArray[np.float64]:
-    """Solve, resuming an unfinished ADMM run; PlanningError unless OSQP solved it."""
+def solve_checked(solver: osqp.OSQP, transition: int, what: str,
+                  time_left: Callable[[], float] | None = None) -> NDArray[np.float64]:
+    """Solve, resuming an unfinished ADMM run; PlanningError unless OSQP solved it.
+
+    ``time_left()`` (s), if given, bounds every resume too: none starts once it is spent."""
     res = solver.solve(raise_error=False)
     for _ in range(RESUMES):
         if res.info.status != "maximum iterations reached":
             break
+        if time_left is not None:
+            left = time_left()
+            if left <= 0:
+                break
+            solver.update_settings(time_limit=left)
         res = solver.solve(raise_error=False)
     if res.info.status not in ACCEPTED_STATUS:
         raise PlanningError(transition, f"OSQP {res.info.status}", what)

@@ -42,6 +42,7 @@ time, so OSQP factorises the KKT structure once and warm-starts each solve.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -379,12 +380,18 @@ class GroupQP:
               ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """Solve; return (P, V, A, slack).  Raises PlanningError unless OSQP solved it
         (OSQP stops at ``time_limit`` seconds if given: status "run time limit reached")."""
+        time_left = None
         if time_limit > 0 or self._time_limited:
             self.solver.update_settings(time_limit=max(time_limit, 0.0))
             self._time_limited = time_limit > 0
+        if time_limit > 0:
+            until = time.perf_counter() + time_limit
+
+            def time_left() -> float:
+                return until - time.perf_counter()
         x = solve_checked(self.solver, transition,
                           f"{self.g} drones, {self.N} steps, {len(self.pairs.i)} pair-segments, "
-                          f"{len(self.obstacles.i)} obstacle segments")
+                          f"{len(self.obstacles.i)} obstacle segments", time_left)
         g, N = self.g, self.N
         P = x[: self.nP].reshape(g, N + 1, 3).copy()
         V = x[self.oV: self.oA].reshape(g, N + 1, 3).copy()

@@ -26,10 +26,11 @@ FloatArray = NDArray[np.float64]
 
 #: Dense samples per knot segment for every check.
 SAMPLES = 12
-#: Grid points per segment bracketing a close pair's closest approach (then Newton).
-FINE = 64
-#: Newton steps polishing a close pair's closest approach.
-NEWTON_STEPS = 4
+#: A close pair's closest approach is certified to within this, m (10 micrometres).
+CLOSEST_TOL = 1e-5
+#: Pieces each close pair's segment starts in, and halvings at most (2^-40 of a segment).
+SEED_PIECES = 8
+MAX_HALVINGS = 40
 #: Powers of the coarse samples that bound a segment's minimum from above.
 _COARSE_POWERS = np.linspace(0.0, 1.0, 9)[None, :] ** np.arange(4)[:, None]
 #: Close pairs measured per block (bounds the temporaries).
@@ -158,37 +159,60 @@ def _bounding_spheres(coef: FloatArray) -> tuple[FloatArray, FloatArray]:
     return centre, np.linalg.norm(b - centre[:, None], axis=2).max(axis=1)
 
 
-def _closest_on_segment(d: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Exact min over s in [0, 1] of |d(s)| for relative cubics d (m, 4, 3), and where.
+def _closest_on_segment(d: FloatArray, shared: bool = False, below: float = np.inf,
+                        tol: float = 0.0) -> tuple[FloatArray, FloatArray]:
+    """Min over s in [0, 1] of |d(s)| for relative cubics d (m, 4, 3), and where, to
+    within ``tol`` (default CLOSEST_TOL; branch and bound: certified, whatever the
+    number of dips).
 
-    A grid of FINE points brackets the minimum; Newton steps on the derivative of
-    |d|^2 (a quintic) inside that bracket polish it to rounding."""
-    fine = np.linspace(0.0, 1.0, FINE + 1)
-    powers = fine[None, :] ** np.arange(4)[:, None]  # (4, F)
-    vals = np.einsum("mqx,qf->mfx", d, powers)
-    dist2 = np.einsum("mfx,mfx->mf", vals, vals)
-    best = np.argmin(dist2, axis=1)
-    s = fine[best]
-    lo = np.maximum(s - 1.0 / FINE, 0.0)
-    hi = np.minimum(s + 1.0 / FINE, 1.0)
-    d1 = d[:, 1:] * np.array([1.0, 2.0, 3.0])[None, :, None]   # d'(s) coefficients
-    d2 = d1[:, 1:] * np.array([1.0, 2.0])[None, :, None]       # d''(s)
-    for _ in range(NEWTON_STEPS):
-        sp = s[:, None] ** np.arange(4)[None, :]
-        p = np.einsum("mqx,mq->mx", d, sp)
-        v = np.einsum("mqx,mq->mx", d1, sp[:, :3])
-        a = np.einsum("mqx,mq->mx", d2, sp[:, :2])
-        g = np.einsum("mx,mx->m", p, v)
-        hess = np.einsum("mx,mx->m", v, v) + np.einsum("mx,mx->m", p, a)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            step = np.where(hess > 0, g / hess, 0.0)
-        s = np.clip(s - step, lo, hi)
-    sp = s[:, None] ** np.arange(4)[None, :]
-    p = np.einsum("mqx,mq->mx", d, sp)
-    polished = np.linalg.norm(p, axis=1)
-    grid_min = np.sqrt(dist2[np.arange(len(d)), best])
-    keep = polished <= grid_min
-    return np.where(keep, polished, grid_min), np.where(keep, s, fine[best])
+    ``shared``: only the smallest of all m minima is wanted (pieces that cannot beat
+    the best of any pair are dropped; the others' values are then upper bounds).
+    ``below``: only minima under it are wanted (pieces that cannot go under it are
+    dropped; a pair that never does gets an upper bound at or above it).
+
+    Each piece [a, a + w] of a pair's curve lies in the convex hull of its four Bezier
+    control points, so no point of it is closer than |centre| - radius of their
+    bounding sphere (a lower bound); the curve's values at the piece's ends and middle
+    are upper bounds.  Pieces whose lower bound cannot beat the pair's best upper bound
+    by CLOSEST_TOL are dropped, the others halved, until none is left."""
+    m = len(d)
+    tol = tol or CLOSEST_TOL
+    seeds = np.arange(SEED_PIECES) / SEED_PIECES
+    pair = np.repeat(np.arange(m), SEED_PIECES)
+    a = np.tile(seeds, m)
+    w = np.full(len(a), 1.0 / SEED_PIECES)
+    best = np.full(m, np.inf)
+    best_s = np.zeros(m)
+    for _ in range(MAX_HALVINGS):
+        c = d[pair]
+        # The piece's own power basis: p(a + w u) for u in [0, 1].
+        aa, ww = a[:, None], w[:, None]
+        c0 = c[:, 0] + aa * (c[:, 1] + aa * (c[:, 2] + aa * c[:, 3]))
+        c1 = ww * (c[:, 1] + aa * (2 * c[:, 2] + 3 * aa * c[:, 3]))
+        c2 = ww * ww * (c[:, 2] + 3 * aa * c[:, 3])
+        c3 = ww * ww * ww * c[:, 3]
+        b = np.stack([c0, c0 + c1 / 3, c0 + 2 * c1 / 3 + c2 / 3, c0 + c1 + c2 + c3], axis=1)
+        centre = b.mean(axis=1)
+        lower = np.linalg.norm(centre, axis=1) - np.linalg.norm(
+            b - centre[:, None], axis=2).max(axis=1)
+        mid = c0 + c1 / 2 + c2 / 4 + c3 / 8
+        ends = np.stack([np.linalg.norm(b[:, 0], axis=1), np.linalg.norm(mid, axis=1),
+                         np.linalg.norm(b[:, 3], axis=1)], axis=1)
+        where = np.argmin(ends, axis=1)
+        upper = ends[np.arange(len(a)), where]
+        at = a + w * where / 2.0
+        order = np.lexsort((upper, pair))  # per pair, its best piece first
+        first = order[np.r_[True, pair[order][1:] != pair[order][:-1]]]
+        improve = upper[first] < best[pair[first]]
+        best[pair[first[improve]]] = upper[first[improve]]
+        best_s[pair[first[improve]]] = at[first[improve]]
+        bar = np.full(len(a), best.min()) if shared else best[pair]
+        keep = (lower < bar - tol) & (lower < below)
+        if not keep.any():
+            break
+        pair, a, w = np.repeat(pair[keep], 2), np.repeat(a[keep], 2), np.repeat(w[keep], 2) / 2
+        a[1::2] += w[1::2]
+    return best, best_s
 
 
 def _separation(tr: Trajectories
@@ -229,7 +253,7 @@ def _separation(tr: Trajectories
         best_d, best_s, best_q = np.inf, 0.0, 0
         for b in range(0, len(pairs), PAIR_BLOCK):
             blk = pairs[b:b + PAIR_BLOCK]
-            dmin, at = _closest_on_segment(coef[blk[:, 0]] - coef[blk[:, 1]])
+            dmin, at = _closest_on_segment(coef[blk[:, 0]] - coef[blk[:, 1]], shared=True)
             q = int(np.argmin(dmin))
             if dmin[q] < best_d:
                 best_d, best_s, best_q = float(dmin[q]), float(at[q]), b + q
@@ -255,7 +279,8 @@ def close_pairs(tr: Trajectories, limit: float) -> list[tuple[int, int, float, f
         pairs = pairs[gap < limit]
         for b in range(0, len(pairs), PAIR_BLOCK):
             blk = pairs[b:b + PAIR_BLOCK]
-            dmin, at = _closest_on_segment(coef[blk[:, 0]] - coef[blk[:, 1]])
+            dmin, at = _closest_on_segment(coef[blk[:, 0]] - coef[blk[:, 1]], below=limit,
+                                           tol=1e-4)
             h = tr.times[k + 1] - tr.times[k]
             for (i, j), d, s in zip(blk[dmin < limit], dmin[dmin < limit], at[dmin < limit],
                                     strict=True):
@@ -289,11 +314,21 @@ def _dense_pass(tr: Trajectories, geofence: NDArray[np.float64] | None = None) -
 
     for c in range(0, tr.drones, DRONE_CHUNK):
         rows = np.arange(c, min(c + DRONE_CHUNK, tr.drones))
-        pos, vel, acc = tr.evaluate(ts, rows)
+        pos, vel, _ = tr.evaluate(ts, rows)
         speed_h = np.maximum(speed_h, per_seg_max(np.hypot(vel[..., 0], vel[..., 1])))
         up = np.maximum(up, per_seg_max(vel[..., 2]))
         down = np.maximum(down, per_seg_max(-vel[..., 2]))
-        accel = np.maximum(accel, per_seg_max(np.linalg.norm(acc, axis=2)))
+        # Acceleration is linear within a segment: its largest norm is at one of the two
+        # ends, each from the segment's own cubic (a sample at a knot would read the next
+        # segment's).
+        h = np.diff(tr.times)[None, :, None]
+        p0, p1 = tr.pos[rows, :-1], tr.pos[rows, 1:]
+        m0, m1 = tr.vel[rows, :-1] * h, tr.vel[rows, 1:] * h
+        c2 = 3 * (p1 - p0) - 2 * m0 - m1
+        c3 = 2 * (p0 - p1) + m0 + m1
+        a_ends = np.maximum(np.linalg.norm(2 * c2, axis=2),
+                            np.linalg.norm(2 * c2 + 6 * c3, axis=2)) / h[..., 0] ** 2
+        accel = np.maximum(accel, a_ends.max(axis=0))
         hi = np.maximum(hi, per_seg_max(pos[..., 2]))
         lo = np.minimum(lo, -per_seg_max(-pos[..., 2]))
         step = np.linalg.norm(np.diff(pos, axis=1), axis=2)  # (m, T-1)
