@@ -239,6 +239,17 @@ LINK_FAILSAFE_GAP_S = 1.0
 #: not sent it for LINK_FAILSAFE_GAP_S is taken back (its HEARTBEAT says so within about
 #: a second, and it is confirmed by the next), s.
 STARVED_WINDOW_S = 3.0
+#: A vehicle that said its own fence was breached this recently is never taken back from
+#: the mode its fence put it in (it is not a link-loss failsafe), s.
+FENCE_NOTICE_S = 10.0
+
+
+def _fence_acted(state: VehicleState, now: float) -> bool:
+    """The vehicle's own fence fired: ArduPilot's "Fence Breached", PX4's "Geofence ..."."""
+    st = state.last_statustext
+    return st is not None and "fence" in st.text.lower() and now - st.at <= FENCE_NOTICE_S
+
+
 #: This share of the fleet (at least two) below the battery threshold lands everyone.
 LOW_BATTERY_FLEET = 0.1
 #: A way out planned too late this many times is given up (no retry storm).
@@ -1213,7 +1224,7 @@ class ShowSequence:
         after a silence of its own, and its battery is fine."""
         if state.mode not in _LINK_FAILSAFE_MODES[v.flavour]:
             return False
-        if v.retakes >= MAX_RETAKES:
+        if v.retakes >= MAX_RETAKES or _fence_acted(state, now):
             return False
         battery = state.battery_remaining_pct
         if battery is not None and self._battery is not None and battery < self._battery:
@@ -1235,7 +1246,7 @@ class ShowSequence:
         that explained it is over: while the vehicle is still in the failsafe mode it was
         being taken back from (or PX4's hold moved on to its land), and its battery is
         fine (a battery failsafe is never fought)."""
-        if v.retaking is None:
+        if v.retaking is None or _fence_acted(state, v.sent_at):
             return False
         battery = state.battery_remaining_pct
         if battery is not None and self._battery is not None and battery < self._battery:
