@@ -215,6 +215,16 @@ def _closest_on_segment(d: FloatArray, shared: bool = False, below: float = np.i
     return best, best_s
 
 
+def _pairs_within(coef: FloatArray, reach: float) -> NDArray[np.intp]:
+    """(m, 2) the pairs whose segments (power bases ``coef``) can come within ``reach``:
+    their Bezier bounding spheres do (a KD-tree on the centres, then each pair's radii)."""
+    centre, radius = _bounding_spheres(coef)
+    pairs = cKDTree(centre).query_pairs(reach + 2 * float(radius.max()), output_type="ndarray")
+    gap = (np.linalg.norm(centre[pairs[:, 0]] - centre[pairs[:, 1]], axis=1)
+           - radius[pairs[:, 0]] - radius[pairs[:, 1]])
+    return np.asarray(pairs[gap <= reach], dtype=np.intp)
+
+
 def _separation(tr: Trajectories
                 ) -> tuple[FloatArray, NDArray[np.intp], FloatArray]:
     """Per knot segment: the closest pair, how close, and when, in continuous time.
@@ -234,14 +244,9 @@ def _separation(tr: Trajectories
         return seg_sep, seg_pair, seg_time
     for k in range(nseg):
         coef = _power_basis(tr, k)
-        centre, radius = _bounding_spheres(coef)
         knot_gap, _ = cKDTree(tr.pos[:, k]).query(tr.pos[:, k], k=2)
         bound = float(knot_gap[:, 1].min()) * (1 + 1e-9) + 1e-12
-        pairs = cKDTree(centre).query_pairs(bound + 2 * float(radius.max()),
-                                            output_type="ndarray")
-        i, j = pairs[:, 0], pairs[:, 1]
-        gap = np.linalg.norm(centre[i] - centre[j], axis=1) - radius[i] - radius[j]
-        pairs = pairs[gap <= bound]
+        pairs = _pairs_within(coef, bound)
         # Coarse samples bound the segment's minimum from above again, much tighter;
         # each pair's relative Bezier hull bounds its own minimum from below.  Only the
         # pairs whose lower bound reaches under it can hold the minimum.
@@ -263,30 +268,41 @@ def _separation(tr: Trajectories
     return seg_sep, seg_pair, seg_time
 
 
-def close_pairs(tr: Trajectories, limit: float) -> list[tuple[int, int, float, float]]:
-    """Every pair that comes closer than ``limit``, worst first: (i, j, distance, time)
-    with 1-based drone numbers, exact in continuous time (as :func:`_separation`)."""
-    best: dict[tuple[int, int], tuple[float, float]] = {}
-    if tr.drones < 2:
-        return []
-    for k in range(len(tr.times) - 1):
+def close_segments(tr: Trajectories, limit: float
+                   ) -> tuple[NDArray[np.intp], FloatArray, FloatArray]:
+    """Every (pair, knot segment) closer than ``limit``: rows (i, j, k) 0-based, and each
+    one's closest approach and its time, exact in continuous time (as
+    :func:`_separation`), in segment order."""
+    rows: list[NDArray[np.intp]] = []
+    dists: list[FloatArray] = []
+    times: list[FloatArray] = []
+    for k in range(len(tr.times) - 1 if tr.drones >= 2 else 0):
         coef = _power_basis(tr, k)
-        centre, radius = _bounding_spheres(coef)
-        pairs = cKDTree(centre).query_pairs(limit + 2 * float(radius.max()),
-                                            output_type="ndarray")
-        gap = (np.linalg.norm(centre[pairs[:, 0]] - centre[pairs[:, 1]], axis=1)
-               - radius[pairs[:, 0]] - radius[pairs[:, 1]])
-        pairs = pairs[gap < limit]
+        pairs = _pairs_within(coef, limit)
+        h = tr.times[k + 1] - tr.times[k]
         for b in range(0, len(pairs), PAIR_BLOCK):
             blk = pairs[b:b + PAIR_BLOCK]
             dmin, at = _closest_on_segment(coef[blk[:, 0]] - coef[blk[:, 1]], below=limit,
                                            tol=1e-4)
-            h = tr.times[k + 1] - tr.times[k]
-            for (i, j), d, s in zip(blk[dmin < limit], dmin[dmin < limit], at[dmin < limit],
-                                    strict=True):
-                key = (int(i) + 1, int(j) + 1)
-                if key not in best or d < best[key][0]:
-                    best[key] = (float(d), float(tr.times[k] + s * h))
+            hit = dmin < limit
+            rows.append(np.column_stack([blk[hit], np.full(int(hit.sum()), k)]))
+            dists.append(dmin[hit])
+            times.append(tr.times[k] + at[hit] * h)
+    if not rows:
+        return np.empty((0, 3), dtype=np.intp), np.empty(0), np.empty(0)
+    return (np.concatenate(rows).astype(np.intp), np.concatenate(dists),
+            np.concatenate(times))
+
+
+def close_pairs(tr: Trajectories, limit: float) -> list[tuple[int, int, float, float]]:
+    """Every pair that comes closer than ``limit``, worst first: (i, j, distance, time)
+    with 1-based drone numbers, exact in continuous time (as :func:`_separation`)."""
+    rows, dist, at = close_segments(tr, limit)
+    best: dict[tuple[int, int], tuple[float, float]] = {}
+    for (i, j, _), d, t in zip(rows, dist, at, strict=True):
+        key = (int(i) + 1, int(j) + 1)
+        if key not in best or d < best[key][0]:
+            best[key] = (float(d), float(t))
     return sorted(((i, j, d, t) for (i, j), (d, t) in best.items()), key=lambda r: r[2])
 
 
