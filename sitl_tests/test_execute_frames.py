@@ -38,6 +38,30 @@ def test_show_ned_round_trip_with_a_distant_ekf_origin(heading: float) -> None:
     np.testing.assert_allclose(ned_to_show(origin, ekf, ned), POINTS, atol=1e-3)
 
 
+@pytest.mark.parametrize("heading", [0.0, 37.0, 271.5])
+def test_the_rigid_motion_per_origin_matches_the_geodetic_chain_within_a_micrometre(
+        heading: float) -> None:
+    # show -> ENU -> geodetic -> NED at the EKF origin, as pymap3d computes it point by
+    # point, against the one matrix per EKF origin the control loop applies.
+    import pymap3d
+
+    origin = GeoOrigin(ORIGIN.lat, ORIGIN.lon, ORIGIN.alt, heading)
+    ekfs = [geo_offset(ORIGIN, 120.0, -80.0, 3.0), geo_offset(ORIGIN, -900.0, 400.0, -12.0)]
+    for ekf in ekfs:
+        lat, lon, alt = show_to_geodetic(origin, POINTS)
+        n, e, d = pymap3d.geodetic2ned(lat, lon, alt, ekf.lat_deg, ekf.lon_deg, ekf.alt_m)
+        chain = np.stack([n, e, d], axis=-1)
+        np.testing.assert_allclose(show_to_ned(origin, ekf, POINTS), chain, atol=1e-6)
+        lat, lon, alt = pymap3d.ned2geodetic(chain[:, 0], chain[:, 1], chain[:, 2],
+                                             ekf.lat_deg, ekf.lon_deg, ekf.alt_m)
+        np.testing.assert_allclose(ned_to_show(origin, ekf, chain),
+                                   geodetic_to_show(origin, lat, lon, alt), atol=1e-6)
+    per_row = [ekfs[i % 2] for i in range(len(POINTS))]
+    ned = show_to_ned(origin, per_row, POINTS)
+    np.testing.assert_allclose(ned[1], show_to_ned(origin, ekfs[1], POINTS[1]), atol=1e-9)
+    np.testing.assert_allclose(ned_to_show(origin, per_row, ned), POINTS, atol=1e-6)
+
+
 def test_vehicles_with_different_origins_get_targets_offset_by_the_origin_gap() -> None:
     # Vehicle B's EKF origin is 30 m north-east-ish of vehicle A's: the same show
     # point must be 30 m "closer" in B's frame, exactly the origin offset.

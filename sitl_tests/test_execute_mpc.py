@@ -403,3 +403,43 @@ def test_a_weak_vehicle_never_gets_back_a_path_it_cannot_fly() -> None:
                                        limits=weak, lookahead=ahead))
     assert r.reason.startswith("start state: horizontal speed 2.50 m/s")
     assert r.status != "path"
+
+
+def test_a_weak_vehicle_stops_leading_its_path_when_the_path_ahead_stands_still(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The re-timed reference sets off before the path does; when the path's future
+    changes (the show clock holds, a return replaces the path) it is re-timed at once,
+    not flown on for ``RETIME_EVERY_S`` towards where the path would have gone."""
+    from groundctl.execute import retime
+
+    # Its 50 ms wall-clock limit is for the flight's tick; here the first re-timing must
+    # be solved on a busy machine too, or there is no lead to stop.
+    monkeypatch.setitem(retime.RETIME_OSQP, "time_limit", 10.0)
+    weak = replace(LIMITS, max_speed_down=0.9)
+
+    def descends_at_5(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        t = np.asarray(t, dtype=float)
+        z = 10.0 - 1.5 * np.clip(t - 5.0, 0.0, 6.0)  # 1.5 m/s from t = 5 s: too fast
+        vz = np.where((t > 5.0) & (t < 11.0), -1.5, 0.0)
+        pos = np.stack([np.zeros_like(t), np.zeros_like(t), z], axis=-1)
+        vel = np.stack([np.zeros_like(t), np.zeros_like(t), vz], axis=-1)
+        return pos, vel, np.zeros_like(pos)
+
+    def hover(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        pos = np.broadcast_to((0.0, 0.0, 10.0), (*np.shape(t), 3)).copy()
+        return pos, np.zeros_like(pos), np.zeros_like(pos)
+
+    ctrl = MpcController(1, CFG)
+    ahead = descends_at_5(0.25 * np.arange(81))[0]
+    first = ctrl.solve(request(1, 0.0, (0.0, 0.0, 10.0), (0.0, 0.0, 0.0), descends_at_5,
+                               limits=weak, lookahead=ahead))
+    assert first.status == "solved", first.reason
+    assert first.sample(np.array([3.0]))[0][0, 2] < 9.95  # it sets off early
+    # 0.9 s on (within RETIME_EVERY_S) the show holds: the path ahead stands still.
+    p, v, _ = first.sample(np.array([0.9]))
+    held = ctrl.solve(request(1, 0.9, p[0], v[0], hover, limits=weak,
+                              lookahead=hover(0.9 + 0.25 * np.arange(81))[0]))
+    assert held.status == "solved", held.reason
+    z = held.sample(np.linspace(2.4, 3.9, 7))[0][:, 2]
+    # Back to its path, no longer leading down (the old reference: 9.2 m at 3.9 s).
+    assert np.all(z > 9.9), z

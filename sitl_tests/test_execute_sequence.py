@@ -274,6 +274,40 @@ def test_a_vehicle_heard_again_off_its_plan_holds_there_and_leaves_from_there() 
     assert seq.vehicles[2].phase is VehiclePhase.LANDING
 
 
+def test_two_vehicles_off_their_plans_at_once_land_the_fleet_on_one_joint_return() -> None:
+    """A fleet-wide silence stranded both: one way out each, planned one at a time through
+    a show that flies on, would each take the other for a drone on its plan.  One return,
+    planned from where each hovers, lands everyone instead."""
+    _, states, seq, start = _in_formation_show()
+    for v in states.values():
+        v.lost = True
+    seq.update(start + 1.0, states)
+    for v in states.values():
+        v.lost = False
+    _at_plan_point(states[1], seq, 0, start + 2.0, off=(2.5, 0.0, 0.0))
+    _at_plan_point(states[2], seq, 1, start + 2.0, off=(-2.5, 0.0, 0.0))
+    actions = seq.update(start + 2.0, states)
+    assert Notice(None, "vehicles 1, 2 are off their plans at once: landing the whole fleet "
+                        "on one collision-free return planned from where each hovers") \
+        in actions
+    assert seq.ended and seq.leave_needed == []
+    assert [s for s, _ in seq.return_needed or []] == [1, 2]
+    for sysid in (1, 2):  # the return starts where each holds
+        hold = seq.vehicles[sysid].hold_point
+        assert hold is not None
+        assert seq.return_start(sysid, start + 2.0) == pytest.approx(np.asarray(hold))
+
+
+def test_one_vehicle_off_its_plan_leaves_alone_and_the_show_goes_on() -> None:
+    _, states, seq, start = _in_formation_show()
+    states[2].lost = True
+    seq.update(start + 1.0, states)
+    states[2].lost = False
+    _at_plan_point(states[2], seq, 1, start + 2.0, off=(2.5, 0.0, 0.0))
+    seq.update(start + 2.0, states)
+    assert not seq.ended and [s for s, *_ in seq.leave_needed] == [2]
+
+
 def test_a_vehicle_lost_during_the_show_is_sent_its_landing_point_after_the_end() -> None:
     states = _fleet(ARDU, n=2)
     plan = make_plan()
@@ -695,6 +729,33 @@ def test_a_lost_vehicle_keeps_the_flight_open_until_it_is_seen_down() -> None:
     assert seq.phase is not ShowPhase.LANDED  # silence is never "down"
     assert seq.settled and seq.lost == [2]
     assert 2 in seq.stream_request(start + 1.0).sysids  # still streamed its plan
+
+
+def test_a_vehicle_given_up_as_disarmed_that_flies_on_is_taken_back_off_its_plan() -> None:
+    """Its disarm was a wrong report: armed, in the air, in GUIDED, and hovering where it
+    was given up while the show flew on.  Nobody in charge of it would be the danger: it
+    holds there and leaves on a way out."""
+    _plan, states, seq, start = _in_formation_show()
+    states[2].armed = False
+    seq.update(start + 1.0, states)
+    assert seq.vehicles[2].phase is VehiclePhase.FAILED
+    states[2].armed = True
+    _at_plan_point(states[2], seq, 1, start + 3.0, off=(2.5, 0.0, 0.0))
+    assert seq.update(start + 3.0, states) == [Notice(
+        2, "vehicle 2 armed in the air after all, 2.5 m off its plan: holding where it is, "
+           "then leaving the show on a way out planned from there")]
+    v = seq.vehicles[2]
+    assert v.phase is VehiclePhase.LEAVING and v.hold_point is not None and not v.fell
+    assert seq.stream_request(start + 3.0).fixed == {2: v.hold_point}
+    assert [s for s, *_ in seq.leave_needed] == [2]
+    # A vehicle that really crashed stays down: armed or not, it is not in the air.
+    _plan, states, seq, start = _in_formation_show()
+    states[2].armed = False
+    seq.update(start + 1.0, states)
+    set_altitude(states[2], 0.0)
+    states[2].armed = True
+    seq.update(start + 2.0, states)
+    assert seq.vehicles[2].phase is VehiclePhase.FAILED
 
 
 def test_a_vehicle_disarmed_in_the_air_is_out_of_the_show_and_an_obstacle() -> None:

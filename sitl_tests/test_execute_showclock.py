@@ -83,3 +83,18 @@ def test_a_clock_started_for_later_takes_holds_from_its_start() -> None:
     assert clock.stopped(11.5) and clock.show_time(11.5) == pytest.approx(0.5)
     assert clock.release(9.0, "operator")
     assert clock.at(13.0).rate == 1.0
+
+
+def test_the_revision_counts_every_change_of_course_and_nothing_else() -> None:
+    c = ShowClock(ramp_s=1.0)
+    assert c.revision == 0
+    c.start(0.0)
+    r = c.revision
+    assert c.hold(5.0, "operator") and c.revision == r + 1
+    assert not c.hold(5.5, "overload") and c.revision == r + 1  # already braking: same
+    c.stop_at(6.0, 4.0, "stall")  # put back after a stall: a new course
+    assert c.revision == r + 2
+    assert not c.release(9.0, "operator") and c.revision == r + 2  # still held
+    c.release(9.0, "overload")
+    assert c.revision == r + 2
+    assert c.release(9.5, "stall") and c.revision == r + 3

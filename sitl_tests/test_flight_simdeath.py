@@ -77,3 +77,40 @@ def test_calls_to_a_dead_simulator_process_raise_simulator_error() -> None:
         assert sim.exitcode == -9
     finally:
         sim.stop()
+
+
+def test_a_call_asked_without_waiting_is_answered_later_and_never_lost() -> None:
+    """The truth probe asks on one tick and reads on the next: a blocking call in between
+    reads the outstanding answer first and keeps it; a dead child is still one error."""
+    config = SimConfig(count=2, bind_host="127.0.0.1", gcs=("127.0.0.1", 9))
+    sim = SimProcess(config, ScaledClock(1.0))
+    try:
+        assert sim.answer() == (False, None)  # nothing asked
+        sim.ask("truth")
+        sim.ask("truth")  # one at a time: this one is not sent
+        deadline = time.monotonic() + 10.0
+        while (got := sim.answer()) == (False, None) and time.monotonic() < deadline:
+            time.sleep(0.001)
+        ready, (positions, leds) = got
+        assert ready and positions.shape == (2, 3) and len(leds) == 2
+        assert sim.answer() == (False, None)  # read once
+        sim.ask("truth")
+        assert sim.get("overruns") == 0  # the truth's answer was on the pipe before it
+        ready, (positions, _) = sim.answer()
+        assert ready and positions.shape == (2, 3)
+        sim.ask("no_such_call")
+        with pytest.raises(AttributeError):
+            while not sim.answer()[0]:
+                time.sleep(0.001)
+        sim.ask("truth")
+        os.kill(sim.pid, signal.SIGKILL)
+        while sim.alive and time.monotonic() < deadline:
+            time.sleep(0.01)
+        with pytest.raises(SimulatorError, match=r"died \(exit code -9\)"):
+            for _ in range(10_000):  # (an answer sent before it died is read first)
+                if sim.answer()[0]:
+                    sim.ask("truth")
+                time.sleep(0.001)
+    finally:
+        with pytest.raises(SimulatorError):
+            sim.stop()

@@ -13,7 +13,11 @@ import logging
 import os
 import pickle
 import signal
+import subprocess
+import sys
+import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -31,7 +35,7 @@ from groundctl.errors import (
 from groundctl.execute.leaving import Leave, leave_time
 from groundctl.flight import returning
 from groundctl.flight.returning import column, plan_leave, plan_return
-from groundctl.flight.workers import OBSTACLES_KEYWORD, PlannerPool
+from groundctl.flight.workers import OBSTACLES_KEYWORD, WORKER_NICE, PlannerPool
 
 #: Wall seconds: generous, so a loaded machine does not fail a test that is not about them.
 DEADLINE_S = 30.0
@@ -68,6 +72,12 @@ def _alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     return True
+
+
+def test_the_worker_runs_nicer_than_the_control_loop(pool: PlannerPool) -> None:
+    pid = asyncio.run(pool.warm_up())
+    mine = os.getpriority(os.PRIO_PROCESS, 0)
+    assert os.getpriority(os.PRIO_PROCESS, pid) == min(mine + WORKER_NICE, 19)
 
 
 # -- same plans as in-process --------------------------------------------------------------
@@ -303,3 +313,48 @@ def test_a_closed_pool_takes_no_more_requests() -> None:
     tracks, start = _takeoff_start()
     with pytest.raises(FlightError, match="the planning pool is closed; create a new one"):
         asyncio.run(pool.plan_return(tracks, start, DEADLINE_S))
+
+
+_ORPHAN_PARENT = """
+import asyncio, sys
+sys.path.insert(0, sys.argv[1])
+from flight_fixtures import quick_plan
+from groundctl.flight.workers import PlannerPool
+
+async def main() -> None:
+    pool = PlannerPool(quick_plan())
+    print(await pool.warm_up(), flush=True)
+    await asyncio.sleep(600)
+
+if __name__ == "__main__":
+    asyncio.run(main())
+"""
+
+
+def test_a_worker_whose_ground_station_is_killed_outright_does_not_live_on(
+        tmp_path: Path) -> None:
+    """Workers ignore the stop signals (the ground station decides what they mean), so a
+    ground station killed with SIGKILL left them running for ever; they leave with it."""
+    script = tmp_path / "parent.py"
+    script.write_text(_ORPHAN_PARENT)
+    parent = subprocess.Popen([sys.executable, str(script), str(Path(__file__).parent)],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert parent.stdout is not None
+        worker = int(parent.stdout.readline())
+        os.kill(worker, 0)  # alive
+        parent.kill()
+        parent.wait(10)
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline:
+            try:
+                os.kill(worker, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.1)
+        else:
+            os.kill(worker, signal.SIGKILL)
+            raise AssertionError(f"worker {worker} outlived its killed ground station")
+    finally:
+        if parent.poll() is None:
+            parent.kill()

@@ -98,6 +98,10 @@ class Flight:
     tick: int = 0
     changes: list[StateChange] = field(default_factory=list)
     drop_next: bool = False
+    drop_heartbeats: bool = False
+    """The vehicle's own HEARTBEATs are lost on the way (its other packets arrive)."""
+    fall: bool = False
+    """The vehicle falls (motors stopped): gravity, until it reaches the ground."""
     seen: list[tuple[str, bool, float | None, float | None]] = field(default_factory=list)
     """(mode, armed, battery, north) believed after every packet."""
 
@@ -121,6 +125,8 @@ class Flight:
         for _ in range(round(seconds * 10)):
             self.t = round(self.t + 0.1, 6)
             self.tick += 1
+            if self.fall:
+                v.vel[2] += 9.81 * 0.1
             v.pos = [p + u * 0.1 for p, u in zip(v.pos, v.vel, strict=True)]
             if v.pos[2] >= 0.0:
                 v.pos[2], v.vel[2] = 0.0, 0.0  # the ground
@@ -132,6 +138,8 @@ class Flight:
             for msg in batch:
                 if self.drop_next:
                     self.drop_next = False  # lost on the way
+                    continue
+                if self.drop_heartbeats and msg.get_type() == "HEARTBEAT":
                     continue
                 self.feed(msg)
 
@@ -206,6 +214,47 @@ def test_a_disarm_while_climbing_is_refuted_by_the_vehicles_own_climb() -> None:
     f.drop_next = True
     f.fly(2.0)
     assert not f.ever_disarmed() and f.events("disarmed") == []
+
+
+def test_forged_disarms_with_the_vehicles_own_heartbeats_lost_are_refuted_by_its_hover(
+        ) -> None:
+    """Forged "disarmed" HEARTBEATs a second apart, numbered as the vehicle's lost packets,
+    and none of the vehicle's own HEARTBEATs in between (lost on the radio, or dropped by a
+    ground station whose socket overflowed while it was busy): two agreeing HEARTBEATs
+    would confirm the disarm.  A disarmed multirotor falls; this one holds 10 m, so the
+    claim is refuted (measured in a busy nine-vehicle dry-run, before: vehicle 5 was
+    dropped from the show as crashed while it hovered)."""
+    f = _airborne()
+    f.drop_heartbeats = True
+    for _ in range(4):
+        f.feed(_sniffer(f).heartbeat(armed=False))
+        f.drop_next = True
+        f.fly(1.0)
+    assert not f.ever_disarmed() and f.events("disarmed") == []
+    assert "disarmed while it descends at 0.0 m/s, 10.0 m up" in (f.state.last_conflict or "")
+    f.drop_heartbeats = False
+    f.fly(2.0)
+    assert f.state.armed and f.state.mode == "GUIDED"
+
+
+def test_a_real_disarm_in_the_air_is_believed_from_its_second_heartbeat_as_it_falls() -> None:
+    f = _airborne()
+    f.vehicle.armed, f.fall = False, True  # a kill switch at 10 m
+    heartbeats = 0
+    while heartbeats < 2:
+        heartbeats += f.tick % 10 == 9  # the next tick sends one
+        f.fly(0.1)
+    assert not f.state.armed and len(f.events("disarmed")) == 1
+    assert not any("disarmed while" in c.fields["reason"] for c in f.events("link_conflict"))
+
+
+def test_a_disarm_after_a_crash_is_believed_once_the_vehicle_lies_on_the_ground() -> None:
+    f = _airborne()
+    f.vehicle.vel = [0.0, 0.0, 3.0]  # comes down at 3 m/s, disarms lying there
+    f.fly(4.0)
+    f.vehicle.armed = False
+    f.fly(2.0)
+    assert not f.state.armed and f.state.link_conflicts == 0
 
 
 @pytest.mark.parametrize("sniffs", [False, True], ids=["own-numbering", "predicted-numbering"])

@@ -132,6 +132,36 @@ async def test_timesync_offset_and_answers() -> None:
 
 
 @run
+async def test_a_busy_loop_does_not_lengthen_the_measured_round_trip() -> None:
+    # Answers that wait in our socket while our loop is busy are dated from when they
+    # arrived (the kernel's stamp): the round trip is the link's, not our backlog's.
+    async with new_link(timesync_period=0.02) as link:
+        with peer_for(link, 1) as p:
+            p.heartbeat()
+            await link.wait_for_vehicles([1], 2.0)
+            state = link.vehicles[1]
+            await eventually(lambda: len(state.timesync.samples) >= 3, what="timesync samples")
+            before = len(state.timesync.samples)
+            transport = link._transport
+            assert transport is not None
+            send = transport.send
+            busy = {"left": 8}
+
+            def send_then_be_busy(data: bytes, addr: tuple[str, int]) -> None:
+                send(data, addr)
+                if busy["left"] > 0 and data[0] == 0xFD and \
+                        int.from_bytes(data[7:10], "little") == mavlink.MAVLINK_MSG_ID_TIMESYNC:
+                    busy["left"] -= 1
+                    time.sleep(0.2)  # the answer arrives while our loop is busy
+            transport.send = send_then_be_busy  # type: ignore[method-assign]
+            await eventually(lambda: busy["left"] == 0, timeout=10.0, what="busy spells")
+            await eventually(lambda: len(state.timesync.samples) >= before + 5,
+                             what="timesync samples after the busy spells")
+            rtts = [s.rtt_ns / 1e9 for s in list(state.timesync.samples)[before:]]
+            assert max(rtts) < 0.1, rtts
+
+
+@run
 async def test_setpoints_and_led_reach_the_vehicles() -> None:
     async with new_link() as link:
         with peer_for(link, 1) as a, peer_for(link, 2) as b:

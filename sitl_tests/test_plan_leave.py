@@ -7,9 +7,11 @@ import pytest
 from flight_fixtures import quick_plan
 
 from groundctl.errors import PlanningError
-from groundctl.execute.leaving import LEAVE_LEAD_S, leave_duration, leave_time
-from groundctl.flight.returning import column, plan_leave
+from groundctl.execute.authority import beyond, scaled_limits
+from groundctl.execute.leaving import LANDING_MARGIN_M, LEAVE_LEAD_S, leave_duration, leave_time
+from groundctl.flight.returning import assign_landing, column, plan_leave, plan_return
 from groundctl.plan.scp_quad import plan_among
+from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import Limits, PlannerSettings
 
 LIM = Limits(min_separation=1.5, min_alt=0.0, max_alt=100.0)
@@ -94,3 +96,41 @@ def test_a_drone_holding_off_its_plan_is_an_obstacle_where_it_holds() -> None:
         >= plan.limits.min_separation - 1e-3
     # Not so if it were taken to fly its plan until its way out begins.
     assert float(np.linalg.norm(alone.position(t) - hold, axis=1).min()) < 0.1
+
+
+def test_a_return_with_a_weak_vehicle_is_planned_within_what_it_can_fly() -> None:
+    # Land-all from mid-transition (show time 11 s): at full limits the way home asks
+    # more than a vehicle at 60 % can fly; at its authority it asks nothing beyond it,
+    # and takes longer.
+    plan = quick_plan()
+    tracks = list(range(plan.drones))
+    start = plan.state_at(11.0).pos
+    weak = scaled_limits(plan.limits, 0.6)
+
+    def asks(traj: Trajectories) -> str | None:
+        _, vel, acc = traj.evaluate(traj.dense_times(16))
+        return beyond(weak, vel.reshape(-1, 3), acc.reshape(-1, 3))
+    full = plan_return(plan, tracks, start)
+    slow = plan_return(plan, tracks, start, authority=0.6)
+    assert asks(full) is not None
+    assert asks(slow) is None
+    assert slow.times[-1] > full.times[-1]
+    with pytest.raises(ValueError, match="authority must be in"):
+        plan_return(plan, tracks, start, authority=0.0)
+
+
+def test_no_drone_lands_within_the_limit_and_its_landing_margin_of_a_drone_down() -> None:
+    # Track 8's drone came down 1.6 m beside track 0's spot, outside the grid (beyond the
+    # 1.5 m limit, but a drone lands within LANDING_MARGIN_M of its spot): track 0 is sent
+    # to the spot left free instead.
+    plan = quick_plan()
+    tracks = list(range(plan.drones - 1))
+    spot = plan.landing_hover[0]
+    start = plan.state_at(11.0).pos[tracks]
+    down = np.array([[spot[0] - 1.6, spot[1], 0.0]])
+    goals = assign_landing(plan, tracks, start, down)
+    gap = np.linalg.norm(goals[:, :2] - down[:, :2], axis=1)
+    assert gap.min() >= plan.limits.min_separation + LANDING_MARGIN_M
+    assert len({tuple(g) for g in goals.round(3)}) == len(tracks)  # one spot each
+    far = np.array([[spot[0] - 1.5 - LANDING_MARGIN_M - 0.1, spot[1], 0.0]])
+    assert np.allclose(assign_landing(plan, tracks, start, far), plan.landing_hover[tracks])

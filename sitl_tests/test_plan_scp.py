@@ -209,3 +209,30 @@ def test_unicycle_polishing_model_passes_through_the_new_rollout() -> None:
     # And the QP solves to headings within the trust region of theta1.
     theta2, _ = qp.solve(1)
     assert np.all(np.abs(theta2 - theta1)[:, 1:steps] <= trust[:, None] + 1e-2)
+
+
+def test_a_large_assignment_is_solved_once_for_the_loader_and_the_planner(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    from groundctl.plan import assign as assign_module
+
+    calls = []
+    real = assign_module.linear_sum_assignment
+
+    def counted(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        calls.append(cost.shape)
+        return real(cost)
+    monkeypatch.setattr(assign_module, "linear_sum_assignment", counted)
+    rng = np.random.default_rng(7)
+    n = assign_module.REMEMBER_FROM
+    start, slots = rng.uniform(-50, 50, (n, 3)), rng.uniform(-50, 50, (n, 3))
+    first = assign_module.assign(start, slots)
+    first[0] = -1  # the caller's copy: what is remembered is not changed
+    again = assign_module.assign(start.copy(), slots.copy())
+    assert len(calls) == 1
+    assert again[0] != -1 and sorted(again) == list(range(n))
+    slots[3, 0] += 1.0  # other points: solved again
+    assign_module.assign(start, slots)
+    assert len(calls) == 2
+    small = assign_module.assign(start[:10], slots[:10])  # small ones are not remembered
+    assign_module.assign(start[:10], slots[:10])
+    assert len(calls) == 4 and sorted(small) == list(range(10))

@@ -8,6 +8,7 @@ import base64
 import json
 import subprocess
 import sys
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -22,9 +23,15 @@ from groundctl.execute.preflight import Thresholds, check_rtk
 from groundctl.link.state import VehicleState
 from groundctl.rtk.fragment import FRAGMENT_LEN, Fragmenter, Reassembler, TooLarge
 from groundctl.rtk.rtcm import RtcmFramer, ends_epoch, frame, message_number, split_epochs
-from groundctl.rtk.sources import RtkSource, RtkSourceError, load_epochs, parse_source
+from groundctl.rtk.sources import (
+    RtkSource,
+    RtkSourceError,
+    gga_sentence,
+    load_epochs,
+    parse_source,
+)
 from groundctl.rtk.synth import epochs
-from groundctl.sim.rtk import FIXED_AFTER_S, TIMEOUT_S, RtkReceiver
+from groundctl.sim.rtk import FIXED_AFTER_S, FLOAT_AFTER_S, TIMEOUT_S, RtkReceiver
 
 FIXTURE = REPO / "sitl_tests" / "data" / "rtcm3_10epochs.rtcm3"
 GROUNDCTL = [sys.executable, "-m", "groundctl"]
@@ -125,7 +132,11 @@ def test_sim_receiver_fix_types_and_fallback() -> None:
         t += 1.0
     assert rx.fix_type(t, 3) == 6 and t >= FIXED_AFTER_S
     assert rx.fix_type(t, 0) == 0  # no GPS fix at all: corrections do not make one
-    assert rx.fix_type(t + TIMEOUT_S + 1, 3) == 3  # corrections stopped
+    # Corrections stopped: fixed holds a while, then float on what it has, then 3D.
+    last = t - 1.0
+    assert rx.fix_type(last + FLOAT_AFTER_S - 1, 3) == 6
+    assert rx.fix_type(last + FLOAT_AFTER_S + 1, 3) == 5
+    assert rx.fix_type(last + TIMEOUT_S + 1, 3) == 3
     assert rx.stats()["intact"] == 32 and rx.stats()["bad"] == 0
     corrupt = bytearray(RtcmFramer().feed(epochs(1)[0])[0])
     corrupt[5] ^= 1
@@ -233,6 +244,61 @@ def test_ntrip_client_against_a_local_caster(version: str) -> None:
     got = asyncio.run(main())
     assert RtcmFramer().feed(got) == _frames()
     assert "Ntrip-Version: Ntrip/2.0" in requests[0]
+
+
+def _nmea_ok(sentence: str) -> bool:
+    body, _, checksum = sentence.strip().lstrip("$").partition("*")
+    x = 0
+    for byte in body.encode():
+        x ^= byte
+    return f"{x:02X}" == checksum
+
+
+def test_a_gga_sentence_says_where_the_field_is_in_nmea() -> None:
+    when = datetime(2026, 12, 2, 13, 5, 9, 470000, tzinfo=UTC)
+    gga = gga_sentence(47.3977, 8.5456, 488.0, when)
+    assert gga.endswith("\r\n") and _nmea_ok(gga)
+    fields = gga.strip().split("*")[0].split(",")
+    assert fields[:10] == ["$GPGGA", "130509.47", "4723.86200", "N", "00832.73600", "E", "1",
+                           "12", "1.0", "488.0"]
+    south = gga_sentence(-33.8688, -151.2093, 3.0, when).split(",")
+    assert south[2:6] == ["3352.12800", "S", "15112.55800", "W"]
+    assert gga_sentence(10.99999999, 0.0, 0.0, when).split(",")[2] == "1100.00000"
+    with pytest.raises(ValueError):
+        gga_sentence(91.0, 0.0, 0.0, when)
+
+
+def test_an_ntrip_client_tells_a_network_caster_where_it_is() -> None:
+    """A VRS mount point sends nothing until it hears a GGA: in the Ntrip-GGA header
+    (v2) and in the stream (v1), again every GGA_PERIOD_S."""
+    data = FIXTURE.read_bytes()
+    heard: dict[str, str] = {}
+
+    async def main() -> bytes:
+        async def serve(r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
+            heard["head"] = (await r.readuntil(b"\r\n\r\n")).decode()
+            w.write(b"ICY 200 OK\r\n\r\n")
+            await w.drain()
+            # A network mount point: no corrections until the rover says where it is.
+            heard["stream"] = (await r.readuntil(b"\r\n")).decode()
+            w.write(data)
+            await w.drain()
+            w.close()
+
+        server = await asyncio.start_server(serve, "127.0.0.1", 0)
+        port = server.sockets[0].getsockname()[1]
+        async with server:
+            src = RtkSource(parse_source(f"ntrip://127.0.0.1:{port}/VRS"), ScaledClock(1.0),
+                            position=(47.3977, 8.5456, 488.0),
+                            utc=lambda: datetime(2026, 12, 2, 13, 5, 9, tzinfo=UTC))
+            got = await asyncio.wait_for(_collect(src, len(data)), 20)
+            assert src.gga_sent >= 2
+            return got
+
+    assert RtcmFramer().feed(asyncio.run(main())) == _frames()
+    header = next(line for line in heard["head"].splitlines() if line.startswith("Ntrip-GGA:"))
+    assert _nmea_ok(header.split(": ", 1)[1]) and "4723.86200,N,00832.73600,E" in header
+    assert heard["stream"].startswith("$GPGGA,130509.00,") and _nmea_ok(heard["stream"])
 
 
 # -- end to end -------------------------------------------------------------------------

@@ -26,10 +26,10 @@ from groundctl.execute.vehset import enforce, fence_vertices, offset_polygon, ta
 from groundctl.flight.dryrun import Push
 from groundctl.flight.runner import RunnerConfig
 from groundctl.link import Flavour, FleetLink
-from groundctl.link.fence import FenceUpload, upload_fence
+from groundctl.link.fence import FenceDownload, FenceUpload, inclusion_items, upload_fence
 from groundctl.link.params import ParamClient, decode_wire, encode_wire
 from groundctl.record.events import read_events
-from groundctl.show.loader import load_show
+from groundctl.show.loader import load_show, load_vehicle_file
 from groundctl.show.model import GeoOrigin, Limits, VehicleSettings
 from groundctl.sim import SimConfig, SimFleet
 from groundctl.sim.fence import FenceServer
@@ -39,6 +39,7 @@ INT8, INT32 = mavlink.MAV_PARAM_TYPE_INT8, mavlink.MAV_PARAM_TYPE_INT32
 REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
 ORIGIN = GeoOrigin(47.3977, 8.5456, 488.0, 30.0)
 SQUARE = ((-8.0, -8.0), (8.0, -8.0), (8.0, 8.0), (-8.0, 8.0))
+FENCE_TYPE = mavlink.MAV_MISSION_TYPE_FENCE
 
 
 def _value(name: str, value: float, ptype: int, index: int = 0, count: int = 10,
@@ -143,7 +144,7 @@ def test_the_fence_lies_the_margin_beyond_the_geofence() -> None:
 
 # -- the fence upload against the simulator's fence server, in memory ----------------------------
 
-def _exchange(up: FenceUpload, server: FenceServer, drop: set[int]) -> int:
+def _exchange(up: FenceUpload | FenceDownload, server: FenceServer, drop: set[int]) -> int:
     """Run ``up`` against ``server`` with a 0.25 s step; messages numbered in ``drop`` (both
     ways, counted together) are lost.  Returns the number of messages."""
     gcs = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
@@ -198,6 +199,38 @@ def test_a_refused_fence_names_the_result_and_silence_fails_after_the_last_try()
     silent = FenceUpload(1, fence_vertices(ORIGIN, SQUARE, 1.0), timeout_s=1.0, attempts=3)
     _exchange(silent, server, drop=set(range(1, 100)))
     assert silent.error == "fence upload: no answer to MISSION_COUNT after 3 tries of 1 s"
+
+
+def test_a_fence_download_reads_every_item_through_losses_and_closes_with_an_ack() -> None:
+    verts = fence_vertices(ORIGIN, SQUARE, 1.0)
+    server = FenceServer(1)
+    assert _exchange(FenceUpload(1, verts), server, drop=set()) > 0
+    down = FenceDownload(1, timeout_s=1.0)
+    # 1 the list request (lost), 2 it again, 3 the count, 4 request 0, 5 item 0 (lost) ...
+    _exchange(down, server, drop={1, 5})
+    assert down.ok, down.error
+    assert tuple(down.items or ()) == inclusion_items(verts)
+    (ack,) = down.poll(60.0)  # the transfer is closed once, with an ACK
+    assert ack.get_type() == "MISSION_ACK" and ack.type == mavlink.MAV_MISSION_ACCEPTED
+    assert down.poll(61.0) == []
+    empty = FenceDownload(1)
+    _exchange(empty, FenceServer(1), drop=set())
+    assert empty.ok and empty.items == []
+
+
+def test_a_forged_fence_count_a_refusal_and_silence_end_the_download_with_a_reason() -> None:
+    forged = FenceDownload(1)
+    forged.poll(0.0)
+    forged.receive(mavlink.MAVLink_mission_count_message(255, 190, 10**6, FENCE_TYPE), 0.1)
+    assert forged.error == "fence download: the vehicle claims 1000000 items (at most 256)"
+    refused = FenceDownload(1)
+    refused.poll(0.0)
+    refused.receive(mavlink.MAVLink_mission_ack_message(
+        255, 190, mavlink.MAV_MISSION_DENIED, FENCE_TYPE), 0.1)
+    assert refused.error == "fence download refused: MAV_MISSION_DENIED"
+    silent = FenceDownload(1, timeout_s=1.0, attempts=3)
+    _exchange(silent, FenceServer(1), drop=set(range(1, 100)))
+    assert silent.error == "fence download: no answer to MISSION_REQUEST_LIST after 3 tries of 1 s"
 
 
 # -- over UDP against the simulator ------------------------------------------------------------
@@ -261,6 +294,21 @@ async def test_a_differing_parameter_is_refused_when_set_is_false(flavour: Flavo
         assert (f"{name} is {was}, show needs {need} (land); not allowed to change it "
                 "([vehicle] set = false)") in out[1].problems
         assert fleet.vehicles[0].params[name] == was  # untouched
+        # Nor is the fence written: the vehicle's own is downloaded and must be the show's.
+        assert ("fence: it has no fence, show needs its 4-vertex inclusion polygon; not "
+                "allowed to change it ([vehicle] set = false)") in out[1].problems
+        assert fleet.vehicles[0].fence.vertices == [] and not out[1].fence
+        limits = Limits(max_alt=40.0, geofence=SQUARE)
+        other = FenceUpload(1, fence_vertices(ORIGIN, SQUARE, 5.0))
+        assert await upload_fence(link, other, link.clock), other.error
+        out = await enforce(link, link.clock, {1: flavour}, settings, ORIGIN, limits)
+        assert ("fence: its own fence has 4 items at other places, show needs its 4-vertex "
+                "inclusion polygon; not allowed to change it ([vehicle] set = false)"
+                ) in out[1].problems
+        same = FenceUpload(1, fence_vertices(ORIGIN, SQUARE, settings.fence_margin))
+        assert await upload_fence(link, same, link.clock), same.error
+        out = await enforce(link, link.clock, {1: flavour}, settings, ORIGIN, limits)
+        assert out[1].fence and not any(p.startswith("fence") for p in out[1].problems)
     finally:
         fleet.stop()
         await link.close()
@@ -324,9 +372,13 @@ def _fenced_plan():  # type: ignore[no-untyped-def]
 def test_a_vehicle_pushed_out_of_the_fence_is_landed_by_its_own_fence(
         flavour: Flavour, tmp_path: Path) -> None:
     settings = VehicleSettings(fence=True, fence_action="land", fence_margin=1.0)
+    # Vehicle 6 is at x = 3.1 m at show time 1 s and its fence at x = 10 m. Carried 11 m
+    # in 1 s, its autopilot braking against the push all the while, its telemetry shows it
+    # 0.3-0.7 m past the fence still at 9-10 m/s (an 8 m push peaked 0.1-0.3 m past it
+    # on an idle machine and short of it on a busy one).
     result = dry_run(tmp_path, flavour=flavour, plan=_fenced_plan(),
                      runner=RunnerConfig(vehicle=settings),
-                     pushes=(Push(6, 1.0, (8.0, 0.0, 0.0)),))
+                     pushes=(Push(6, 1.0, (11.0, 0.0, 0.0)),))
     events = list(read_events(tmp_path / "events.jsonl"))
     uploaded = [e for e in events if e.get("event") == "vehicle_settings_set"]
     assert sorted(e["system_id"] for e in uploaded if e["fence"]) == list(range(1, 10))
@@ -358,6 +410,59 @@ def test_a_dry_run_with_a_differing_parameter_and_set_false_is_refused(tmp_path:
     assert not result.flown  # refused before anything was armed
     assert "pre-flight checks failed: vehicle 1: FS_GCS_ENABLE is 0" in \
         result.report["unsafe_reasons"][0]
+
+
+def test_a_vehicle_file_gives_the_table_and_anything_else_is_one_line(tmp_path: Path) -> None:
+    """``--vehicle FILE``: the [vehicle] table alone (a Skybrush show has none); its fence
+    is the flown plan's geofence, checked before arming."""
+    only = tmp_path / "vehicle.toml"
+    only.write_text('[vehicle]\nfence = true\nfence_action = "rtl"\nset = false\n')
+    assert load_vehicle_file(only) == VehicleSettings(fence=True, fence_action="rtl", set=False)
+    bad = {"none.toml": ("x = 1\n", "no [vehicle] table (--vehicle takes the vehicles' own "
+                                     "settings from one)"),
+           "latin.toml": (b"[vehicle]\n# caf\xe9\n", "not UTF-8 text (a [vehicle] table is "
+                                                    "TOML)"),
+           "typo.toml": ("[vehicle]\nfense = true\n", "unknown key 'fense'")}
+    for name, (text, message) in bad.items():
+        path = tmp_path / name
+        path.write_bytes(text if isinstance(text, bytes) else text.encode())
+        with pytest.raises(ShowFileError) as err:
+            load_vehicle_file(path)
+        assert message in str(err.value) and "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("flavour", [AP, PX4], ids=str)
+@run
+async def test_a_fence_asked_for_without_a_geofence_refuses_the_vehicle(flavour: Flavour) -> None:
+    link, fleet = await _with_fleet(flavour, count=1)
+    try:
+        out = await enforce(link, link.clock, {1: flavour}, VehicleSettings(fence=True), ORIGIN,
+                            Limits(max_alt=40.0))
+        assert out[1].problems[0] == ("[vehicle] fence = true, but the plan has no geofence "
+                                      "to fence the vehicle in")
+        assert fleet.vehicles[0].fence.vertices == []
+    finally:
+        fleet.stop()
+        await link.close()
+
+
+def test_the_cli_takes_the_vehicle_table_from_a_file_of_its_own(tmp_path: Path) -> None:
+    """The show file has no [vehicle]; ``--vehicle`` gives one, and a vehicle that differs
+    refuses the flight with its reason before anything is armed."""
+    path = tmp_path / "vehicle.toml"
+    path.write_text('[vehicle]\ngcs_failsafe = "land"\nset = false\n')
+    proc = subprocess.run([sys.executable, "-m", "groundctl", "dry-run", str(QUICK_SHOW),
+                           "--vehicle", str(path), "--speed", "4", "--ready-delay", "2",
+                           "--record", str(tmp_path / "rec"), "-q"],
+                          capture_output=True, text=True, timeout=180, cwd=REPO)
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    assert ("vehicle 4: FS_GCS_ENABLE is 0, show needs 5 (land); not allowed to change it "
+            "([vehicle] set = false)") in proc.stderr
+    missing = subprocess.run([sys.executable, "-m", "groundctl", "dry-run", str(QUICK_SHOW),
+                              "--vehicle", str(tmp_path / "nope.toml"), "-q"],
+                             capture_output=True, text=True, timeout=180, cwd=REPO)
+    assert missing.returncode == 2
+    assert missing.stderr.strip().splitlines()[-1].endswith("nope.toml: no such file")
 
 
 @pytest.mark.slow

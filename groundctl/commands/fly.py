@@ -120,8 +120,9 @@ def run(args: argparse.Namespace) -> int:
         if args.rtk is not None:
             from groundctl.rtk.forwarder import RtkForwarder
             from groundctl.rtk.sources import RtkSource
-            rtk = runner.rtk = RtkForwarder(RtkSource(args.rtk, clock), link, clock,
-                                            events=events, notify=notify)
+            field = (plan.origin.lat, plan.origin.lon, plan.origin.alt)  # for a caster's GGA
+            rtk = runner.rtk = RtkForwarder(RtkSource(args.rtk, clock, position=field), link,
+                                            clock, events=events, notify=notify)
         if live is not None:
             live.attach(runner)
         interrupts.attach(runner)

@@ -63,6 +63,10 @@ def add_runner_options(p: argparse.ArgumentParser) -> None:
                         "(default 120)")
     p.add_argument("--signing-key", type=signing_key, default=None, metavar="HEX",
                    help="MAVLink 2 signing key, 64 hex digits")
+    p.add_argument("--vehicle", dest="vehicle_file", type=Path, default=None, metavar="FILE",
+                   help="take the vehicles' own safety settings from the [vehicle] table of "
+                        "FILE (a TOML file: a show file or one with only that table) instead "
+                        "of the show's; for a Skybrush show, which has none")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
     add_rerun_option(p, "stream the flight, live,", "live.rrd in the recording directory")
     add_rtk_options(p)
@@ -95,10 +99,14 @@ def runner_config(args: argparse.Namespace, tracks: dict[int, int] | None = None
 
 
 def vehicle_settings(args: argparse.Namespace) -> VehicleSettings | None:
-    """The show's ``[vehicle]`` table: from the show file flown, or for a ``.npz`` plan
-    from ``--show`` (or its sibling ``X.toml``); None without one."""
-    from groundctl.show.loader import load_vehicle_settings
+    """The ``[vehicle]`` table: from ``--vehicle FILE`` if given (which must have one),
+    else from the show file flown, or for a ``.npz`` plan from ``--show`` (or its sibling
+    ``X.toml``); None without one."""
+    from groundctl.show.loader import load_vehicle_file, load_vehicle_settings
     from groundctl.skybrush.importing import is_skybrush
+    given: Path | None = getattr(args, "vehicle_file", None)
+    if given is not None:
+        return load_vehicle_file(given)
     path: Path | None = args.show
     if path is not None and is_skybrush(path):
         return None  # a Skybrush show carries no [vehicle] table

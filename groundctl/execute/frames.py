@@ -5,8 +5,12 @@ points along ``heading_deg`` (clockwise from true north), +x to its right, +z
 up, so heading 0 is plain ENU.  Each vehicle flies in its own local NED frame
 whose origin is its EKF origin (GPS_GLOBAL_ORIGIN), and two vehicles rarely
 share one: a show point therefore goes show -> ENU at the show origin ->
-geodetic -> NED at that vehicle's EKF origin, exactly, through pymap3d (WGS84
-ECEF), so vehicles with different origins fly the same show.
+geodetic -> NED at that vehicle's EKF origin, exactly, through WGS84 ECEF, so
+vehicles with different origins fly the same show.  Between the show frame and
+a local NED frame that is one rigid motion (both are tangent frames of ECEF),
+computed once per EKF origin with pymap3d and applied as a matrix: the
+geodetic round trip in between is the identity, and iterating it for every
+telemetry sample cost the control loop a millisecond a tick.
 
 Altitudes are used as given on both sides (the show origin's and the EKF
 origin's are both AMSL as reported); only their difference matters here.
@@ -17,6 +21,7 @@ be one point or per-row arrays, so the whole fleet converts in one call.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping, Sequence
 
 import numpy as np
@@ -75,15 +80,40 @@ def geodetic_to_show(origin: GeoOrigin, lat: ArrayLike, lon: ArrayLike,
     return enu_to_show(origin, np.stack([np.asarray(e), np.asarray(n), np.asarray(u)], axis=-1))
 
 
-def origin_arrays(points: GeoPoint | Sequence[GeoPoint]) -> tuple[FloatArray, FloatArray,
-                                                                   FloatArray]:
-    """(lat, lon, alt) arrays of one EKF origin (scalars) or one per vehicle ((n,) each)."""
-    if isinstance(points, GeoPoint):
-        return (np.asarray(points.lat_deg, dtype=float), np.asarray(points.lon_deg, dtype=float),
-                np.asarray(points.alt_m, dtype=float))
-    return (np.array([p.lat_deg for p in points], dtype=float),
-            np.array([p.lon_deg for p in points], dtype=float),
-            np.array([p.alt_m for p in points], dtype=float))
+def _ecef_to_enu(lat_deg: float, lon_deg: float) -> FloatArray:
+    """3x3 matrix taking ECEF vectors to ENU at geodetic ``lat_deg``, ``lon_deg``."""
+    phi, lam = np.radians(lat_deg), np.radians(lon_deg)
+    sp, cp, sl, cl = np.sin(phi), np.cos(phi), np.sin(lam), np.cos(lam)
+    return np.array([[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]])
+
+
+@functools.lru_cache(maxsize=4096)
+def _ned_affine(origin: GeoOrigin, ekf: GeoPoint) -> tuple[FloatArray, FloatArray]:
+    """(A, b) with ``show = A @ ned + b`` for NED about ``ekf``: exact, because NED -> ECEF
+    and ECEF -> ENU are both rigid motions (the geodetic round trip between them, which
+    pymap3d iterates, is the identity).  A is orthonormal."""
+    ecef0 = np.array(pymap3d.geodetic2ecef(ekf.lat_deg, ekf.lon_deg, ekf.alt_m), dtype=float)
+    ecef_s = np.array(pymap3d.geodetic2ecef(origin.lat, origin.lon, origin.alt), dtype=float)
+    ned_to_ecef = _enu_to_ned(_ecef_to_enu(ekf.lat_deg, ekf.lon_deg).T)  # columns N, E, D
+    ecef_to_show = _rotation(origin.heading_deg).T @ _ecef_to_enu(origin.lat, origin.lon)
+    a = ecef_to_show @ ned_to_ecef
+    b = ecef_to_show @ (ecef0 - ecef_s)
+    a.setflags(write=False)
+    b.setflags(write=False)
+    return a, b
+
+
+def _affines(origin: GeoOrigin, ekf_origin: GeoPoint | Sequence[GeoPoint], pts: FloatArray,
+             what: str) -> tuple[FloatArray, FloatArray]:
+    """(A, b) for one EKF origin ((3, 3), (3,)) or one per row ((n, 3, 3), (n, 3))."""
+    if isinstance(ekf_origin, GeoPoint):
+        return _ned_affine(origin, ekf_origin)
+    if pts.ndim != 2 or len(pts) != len(ekf_origin):
+        raise ValueError(f"`ekf_origin` has {len(ekf_origin)} origins but `{what}` has shape "
+                         f"{pts.shape}")
+    pairs = [_ned_affine(origin, p) for p in ekf_origin]
+    return (np.array([a for a, _ in pairs]).reshape(-1, 3, 3),
+            np.array([b for _, b in pairs]).reshape(-1, 3))
 
 
 def show_to_ned(origin: GeoOrigin, ekf_origin: GeoPoint | Sequence[GeoPoint],
@@ -93,23 +123,20 @@ def show_to_ned(origin: GeoOrigin, ekf_origin: GeoPoint | Sequence[GeoPoint],
     ``ekf_origin`` is one origin for every row of ``xyz``, or one per row.
     """
     pts = _rows(xyz, "xyz")
-    lat0, lon0, alt0 = origin_arrays(ekf_origin)
-    if lat0.ndim and (pts.ndim != 2 or len(pts) != len(lat0)):
-        raise ValueError(f"`ekf_origin` has {len(lat0)} origins but `xyz` has shape {pts.shape}")
-    lat, lon, alt = show_to_geodetic(origin, pts)
-    n, e, d = pymap3d.geodetic2ned(lat, lon, alt, lat0, lon0, alt0)
-    return np.stack([np.asarray(n), np.asarray(e), np.asarray(d)], axis=-1).astype(float)
+    a, b = _affines(origin, ekf_origin, pts, "xyz")
+    if a.ndim == 2:
+        return (pts - b) @ a  # A is orthonormal: its inverse is its transpose
+    return np.einsum("nji,nj->ni", a, pts - b)
 
 
 def ned_to_show(origin: GeoOrigin, ekf_origin: GeoPoint | Sequence[GeoPoint],
                 ned: ArrayLike) -> FloatArray:
     """Local NED positions (telemetry) of vehicles as show-frame points."""
     pts = _rows(ned, "ned")
-    lat0, lon0, alt0 = origin_arrays(ekf_origin)
-    if lat0.ndim and (pts.ndim != 2 or len(pts) != len(lat0)):
-        raise ValueError(f"`ekf_origin` has {len(lat0)} origins but `ned` has shape {pts.shape}")
-    lat, lon, alt = pymap3d.ned2geodetic(pts[..., 0], pts[..., 1], pts[..., 2], lat0, lon0, alt0)
-    return geodetic_to_show(origin, lat, lon, alt)
+    a, b = _affines(origin, ekf_origin, pts, "ned")
+    if a.ndim == 2:
+        return pts @ a.T + b
+    return np.einsum("nij,nj->ni", a, pts) + b
 
 
 def show_vel_to_ned(origin: GeoOrigin, vel: ArrayLike) -> FloatArray:

@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from groundctl.plan.feasibility import min_transition_time
 from groundctl.plan.plan import Plan
 from groundctl.plan.trajectory import Trajectories
-from groundctl.show.model import QuadrotorModel
+from groundctl.show.model import Limits, QuadrotorModel
 
 #: A drone leaves at the next instant it rests on a formation at least this far
 #: ahead in show time, s: time to plan its way out.
@@ -68,11 +68,13 @@ def leave_duration(plan: Plan, track: int, at: float,
                            plan.landing_hover[track][None, :])
 
 
-def return_duration(plan: Plan, start: NDArray[np.float64], goal: NDArray[np.float64]
-                    ) -> float:
+def return_duration(plan: Plan, start: NDArray[np.float64], goal: NDArray[np.float64],
+                    limits: Limits | None = None) -> float:
     """How long a planned way home from ``start`` to ``goal`` (n, 3) is given, s: TIME_MARGIN
-    times the slowest drone's straight-line minimum, at least MIN_DURATION_S."""
-    bound = min_transition_time(start, goal, plan.limits, QuadrotorModel())
+    times the slowest drone's straight-line minimum within ``limits`` (the plan's by
+    default), at least MIN_DURATION_S."""
+    bound = min_transition_time(start, goal, plan.limits if limits is None else limits,
+                                QuadrotorModel())
     return max(bound.seconds * TIME_MARGIN, MIN_DURATION_S)
 
 
@@ -101,12 +103,26 @@ def landing_candidates(plan: Plan) -> NDArray[np.float64]:
     return np.concatenate([spots, extra])
 
 
-def free_spots(plan: Plan, candidates: NDArray[np.float64], blocked: NDArray[np.float64]
-               ) -> NDArray[np.intp]:
+#: Room for a landing drone's own error, m: a spot next to a drone that is down keeps the
+#: separation limit plus this.  A drone descends once it is within the sequence's arrive
+#: tolerance (0.5 m) of its spot, in practice a few centimetres, and lands where it
+#: descends (measured: a spot 1.5 m from a drone that came down by land-here, at a 1.5 m
+#: limit, was landed on 1.49 m from it).
+LANDING_MARGIN_M = 0.3
+
+
+def free_spots(plan: Plan, candidates: NDArray[np.float64],
+               blocked: NDArray[np.float64] | None = None,
+               down: NDArray[np.float64] | None = None) -> NDArray[np.intp]:
     """Indices of ``candidates`` whose column keeps the separation limit from every point
-    of ``blocked`` (k, 3): drones down or descending there, spots others fly to."""
+    of ``blocked`` (k, 3), spots others fly to (the plan separates those, and both land the
+    same way), and the limit plus LANDING_MARGIN_M from every point of ``down`` (m, 3):
+    drones down or descending somewhere the plan did not put them."""
     free = np.ones(len(candidates), dtype=bool)
-    if len(blocked):
-        d = np.linalg.norm(candidates[:, None, :2] - np.asarray(blocked)[None, :, :2], axis=2)
-        free &= d.min(axis=1) >= plan.limits.min_separation
+    for points, keep in ((blocked, plan.limits.min_separation),
+                         (down, plan.limits.min_separation + LANDING_MARGIN_M)):
+        if points is not None and len(points):
+            d = np.linalg.norm(candidates[:, None, :2] - np.asarray(points)[None, :, :2],
+                               axis=2)
+            free &= d.min(axis=1) >= keep
     return np.flatnonzero(free)

@@ -227,6 +227,12 @@ _LINK_FAILSAFE_MODES = {
     Flavour.ARDUPILOT: frozenset({"LOITER", "BRAKE", "LAND", "RTL", "SMART_RTL"}),
     Flavour.PX4: frozenset({"AUTO.LOITER", "AUTO.LAND", "AUTO.RTL"}),
 }
+#: This many vehicles holding off their plans at once (a fleet-wide link loss or stall
+#: stopped them short of the plan) and the whole fleet lands on one joint return planned
+#: from where everyone hovers: their ways out, planned one at a time through a show that
+#: flies on, each take the others for drones on their plans (measured: a 5 s cut of a
+#: PX4 fleet's link on a busy machine stranded five at once; two came 1.30 m apart).
+STRANDED_LAND_ALL = 2
 #: Returns planned again because a landing spot was taken (then: nearest free spot).
 MAX_REPLANS = 2
 #: A vehicle is taken back from a link-loss failsafe at most this many times.
@@ -352,6 +358,9 @@ class VehicleRun:
     """The failsafe mode it is being taken back from, while that is under way."""
     retakes: int = 0
     """Times it was taken back from a link-loss failsafe."""
+    fell: bool = False
+    """Given up as disarmed in the air (a crash, a motor failure, or a report that was
+    wrong: see :meth:`ShowSequence._armed_again`)."""
     gap_at: float | None = None
     """Our time its own telemetry last came back from a silence."""
     streamed_at: float | None = None
@@ -487,6 +496,14 @@ class ShowSequence:
             return None
         return self.clock.show_time(when)
 
+    @property
+    def clock_state(self) -> tuple[int, ...]:
+        """Each clock's (show, then return) :attr:`~ShowClock.revision`.  When it changes
+        (held, released, put back after a stall, a return set off), what was predicted on
+        the clocks as they were (MPC trajectories, a weak vehicle's lead) no longer
+        holds: its neighbours brake, stop or set off where it was not expected."""
+        return tuple(c.revision for c in self._clocks())
+
     def _clocks(self) -> list[ShowClock]:
         return [self.clock] + ([self._return_clock] if self._return_clock is not None else [])
 
@@ -615,6 +632,11 @@ class ShowSequence:
             if v.phase in _IDLE:
                 continue
             actions += self._advance(v, states[v.sysid], now)
+        for v in self.vehicles.values():
+            state = states.get(v.sysid)
+            if v.fell and v.phase is VehiclePhase.FAILED and state is not None:
+                actions += self._armed_again(v, state, now)
+        actions += self._land_all_if_stranded(now)
         actions += self._maybe_start_show(now, states)
         actions += self._begin_leaves(now)
         if self.started_at is not None and not self._ended \
@@ -691,7 +713,7 @@ class ShowSequence:
         limit of a drone that is down or descending."""
         point = np.asarray(self._landing_point(v), dtype=float)[None, :]
         down = np.array(self.down_positions(v)).reshape(-1, 3)
-        return len(free_spots(self.plan, point, down)) == 0
+        return len(free_spots(self.plan, point, down=down)) == 0
 
     def command_failed(self, command: Command, reason: str, now: float) -> list[Action]:
         """A command was refused or timed out; retry it later or give the vehicle up."""
@@ -1153,6 +1175,43 @@ class ShowSequence:
                                 "planned from there", "stranded", "off its plan: holding, "
                                 "then leaving on a way out")]
 
+    def _armed_again(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
+        """Given up as disarmed in the air, but its own telemetry says it is armed, in the
+        air, in the flight mode: the disarm it was given up for was not real (believed
+        from reports the link could not check).  Left alone it would hover where it was
+        with nobody in charge while the show flies past: it holds there and leaves on a
+        way out, as a vehicle heard again off its plan does; after the show, it lands."""
+        altitude = self._altitude(state)
+        if not state.armed or state.lost or altitude is None or altitude <= AIRBORNE_M \
+                or state.mode != _FLIGHT_MODE[v.flavour]:
+            return []
+        v.fell, v.reason = False, None
+        pos = self._positions.get(v.sysid)
+        if self._ended or self.started_at is None or pos is None:
+            v.phase = VehiclePhase.LANDING
+            return [Notice(v.sysid, f"vehicle {v.sysid} is armed in the air after all: "
+                                    "landing it where it is"), self._send(v, Land(v.sysid), now)]
+        off = self._off_plan(v, now)
+        if off is None:
+            v.phase = VehiclePhase.SHOW
+            return [Notice(v.sysid, f"vehicle {v.sysid} is armed in the air after all, on its "
+                                    "plan: back in the show")]
+        return self._strand(v, off, now, "armed in the air after all,")
+
+    def _land_all_if_stranded(self, now: float) -> list[Action]:
+        """Land the whole fleet when STRANDED_LAND_ALL or more hold off their plans."""
+        if self._ended:
+            return []
+        stranded = sorted(v.sysid for v in self.vehicles.values()
+                          if v.hold_point is not None
+                          and self.streamed_as(v) is VehiclePhase.LEAVING)
+        if len(stranded) < STRANDED_LAND_ALL:
+            return []
+        names = ", ".join(str(s) for s in stranded)
+        return [Notice(None, f"vehicles {names} are off their plans at once: landing the whole "
+                             "fleet on one collision-free return planned from where each "
+                             "hovers", "stranded_land_all"), *self.land_all(now)]
+
     def take_out(self, sysid: int, now: float, distance: float,
                  why: str = "taken out of the show") -> list[Action]:
         """Take a vehicle off its path out of the show from where it is (the guard's
@@ -1306,7 +1365,7 @@ class ShowSequence:
             # obstacle for every landing from now on (down_positions).
             was = v.phase
             v.phase, v.pending, v.leave_at = VehiclePhase.FAILED, None, None
-            v.reason = f"disarmed during {was} (crash or motor failure)"
+            v.reason, v.fell = f"disarmed during {was} (crash or motor failure)", True
             text = state.last_statustext.text if state.last_statustext is not None else ""
             return [Notice(v.sysid, f"vehicle {v.sysid} disarmed in the air during {was}"
                                     + (f" ('{text}')" if text else "")
@@ -1444,8 +1503,9 @@ class ShowSequence:
         """The closest landing candidate (plan landing spots, then takeoff slots) clear of
         every drone down and every spot someone else lands on."""
         candidates = landing_candidates(self.plan)
-        blocked = np.array(self.down_positions(v) + self.reserved_spots({v.sysid}))
-        free = candidates[free_spots(self.plan, candidates, blocked.reshape(-1, 3))]
+        down = np.array(self.down_positions(v)).reshape(-1, 3)
+        reserved = np.array(self.reserved_spots({v.sysid})).reshape(-1, 3)
+        free = candidates[free_spots(self.plan, candidates, reserved, down)]
         if not len(free):
             return None
         best = free[np.argmin(np.linalg.norm(free - self._landing_point(v), axis=1))]

@@ -94,6 +94,7 @@ class ShowClock:
         self.default_ramp_s = ramp_s
         self._segments: list[_Segment] = []
         self._times: list[float] = []
+        self._revision = 0
         self.holds: set[str] = set()
         """Why the clock is held (empty: it runs, or ramps up to running)."""
 
@@ -131,6 +132,12 @@ class ShowClock:
 
     def show_time(self, now: float) -> float:
         return self.at(now).show_time
+
+    @property
+    def revision(self) -> int:
+        """How many times the clock's course was set (start, hold, release, put back):
+        a change says that what was predicted on it no longer holds."""
+        return self._revision
 
     @property
     def held(self) -> bool:
@@ -209,6 +216,7 @@ class ShowClock:
     def _push(self, seg: _Segment) -> None:
         if self._times and seg.t < self._times[-1]:
             raise ValueError("the show clock's time went backwards")
+        self._revision += 1
         if self._times and seg.t == self._times[-1]:
             self._segments[-1] = seg
             return

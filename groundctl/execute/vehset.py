@@ -4,7 +4,8 @@
 and enum values (pure); :func:`fence_vertices` turns the show's geofence, grown
 by ``fence_margin``, into the latitude/longitude polygon the vehicles get;
 :func:`enforce` reads every parameter, sets those that differ (when ``set`` allows),
-uploads the fence and returns each vehicle's problems as one line each:
+uploads the fence (under ``set = false`` downloads it instead and checks it is the
+show's) and returns each vehicle's problems as one line each:
 ``FENCE_ACTION is 0, show needs 2 (land); not allowed to change it ([vehicle] set = false)``.
 
 The mapping, from ArduCopter 4.x (``AC_Fence``, ``Copter::failsafe_gcs``) and
@@ -35,7 +36,13 @@ import numpy as np
 
 from groundctl.clock import Clock
 from groundctl.execute.frames import show_to_geodetic
-from groundctl.link.fence import FenceUpload, upload_fence
+from groundctl.link.fence import (
+    FenceDownload,
+    FenceUpload,
+    download_fence,
+    inclusion_items,
+    upload_fence,
+)
 from groundctl.link.flavours import Flavour
 from groundctl.link.fleet import FleetLink
 from groundctl.link.params import ParamClient, run_params, same_value
@@ -157,17 +164,43 @@ class VehicleOutcome:
     """The fence was uploaded and accepted."""
 
 
+async def _fence_matches(link: FleetLink, clock: Clock, sysid: int,
+                         vertices: tuple[tuple[float, float], ...],
+                         problems: list[str]) -> bool:
+    """Under ``set = false`` the fence is not uploaded but checked: the vehicle's own (a
+    download) must be the show's, item for item; what differs is one problem line."""
+    download = FenceDownload(sysid)
+    if not await download_fence(link, download, clock):
+        problems.append(download.error or "fence download failed")
+        return False
+    held = tuple(download.items or ())
+    if held == inclusion_items(vertices):
+        return True
+    have = f"its own fence has {len(held)} items" if held else "it has no fence"
+    if held and len(held) == len(vertices):
+        have += " at other places"
+    problems.append(f"fence: {have}, show needs its {len(vertices)}-vertex inclusion "
+                    "polygon; not allowed to change it ([vehicle] set = false)")
+    return False
+
+
 async def _one(link: FleetLink, clock: Clock, sysid: int, flavour: Flavour,
                settings: VehicleSettings, origin: GeoOrigin, limits: Limits,
                deadline_s: float) -> VehicleOutcome:
     out = VehicleOutcome([], [])
-    if settings.fence and limits.geofence is not None:
-        upload = FenceUpload(sysid, fence_vertices(origin, limits.geofence,
-                                                   settings.fence_margin))
-        # Bounded by itself: each message is sent at most `attempts` times.
-        out.fence = await upload_fence(link, upload, clock)
-        if not out.fence:
-            out.problems.append(upload.error or "fence upload failed")
+    if settings.fence and limits.geofence is None:
+        out.problems.append("[vehicle] fence = true, but the plan has no geofence to fence "
+                            "the vehicle in")
+    elif settings.fence and limits.geofence is not None:
+        vertices = fence_vertices(origin, limits.geofence, settings.fence_margin)
+        if settings.set:
+            upload = FenceUpload(sysid, vertices)
+            # Bounded by itself: each message is sent at most `attempts` times.
+            out.fence = await upload_fence(link, upload, clock)
+            if not out.fence:
+                out.problems.append(upload.error or "fence upload failed")
+        else:
+            out.fence = await _fence_matches(link, clock, sysid, vertices, out.problems)
     targets = targets_for(settings, flavour, limits)
     if not targets:
         return out

@@ -38,7 +38,7 @@ path, and a notice says so.  Nothing here blocks: solves run in :mod:`groundctl.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -354,6 +354,16 @@ class Replanner:
                 neighbours=np.stack(others) if others else None,
                 neighbour_ids=np.array(other_ids, dtype=np.intp) if others else None))
         return requests
+
+    def weakest(self, sysids: Iterable[int]) -> tuple[float, int | None]:
+        """The least thrust authority among ``sysids`` and whose it is ((1.0, None): none
+        of them is known to be weak)."""
+        out: tuple[float, int | None] = (1.0, None)
+        for sysid in sysids:
+            a = self._weak.get(sysid, 1.0)
+            if a < out[0]:
+                out = (a, sysid)
+        return out
 
     @staticmethod
     def off_report() -> dict[str, Any]:

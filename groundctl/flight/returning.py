@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from scipy.optimize import linear_sum_assignment
 
 from groundctl.errors import PlanningError
+from groundctl.execute.authority import scaled_limits
 from groundctl.execute.leaving import (
     Leave,
     free_spots,
@@ -45,16 +46,27 @@ TRACKING_MARGIN_M = 0.25
 
 def plan_return(plan: Plan, tracks: list[int], start: NDArray[np.float64],
                 static: NDArray[np.float64] | None = None,
-                goals: NDArray[np.float64] | None = None) -> Trajectories:
+                goals: NDArray[np.float64] | None = None,
+                authority: float = 1.0) -> Trajectories:
     """Trajectories (one row per entry of ``tracks``) from ``start`` to their landing points
     (``goals``, (n, 3), when a return re-assigned them; else the plan's), around the
     fixed points ``static`` (k, 3): drones that are down or descending.
 
+    ``authority`` in (0, 1] is the weakest returning vehicle's (a weak motor, a tired
+    battery: :mod:`groundctl.execute.authority`): the whole return is planned within the
+    limits scaled by it, and given the time that takes, so every vehicle can fly it as
+    planned.  A return the weak vehicle cannot keep up with is a near miss: its
+    neighbours fly on while it lags, and the MPC that would catch it is itself late on a
+    ground station busy enough to be landing its show (1.38 m at a 1.5 m limit, seen).
+
     Raises the planner's InfeasibleTransition / PlanningError if it cannot.
     """
+    if not 0.0 < authority <= 1.0:
+        raise ValueError(f"authority must be in (0, 1], got {authority!r}")
     start = np.asarray(start, dtype=float)
     goal = plan.landing_hover[tracks] if goals is None else np.asarray(goals, dtype=float)
-    duration = return_duration(plan, start, goal)
+    limits = plan.limits if authority >= 1.0 else scaled_limits(plan.limits, authority)
+    duration = return_duration(plan, start, goal, limits)
     # The planner's own tracking margin: per pair, as far as its two ends allow.
     settings = PlannerSettings(tracking_margin=TRACKING_MARGIN_M)
     if static is not None and len(static):
@@ -63,11 +75,11 @@ def plan_return(plan: Plan, tracks: list[int], start: NDArray[np.float64],
         def still(times: NDArray[np.float64]) -> NDArray[np.float64]:
             return np.repeat(points[:, None, :], len(times), axis=1)
 
-        return plan_among(0, "return", start, goal, duration, plan.limits, settings,
+        return plan_among(0, "return", start, goal, duration, limits, settings,
                           still).trajectories
     # Flown unrehearsed: lines that keep only the bare limit are no return (the show's
     # own path home is kept instead, return_failed).
-    result = plan_quad_transition(0, "return", start, goal, duration, plan.limits, settings,
+    result = plan_quad_transition(0, "return", start, goal, duration, limits, settings,
                                   lines_at_limit=False)
     return result.trajectories
 
@@ -82,13 +94,13 @@ def assign_landing(plan: Plan, tracks: list[int], start: NDArray[np.float64],
     down or descending off their spots, ``reserved`` the points others are landing on.
     Raises PlanningError if there are fewer free spots than drones."""
     own = plan.landing_hover[np.asarray(tracks, dtype=np.intp)]
-    blocked = np.concatenate([np.asarray(down, dtype=float).reshape(-1, 3),
-                              np.zeros((0, 3)) if reserved is None
-                              else np.asarray(reserved, dtype=float).reshape(-1, 3)])
-    if len(free_spots(plan, own, blocked)) == len(own):
+    fallen = np.asarray(down, dtype=float).reshape(-1, 3)
+    blocked = np.zeros((0, 3)) if reserved is None \
+        else np.asarray(reserved, dtype=float).reshape(-1, 3)
+    if len(free_spots(plan, own, blocked, fallen)) == len(own):
         return own
     candidates = landing_candidates(plan)
-    free = free_spots(plan, candidates, blocked)
+    free = free_spots(plan, candidates, blocked, fallen)
     if len(free) < len(own):
         raise PlanningError(0, "no landing spots",
                             f"{len(own)} drones to land but only {len(free)} landing spots "

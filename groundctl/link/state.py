@@ -29,7 +29,7 @@ from groundctl.link.trust import (
     CONFIRM_PACKETS,
     CONFIRM_PACKETS_IN_STEP,
     DISARM_BALLISTIC_S,
-    DISARM_CLIMB_MS,
+    DISARM_FALL_MS,
     EXPECT_S,
     GROUND_FRESH_S,
     GROUND_HEIGHT_M,
@@ -384,7 +384,11 @@ def _heartbeat(state: VehicleState, msg: Any, now: float, changes: list[StateCha
             _conflict(state, f"one HEARTBEAT said {said.describe()}, the next "
                              f"{claim.describe()} again", changes)
         return
-    if trust.heartbeat.offer(claim, now, operator.eq, state.packets):
+    if _disarm_in_the_air(state, claim, believed, now) and _holds_height(state, now):
+        # Not confirmed by a HEARTBEAT alone: wait for one that finds it falling or down
+        # (and _global_position refutes it if the vehicle holds its height meanwhile).
+        trust.heartbeat.note(claim, now, operator.eq, state.packets)
+    elif trust.heartbeat.offer(claim, now, operator.eq, state.packets):
         trust.quick = None
         _believe_heartbeat(state, claim, msg.type, msg.system_status, changes)
     elif (trust.quick is None or trust.quick.claim != claim) \
@@ -424,6 +428,37 @@ def _believable_without_second(state: VehicleState, claim: HeartbeatClaim,
     return True
 
 
+def _disarm_in_the_air(state: VehicleState, claim: HeartbeatClaim,
+                       believed: HeartbeatClaim, now: float) -> bool:
+    """``claim`` disarms a vehicle believed armed, and nobody asked for it."""
+    return believed.armed and not claim.armed \
+        and not state.trust.expected.arming(False, now)
+
+
+def _holds_height(state: VehicleState, now: float) -> bool:
+    """The vehicle's own believed global position, fresh, says it is in the air and
+    neither falls nor stands on the ground: not what a disarmed multirotor does.  (Only
+    the global position has a height above home; with none fresh there is nothing to
+    tell by.)"""
+    trust = state.trust
+    gp = state.global_position
+    if gp is None or trust.global_at is None or now - trust.global_at > GROUND_FRESH_S:
+        return False
+    return _in_the_air(state, gp.relative_alt_m, now) and gp.vel_ned[2] < DISARM_FALL_MS
+
+
+def _in_the_air(state: VehicleState, height_m: float, now: float) -> bool:
+    """Above the ground by ``height_m`` (above home) and not landed by its own report."""
+    return height_m > GROUND_HEIGHT_M and not _landed_by_report(state, now)
+
+
+def _landed_by_report(state: VehicleState, now: float) -> bool:
+    """Its own EXTENDED_SYS_STATE, believed and fresh, says it is on the ground."""
+    trust = state.trust
+    return (state.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND
+            and trust.landed_at is not None and now - trust.landed_at <= 2 * GROUND_FRESH_S)
+
+
 def _on_ground(state: VehicleState, now: float) -> bool:
     """The vehicle's own believed telemetry says it stands on the ground, now."""
     trust = state.trust
@@ -432,8 +467,7 @@ def _on_ground(state: VehicleState, now: float) -> bool:
             GROUND_FRESH_S and gp.relative_alt_m <= GROUND_HEIGHT_M \
             and abs(gp.vel_ned[2]) <= GROUND_SPEED_MS:
         return True
-    return (state.landed_state == mavlink.MAV_LANDED_STATE_ON_GROUND
-            and trust.landed_at is not None and now - trust.landed_at <= 2 * GROUND_FRESH_S)
+    return _landed_by_report(state, now)
 
 
 def _believe_heartbeat(state: VehicleState, claim: HeartbeatClaim, vehicle_type: int,
@@ -474,8 +508,8 @@ def _local_position(state: VehicleState, msg: Any, now: float, changes: list[Sta
         state.position_ned = s.pos
         state.velocity_ned = s.vel
         state.local_time_boot_ms = ms
-    if believed:
-        _after_motion(state, believed[-1].vel[2], now, changes)
+    if believed and trust.origin is not None:
+        _settle_origin(state, changes)
 
 
 def _global_position(
@@ -516,19 +550,15 @@ def _global_position(
     # Measure the next samples around this one (metres per degree change with latitude).
     trust.global_ref = (gp.lat_deg, gp.lon_deg, *metres_per_degree(gp.lat_deg))
     trust.global_.ref = replace(last, pos=(0.0, 0.0, -gp.alt_m))
-    _after_motion(state, gp.vel_ned[2], now, changes)
-
-
-def _after_motion(state: VehicleState, vz_down: float, now: float,
-                  changes: list[StateChange]) -> None:
-    """A believed position sample: refute a pending disarm of a climbing vehicle, and
-    check a pending EKF origin against the positions."""
-    trust = state.trust
-    if state.armed and -vz_down > DISARM_CLIMB_MS and any(
-            isinstance(p.value, HeartbeatClaim) and not p.value.armed
-            and now - p.at >= DISARM_BALLISTIC_S for p in trust.heartbeat.items):
-        _conflict(state, f"HEARTBEAT said disarmed while it climbs at {-vz_down:.1f} m/s",
-                  changes, ("HEARTBEAT",))
+    vz_down = gp.vel_ned[2]
+    if state.armed and vz_down < DISARM_FALL_MS and _in_the_air(state, gp.relative_alt_m, now) \
+            and any(isinstance(p.value, HeartbeatClaim) and not p.value.armed
+                    and now - p.at >= DISARM_BALLISTIC_S for p in trust.heartbeat.items):
+        # A disarmed multirotor falls: this one holds its height in the air.
+        motion = f"climbs at {-vz_down:.1f} m/s" if vz_down < 0.0 else \
+            f"descends at {vz_down:.1f} m/s"
+        _conflict(state, f"HEARTBEAT said disarmed while it {motion}, "
+                         f"{gp.relative_alt_m:.1f} m up", changes, ("HEARTBEAT",))
     if trust.origin is not None:
         _settle_origin(state, changes)
 

@@ -10,6 +10,9 @@ import asyncio
 import contextlib
 import logging
 import socket
+import struct
+import sys
+import time
 from collections.abc import Callable
 
 from groundctl.errors import LinkError
@@ -28,6 +31,16 @@ Address = tuple[str, int]
 #: to empty a backlog at once, bounded so a flood cannot starve the event loop.
 MAX_READS = 4096
 
+#: Linux's SO_TIMESTAMPNS (the kernel stamps each datagram as it arrives, CLOCK_REALTIME
+#: in a struct timespec); Python's socket module does not name it.
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35 if sys.platform.startswith("linux")
+                         else None)
+_TIMESPEC = struct.Struct("@qq")
+_ANCILLARY = socket.CMSG_SPACE(_TIMESPEC.size)
+#: An arrival stamp further back than this is not believed (the wall clock was stepped):
+#: the datagram is taken as arrived when it is read, s.
+MAX_AGE_S = 2.0
+
 
 class UdpTransport:
     """One bound, non-blocking UDP socket read straight from the event loop's selector.
@@ -39,12 +52,18 @@ class UdpTransport:
     do so itself before it decides anything.
     """
 
-    def __init__(self, on_datagram: Callable[[bytes, Address], None],
+    def __init__(self, on_datagram: Callable[[bytes, Address, float], None],
                  on_error: Callable[[Exception], None] | None = None) -> None:
+        """``on_datagram(data, address, age_s)``: ``age_s`` is how long (wall seconds) the
+        datagram waited in the socket before it was read, from the kernel's arrival stamp
+        (0 where the kernel gives none).  On a busy ground station that wait is ours, not
+        the link's: telemetry is dated, and a TIMESYNC round trip measured, from when the
+        datagram arrived."""
         self._on_datagram = on_datagram
         self._on_error = on_error or (lambda exc: None)
         self._sock: socket.socket | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._stamped = False
         self.send_errors = 0
 
     async def open(self, listen: Address) -> Address:
@@ -57,6 +76,10 @@ class UdpTransport:
             for opt in (socket.SO_RCVBUF, socket.SO_SNDBUF):
                 with contextlib.suppress(OSError):
                     sock.setsockopt(socket.SOL_SOCKET, opt, SOCKET_BUFFER_BYTES)
+            if SO_TIMESTAMPNS is not None:
+                with contextlib.suppress(OSError):
+                    sock.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)
+                    self._stamped = True
             sock.bind(listen)
         except OSError as exc:
             sock.close()
@@ -72,8 +95,13 @@ class UdpTransport:
         sock = self._sock
         count = 0
         while sock is not None and count < MAX_READS:
+            age = 0.0
             try:
-                data, addr = sock.recvfrom(65535)
+                if self._stamped:
+                    data, ancillary, _, addr = sock.recvmsg(65535, _ANCILLARY)
+                    age = _age(ancillary)
+                else:
+                    data, addr = sock.recvfrom(65535)
             except (BlockingIOError, InterruptedError):
                 break
             except ConnectionRefusedError as exc:
@@ -87,7 +115,7 @@ class UdpTransport:
                 break
             count += 1
             try:
-                self._on_datagram(data, (addr[0], addr[1]))
+                self._on_datagram(data, (addr[0], addr[1]), age)
             except Exception:  # a bug in a handler must not kill the socket
                 log.exception("error handling datagram from %s:%s", addr[0], addr[1])
             sock = self._sock  # the handler may have closed us
@@ -115,3 +143,14 @@ class UdpTransport:
                     self._loop.remove_reader(self._sock.fileno())
             self._sock.close()
             self._sock = None
+
+
+def _age(ancillary: list[tuple[int, int, bytes]]) -> float:
+    """Wall seconds since the kernel stamped the datagram (0 without a believable stamp)."""
+    for level, kind, data in ancillary:
+        if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and \
+                len(data) >= _TIMESPEC.size:
+            sec, nsec = _TIMESPEC.unpack_from(data)
+            age = time.time() - (sec + nsec * 1e-9)
+            return age if 0.0 < age <= MAX_AGE_S else 0.0
+    return 0.0

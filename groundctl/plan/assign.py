@@ -8,6 +8,8 @@ the collision-avoidance step to fix (Turpin, Michael, Kumar: CAPT).
 
 from __future__ import annotations
 
+import hashlib
+from collections import OrderedDict
 from collections.abc import Sequence
 
 import numpy as np
@@ -17,6 +19,11 @@ from scipy.spatial.distance import cdist
 
 #: Fleets above this size get their cost matrix reduced before the solver (see `assign`).
 REDUCE_ABOVE = 1000
+#: Assignments of at least this many drones are remembered (see `assign`), and how many.
+REMEMBER_FROM = 500
+REMEMBERED = 8
+
+_remembered: OrderedDict[bytes, NDArray[np.intp]] = OrderedDict()
 
 
 def assign(start: NDArray[np.float64], slots: NDArray[np.float64]) -> NDArray[np.intp]:
@@ -33,6 +40,20 @@ def assign(start: NDArray[np.float64], slots: NDArray[np.float64]) -> NDArray[np
         raise ValueError(
             f"`slots` has {slots.shape[0]} points for {start.shape[0]} drones"
         )
+    key = None
+    if start.shape[0] >= REMEMBER_FROM:
+        # The loader checks every transition's minimum time on the planner's own
+        # assignment, and the planner then assigns again: at 10,000 drones that is
+        # a minute and a half twice.  The same points give the same answer.
+        digest = hashlib.sha256()
+        for a in (start, slots):
+            digest.update(np.asarray(a.shape, dtype=np.int64).tobytes())
+            digest.update(np.ascontiguousarray(a).tobytes())
+        key = digest.digest()
+        known = _remembered.get(key)
+        if known is not None:
+            _remembered.move_to_end(key)
+            return known.copy()
     cost = cdist(start, slots, "sqeuclidean")
     if start.shape[0] > REDUCE_ABOVE:
         # Subtracting each row's minimum (and, when every slot is taken, each column's)
@@ -45,6 +66,10 @@ def assign(start: NDArray[np.float64], slots: NDArray[np.float64]) -> NDArray[np
     rows, cols = linear_sum_assignment(cost)
     goal = np.empty(start.shape[0], dtype=np.intp)
     goal[rows] = cols
+    if key is not None:
+        _remembered[key] = goal.copy()
+        while len(_remembered) > REMEMBERED:
+            _remembered.popitem(last=False)
     return goal
 
 

@@ -144,8 +144,14 @@ def _power_basis(tr: Trajectories, k: int, rows: NDArray[np.intp] | slice = slic
                  ) -> FloatArray:
     """(m, 4, 3) coefficients c0..c3 of p(s) = sum c_q s^q, s in [0, 1], on knot segment k."""
     h = tr.times[k + 1] - tr.times[k]
-    p0, p1 = tr.pos[rows, k], tr.pos[rows, k + 1]
-    m0, m1 = tr.vel[rows, k] * h, tr.vel[rows, k + 1] * h
+    return _hermite_power(tr.pos[rows, k], tr.pos[rows, k + 1], tr.vel[rows, k] * h,
+                          tr.vel[rows, k + 1] * h)
+
+
+def _hermite_power(p0: FloatArray, p1: FloatArray, m0: FloatArray, m1: FloatArray
+                   ) -> FloatArray:
+    """Power-basis coefficients (stacked on axis 1) of the cubic Hermite curves from p0 to
+    p1 with end tangents m0, m1 (velocities times the segment's length)."""
     return np.stack([p0, m0, 3 * (p1 - p0) - 2 * m0 - m1, 2 * (p0 - p1) + m0 + m1], axis=1)
 
 
@@ -160,10 +166,9 @@ def _bounding_spheres(coef: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 
 def _closest_on_segment(d: FloatArray, shared: bool = False, below: float = np.inf,
-                        tol: float = 0.0) -> tuple[FloatArray, FloatArray]:
+                        tol: float = CLOSEST_TOL) -> tuple[FloatArray, FloatArray]:
     """Min over s in [0, 1] of |d(s)| for relative cubics d (m, 4, 3), and where, to
-    within ``tol`` (default CLOSEST_TOL; branch and bound: certified, whatever the
-    number of dips).
+    within ``tol`` (branch and bound: certified, whatever the number of dips).
 
     ``shared``: only the smallest of all m minima is wanted (pieces that cannot beat
     the best of any pair are dropped; the others' values are then upper bounds).
@@ -176,7 +181,6 @@ def _closest_on_segment(d: FloatArray, shared: bool = False, below: float = np.i
     are upper bounds.  Pieces whose lower bound cannot beat the pair's best upper bound
     by CLOSEST_TOL are dropped, the others halved, until none is left."""
     m = len(d)
-    tol = tol or CLOSEST_TOL
     seeds = np.arange(SEED_PIECES) / SEED_PIECES
     pair = np.repeat(np.arange(m), SEED_PIECES)
     a = np.tile(seeds, m)
@@ -191,13 +195,11 @@ def _closest_on_segment(d: FloatArray, shared: bool = False, below: float = np.i
         c1 = ww * (c[:, 1] + aa * (2 * c[:, 2] + 3 * aa * c[:, 3]))
         c2 = ww * ww * (c[:, 2] + 3 * aa * c[:, 3])
         c3 = ww * ww * ww * c[:, 3]
-        b = np.stack([c0, c0 + c1 / 3, c0 + 2 * c1 / 3 + c2 / 3, c0 + c1 + c2 + c3], axis=1)
-        centre = b.mean(axis=1)
-        lower = np.linalg.norm(centre, axis=1) - np.linalg.norm(
-            b - centre[:, None], axis=2).max(axis=1)
+        centre, radius = _bounding_spheres(np.stack([c0, c1, c2, c3], axis=1))
+        lower = np.linalg.norm(centre, axis=1) - radius
         mid = c0 + c1 / 2 + c2 / 4 + c3 / 8
-        ends = np.stack([np.linalg.norm(b[:, 0], axis=1), np.linalg.norm(mid, axis=1),
-                         np.linalg.norm(b[:, 3], axis=1)], axis=1)
+        ends = np.stack([np.linalg.norm(c0, axis=1), np.linalg.norm(mid, axis=1),
+                         np.linalg.norm(c0 + c1 + c2 + c3, axis=1)], axis=1)
         where = np.argmin(ends, axis=1)
         upper = ends[np.arange(len(a)), where]
         at = a + w * where / 2.0
@@ -338,10 +340,9 @@ def _dense_pass(tr: Trajectories, geofence: NDArray[np.float64] | None = None) -
         # ends, each from the segment's own cubic (a sample at a knot would read the next
         # segment's).
         h = np.diff(tr.times)[None, :, None]
-        p0, p1 = tr.pos[rows, :-1], tr.pos[rows, 1:]
-        m0, m1 = tr.vel[rows, :-1] * h, tr.vel[rows, 1:] * h
-        c2 = 3 * (p1 - p0) - 2 * m0 - m1
-        c3 = 2 * (p0 - p1) + m0 + m1
+        coef = _hermite_power(tr.pos[rows, :-1], tr.pos[rows, 1:], tr.vel[rows, :-1] * h,
+                              tr.vel[rows, 1:] * h)  # (m, 4, segments, 3)
+        c2, c3 = coef[:, 2], coef[:, 3]
         a_ends = np.maximum(np.linalg.norm(2 * c2, axis=2),
                             np.linalg.norm(2 * c2 + 6 * c3, axis=2)) / h[..., 0] ** 2
         accel = np.maximum(accel, a_ends.max(axis=0))

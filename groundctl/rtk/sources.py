@@ -6,7 +6,10 @@
 - ``tcp:HOST:PORT`` or ``HOST:PORT`` — a TCP server sending raw RTCM3;
 - ``ntrip://[USER:PASS@]HOST[:PORT]/MOUNT`` — an NTRIP v1/v2 caster (GET /MOUNT with
   Basic auth and ``Ntrip-Version: Ntrip/2.0``; "ICY 200 OK" and HTTP 200 accepted,
-  chunked transfer decoded);
+  chunked transfer decoded).  Given the field's position, the client tells the caster
+  where it is with an NMEA GGA sentence (the ``Ntrip-GGA`` header, then in the stream
+  once connected and every ``GGA_PERIOD_S``): network (VRS) mount points send nothing
+  until they hear one;
 - anything else — a file of RTCM3 frames, replayed one epoch per ``1/epoch_hz``
   seconds of the clock, looping (rehearsal and tests).
 
@@ -19,8 +22,9 @@ from __future__ import annotations
 import asyncio
 import base64
 import re
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
@@ -55,6 +59,33 @@ class SourceSpec:
     baud: int = 0
     user: str | None = None
     password: str | None = None
+
+
+#: Seconds between the GGA sentences an NTRIP client sends (casters time a silent
+#: network rover out after about a minute).
+GGA_PERIOD_S = 10.0
+
+
+def gga_sentence(lat: float, lon: float, alt_m: float, utc: datetime) -> str:
+    """An NMEA 0183 GGA sentence (``$GPGGA,...*CS``, with CR LF) for a rover at ``lat``,
+    ``lon`` (degrees) and ``alt_m`` (m above mean sea level) at ``utc``: fix quality 1,
+    12 satellites, HDOP 1.0, the geoid separation unknown (0)."""
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 180.0):
+        raise ValueError(f"no such position: {lat}, {lon}")
+
+    def dm(value: float, width: int) -> str:
+        deg = int(abs(value))
+        minutes = (abs(value) - deg) * 60.0
+        if round(minutes, 5) >= 60.0:
+            deg, minutes = deg + 1, 0.0
+        return f"{deg:0{width}d}{minutes:08.5f}"
+    body = (f"GPGGA,{utc:%H%M%S}.{utc.microsecond // 10000:02d},{dm(lat, 2)},"
+            f"{'N' if lat >= 0 else 'S'},{dm(lon, 3)},{'E' if lon >= 0 else 'W'},1,12,1.0,"
+            f"{alt_m:.1f},M,0.0,M,,")
+    checksum = 0
+    for byte in body.encode("ascii"):
+        checksum ^= byte
+    return f"${body}*{checksum:02X}\r\n"
 
 
 _HOSTPORT = re.compile(r"^(?:tcp:)?(?P<host>[A-Za-z0-9.\-]+|\[[0-9a-fA-F:]+\]):(?P<port>\d+)$")
@@ -114,10 +145,18 @@ class RtkSource:
     """An async iterator of byte chunks from one :class:`SourceSpec`."""
 
     def __init__(self, spec: SourceSpec, clock: Clock, *, epoch_hz: float = 1.0,
-                 connect_timeout_s: float = 10.0) -> None:
+                 connect_timeout_s: float = 10.0,
+                 position: tuple[float, float, float] | None = None,
+                 utc: Callable[[], datetime] = lambda: datetime.now(UTC)) -> None:
+        """``position`` (lat, lon degrees, alt m) is where the rovers are, for an NTRIP
+        caster's GGA (None: none is sent); ``utc`` tells the time of day for it."""
         if not epoch_hz > 0:
             raise ValueError(f"`epoch_hz` must be positive, got {epoch_hz}")
         self.spec = spec
+        self.position = position
+        self.utc = utc
+        self.gga_sent = 0
+        """GGA sentences written to an NTRIP caster (the header's included)."""
         self.clock = clock
         self.epoch_hz = epoch_hz
         self.connect_timeout_s = connect_timeout_s
@@ -169,6 +208,7 @@ class RtkSource:
     async def _ntrip(self) -> AsyncIterator[bytes]:
         spec = self.spec
         reader, writer = await self._open()
+        gga: asyncio.Task[None] | None = None
         try:
             lines = [f"GET /{spec.path} HTTP/1.1", f"Host: {spec.host}:{spec.port}",
                      "Ntrip-Version: Ntrip/2.0", "User-Agent: NTRIP groundctl/0.1",
@@ -176,6 +216,9 @@ class RtkSource:
             if spec.user is not None:
                 token = base64.b64encode(f"{spec.user}:{spec.password or ''}".encode()).decode()
                 lines.append(f"Authorization: Basic {token}")
+            if self.position is not None:
+                lines.append(f"Ntrip-GGA: {self._gga().strip()}")
+                self.gga_sent += 1
             writer.write(("\r\n".join(lines) + "\r\n\r\n").encode())
             await writer.drain()
             status = (await asyncio.wait_for(reader.readline(), self.connect_timeout_s)
@@ -196,6 +239,8 @@ class RtkSource:
                 why = "source table (no such mount point)" if "SOURCETABLE" in status \
                     else repr(status[:80])
                 raise RtkSourceError(spec.text, f"the caster refused: {why}")
+            if self.position is not None:
+                gga = asyncio.create_task(self._send_gga(writer))
             if chunked:
                 while True:
                     size_line = (await reader.readline()).decode("latin-1").strip()
@@ -208,7 +253,25 @@ class RtkSource:
                 while data := await reader.read(4096):
                     yield data
         finally:
+            if gga is not None:
+                gga.cancel()
             writer.close()
+
+    def _gga(self) -> str:
+        assert self.position is not None
+        return gga_sentence(*self.position, self.utc())
+
+    async def _send_gga(self, writer: asyncio.StreamWriter) -> None:
+        """Once connected (NTRIP v1 casters read it from the stream, not a header), then
+        every GGA_PERIOD_S of the clock, until the stream ends."""
+        try:
+            while not writer.is_closing():
+                writer.write(self._gga().encode("ascii"))
+                self.gga_sent += 1
+                await writer.drain()
+                await asyncio.sleep(self.clock.wall_interval(GGA_PERIOD_S))
+        except (ConnectionError, OSError):
+            return  # the reading side sees the stream end and says so
 
     async def _serial(self) -> AsyncIterator[bytes]:
         try:

@@ -170,6 +170,27 @@ def load_vehicle_settings(path: str | Path) -> VehicleSettings | None:
     return read_vehicle_settings(data, str(p))
 
 
+def load_vehicle_file(path: str | Path) -> VehicleSettings:
+    """The ``[vehicle]`` table of any TOML file (``--vehicle FILE``: a show file, or one
+    with only that table); its fence is the flown plan's geofence."""
+    p = Path(path)
+    try:
+        data = tomllib.loads(read_regular_file(p, MAX_SHOW_FILE_BYTES).decode("utf-8"))
+    except FileProblem as exc:
+        raise ShowFileError(p, "", str(exc)) from None
+    except UnicodeDecodeError:
+        raise ShowFileError(p, "", "not UTF-8 text (a [vehicle] table is TOML)") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise _syntax_error(p, exc) from None
+    except RecursionError:
+        raise ShowFileError(p, "", "TOML syntax error: arrays or inline tables nested too "
+                                   "deeply") from None
+    if "vehicle" not in data:
+        raise ShowFileError(p, "", "no [vehicle] table (--vehicle takes the vehicles' own "
+                                   "settings from one)")
+    return _read_vehicle(_table(data, "vehicle", str(p)), None)
+
+
 def _syntax_error(path: Path, exc: tomllib.TOMLDecodeError) -> ShowFileError:
     # tomllib puts the position in the message: "Invalid value (at line 3, column 9)".
     text = str(exc)
@@ -305,11 +326,13 @@ def _raw_params(t: Table, key: str, value: object) -> tuple[tuple[str, float], .
     return tuple(out)
 
 
-def _read_vehicle(t: Table, limits: Limits) -> VehicleSettings:
+def _read_vehicle(t: Table, limits: Limits | None) -> VehicleSettings:
+    """``limits`` None: the table comes without its show (``--vehicle FILE``), and the
+    fence is checked against the flown plan's geofence before arming."""
     t.check_keys(_VEHICLE_KEYS)
     d = VehicleSettings()
     fence = _flag(t, "fence", d.fence)
-    if fence and limits.geofence is None:
+    if fence and limits is not None and limits.geofence is None:
         raise t.error("'fence' = true needs a [limits] geofence to upload; add "
                       "geofence = [[x, y], ...] or set fence = false")
 
