@@ -2,7 +2,8 @@
 
     .venv/bin/python benchmarks/bench_flight.py demo --speed 2          # both flavours
     .venv/bin/python benchmarks/bench_flight.py load --sizes 100 200 254 [--console off on]
-    .venv/bin/python benchmarks/bench_flight.py overload [--speeds 2 4 6] [--hog-speeds 2]
+    .venv/bin/python benchmarks/bench_flight.py overload [--speeds 2 4] [--hog-speeds 2] \
+        [--pace off on]
     .venv/bin/python benchmarks/bench_flight.py tracking [--shows quick demo] [--leads auto 0 150]
 
 ``demo`` flies shows/demo.toml (64 drones, ~130 s) through ``groundctl
@@ -225,8 +226,11 @@ def _hog() -> None:
         pass
 
 
-def bench_overload(speeds: list[float], hog_speeds: list[float], flavour: Flavour) -> None:
-    """The demo dry-run pushed: faster than real time, and beside two busy processes."""
+def bench_overload(speeds: list[float], hog_speeds: list[float], flavour: Flavour,
+                   paces: list[str]) -> None:
+    """The demo dry-run pushed: faster than real time, and beside two busy processes;
+    unpaced (the ground station's own overload, as with real vehicles) and/or paced
+    (the dry-run's clock waits for whichever loop is late)."""
     import multiprocessing as mp
     import tempfile
 
@@ -236,10 +240,12 @@ def bench_overload(speeds: list[float], hog_speeds: list[float], flavour: Flavou
     plan = load_or_plan(BUNDLED_DEMO, quiet=True)
     print(f"overload: demo ({plan.drones} drones, {plan.duration:.0f} s), {flavour}; "
           f"{mp.cpu_count()} cores")
-    print(f"{'run':<16} {'safe':>5} {'true sep m':>10} {'overruns':>8} {'ticks':>6} "
-          f"{'freezes':>7} {'lost':>5} {'lines':>5} {'p99 ms':>7} {'wall s':>6}  holds")
-    runs = [(speed, False) for speed in speeds] + [(speed, True) for speed in hog_speeds]
-    for speed, hog in runs:
+    print(f"{'run':<23} {'safe':>5} {'true sep m':>10} {'overruns':>8} {'ticks':>6} "
+          f"{'freezes':>7} {'lost':>5} {'lines':>5} {'p99 ms':>7} {'wall s':>6} "
+          f"{'kept':>5}  holds")
+    runs = [(speed, False, pace) for pace in paces for speed in speeds] \
+        + [(speed, True, pace) for pace in paces for speed in hog_speeds]
+    for speed, hog, pace in runs:
         hogs = [mp.Process(target=_hog, daemon=True) for _ in range(2)] if hog else []
         for h in hogs:
             h.start()
@@ -247,7 +253,8 @@ def bench_overload(speeds: list[float], hog_speeds: list[float], flavour: Flavou
         try:
             with tempfile.TemporaryDirectory() as tmp:
                 t = time.perf_counter()
-                options = DryRunOptions(flavour=flavour, speed=speed, record_dir=Path(tmp))
+                options = DryRunOptions(flavour=flavour, speed=speed, record_dir=Path(tmp),
+                                        paced=pace == "on")
                 result = asyncio.run(fly_dry_run(plan, options, notify=lines.append))
                 wall = time.perf_counter() - t
                 events = list(read_events(Path(tmp) / "events.jsonl"))
@@ -260,10 +267,11 @@ def bench_overload(speeds: list[float], hog_speeds: list[float], flavour: Flavou
         freezes = sum(1 for x in held if x in ("stall", "overload", "silence"))
         lost = sum(1 for e in events if e["event"] == "vehicle_lost")
         lat = r["setpoint_lateness_ms"] or {}
-        name = f"x{speed:g}" + (" + 2 hogs" if hog else "")
-        print(f"{name:<16} {r['safe']!s:>5} {r.get('true_min_separation_m')!s:>10} "
+        name = f"x{speed:g}" + (" + 2 hogs" if hog else "") + (" paced" if pace == "on" else "")
+        kept = r.get("pacing", {}).get("effective_speed")
+        print(f"{name:<23} {r['safe']!s:>5} {r.get('true_min_separation_m')!s:>10} "
               f"{lat.get('overruns')!s:>8} {lat.get('ticks')!s:>6} {freezes:>7} {lost:>5} "
-              f"{len(lines):>5} {lat.get('p99')!s:>7} {wall:>6.0f}  "
+              f"{len(lines):>5} {lat.get('p99')!s:>7} {wall:>6.0f} {kept!s:>5}  "
               f"{','.join(sorted(set(held))) or '-'}", flush=True)
         if r["unsafe_reasons"]:
             print("   ", "; ".join(r["unsafe_reasons"]))
@@ -286,6 +294,10 @@ def main() -> None:
     o.add_argument("--hog-speeds", type=float, nargs="*", default=[2.0],
                    help="speeds flown beside two busy processes (a CPU hog on both cores)")
     o.add_argument("--autopilot", choices=["ardupilot", "px4"], default="ardupilot")
+    o.add_argument("--pace", nargs="+", choices=["off", "on"], default=["off"],
+                   help="off: the clock runs at --speed whatever the machine keeps up with "
+                        "(the ground station's own overload); on: the dry-run's default, "
+                        "the clock waits for a late loop")
     tr = sub.add_parser("tracking")
     tr.add_argument("--shows", nargs="+", default=["quick", "demo"])
     tr.add_argument("--leads", nargs="+", default=["auto", "0", "150"])
@@ -293,7 +305,7 @@ def main() -> None:
     tr.add_argument("--autopilot", choices=["ardupilot", "px4", "both"], default="both")
     args = parser.parse_args()
     if args.what == "overload":
-        bench_overload(args.speeds, args.hog_speeds, Flavour(args.autopilot))
+        bench_overload(args.speeds, args.hog_speeds, Flavour(args.autopilot), args.pace)
     elif args.what == "tracking":
         flavours = list(Flavour) if args.autopilot == "both" else [Flavour(args.autopilot)]
         bench_tracking(args.shows, args.leads, args.speed, flavours)

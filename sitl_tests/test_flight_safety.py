@@ -42,7 +42,9 @@ def _assert_safe(report: dict, drones: int = 9) -> None:
 
 def _block_loop(runner: ShowRunner, seconds: float) -> None:
     """Stall the runner's event loop for ``seconds`` of its clock (as a busy machine or a
-    blocking call would): nothing of ours runs meanwhile, the vehicles fly on."""
+    blocking call would): nothing of ours runs meanwhile, the vehicles fly on.  Only in a
+    dry-run with ``paced=False``: a paced clock would wait for the stalled loop, as it
+    does for one a busy machine starves."""
     time.sleep(runner.clock.wall_interval(seconds))
 
 
@@ -52,13 +54,15 @@ def test_a_stall_of_the_ground_station_holds_the_show_and_blames_no_vehicle(
         await until(runner, lambda: show_time(runner) > 12.0)  # mid-transition
         _block_loop(runner, 1.5)
 
-    result = dry_run(tmp_path, during=stall)
+    result = dry_run(tmp_path, during=stall, paced=False)
     _assert_safe(result.report)
     assert _events(tmp_path, "vehicle_lost") == []
     assert _events(tmp_path, "vehicle_late") == []
-    held = _events(tmp_path, "show_held")
-    assert [e["reason"] for e in held][:1] == ["stall"]
-    assert [e["reason"] for e in _events(tmp_path, "show_released")][:1] == ["stall"]
+    # Held for the stall, and for nothing that blames a vehicle (a busy machine may add
+    # holds of its own for overload: the ground station's trouble too).
+    held = {e["reason"] for e in _events(tmp_path, "show_held")}
+    assert "stall" in held and held <= {"stall", "overload"}, held
+    assert "stall" in {e["reason"] for e in _events(tmp_path, "show_released")}
     assert result.report["max_tracking_error_m"] < 1.0
 
 
@@ -75,7 +79,7 @@ def test_a_loop_that_stalls_tick_after_tick_still_streams_so_px4_stays_in_offboa
             _block_loop(runner, 0.4)  # over the 0.3 s stall threshold, under 1 s
             await asyncio.sleep(runner.clock.wall_interval(0.05))
 
-    result = dry_run(tmp_path, flavour=Flavour.PX4, during=starve)
+    result = dry_run(tmp_path, flavour=Flavour.PX4, during=starve, paced=False)
     _assert_safe(result.report)
     assert "stall" in {e["reason"] for e in _events(tmp_path, "show_held")}
     # Setpoints kept flowing to everyone (on the flight's clock; without streaming on a
@@ -114,7 +118,7 @@ def test_a_way_out_requested_while_the_ground_station_is_overloaded(tmp_path: Pa
         await until(runner, lambda: seq.vehicles[5].phase is VehiclePhase.LANDED, 200.0)
         seen["reason"] = seq.vehicles[5].reason
 
-    result = dry_run(tmp_path, during=overload)
+    result = dry_run(tmp_path, during=overload, paced=False)
     _assert_safe(result.report)
     assert "overload" in {e["reason"] for e in _events(tmp_path, "show_held")}
     assert _events(tmp_path, "vehicle_lost") == []

@@ -69,6 +69,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--profile", choices=PROFILE_NAMES, default=None,
                    help="the simulated vehicles' flight-dynamics calibration (default: "
                         "ardupilot-4.8 or px4-1.15)")
+    p.add_argument("--no-pace", dest="paced", action="store_false",
+                   help="let the simulated clock run at --speed whatever this machine keeps "
+                        "up with (by default it waits for a late simulator or ground-station "
+                        "loop, so a busy machine slows the rehearsal instead of flying it on "
+                        "stale setpoints): rehearses the ground station's own load")
     p.add_argument("--no-record", action="store_true", help="record nothing")
     add_plan_options(p)
     add_import_options(p)
@@ -92,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         ready_delay_s=args.ready_delay, runner=runner_config(args), record_dir=record,
         pushes=tuple(Push(s, t, v) for s, t, v in args.push),
         weak=tuple(w for group in args.weak for w in group), profile=args.profile,
-        rtk=args.rtk, gcs_sysid=args.gcs_sysid)
+        rtk=args.rtk, gcs_sysid=args.gcs_sysid, paced=args.paced)
     notify = say(args.quiet)
     interrupts = Interrupts(notify)
     live = start_live_rerun(args, plan, record)

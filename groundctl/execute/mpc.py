@@ -122,7 +122,9 @@ Solver settings
 first termination check, close to the previous solution, and the tick-to-tick
 error accumulates (a vehicle flying exactly on its path drifted 0.4 m off it);
 tighter tolerances instead cost 4-5 times the iterations.  ``max_iter`` 600 and
-``time_limit`` 15 ms per pass cap a solve; hitting either is a fallback.
+``time_limit`` 15 ms per pass cap a solve; hitting ``max_iter`` is a fallback, and
+so is ``time_limit`` after three resumes from the last iterate (the limit is wall
+time: a worker preempted on a busy machine hits it with its work not done).
 
 Linearisation passes
 --------------------
@@ -257,6 +259,11 @@ MPC_OSQP_SETTINGS: dict[str, float | int | bool] = {
     "check_dualgap": False,
     "warm_starting": True,
 }
+#: OSQP's status when a pass hits ``time_limit``.
+_TIME_LIMIT = "run time limit reached"
+#: Times a pass that hit ``time_limit`` is resumed from its last iterate (a busy machine
+#: preempts the worker mid-pass; the batch's own budget still bounds the whole).
+_TIME_LIMIT_RESUMES = 3
 #: OSQP outcomes whose iterate is worth verifying.
 _ACCEPTED_OSQP = ("solved", "solved inaccurate")
 #: Absolute tolerance on separation and altitude in the verifier, m.
@@ -269,6 +276,9 @@ RECOVERY_MPS = 0.75
 PATH_SETTLE_S = 1.0
 #: A weak vehicle's re-timed reference is solved again after this long, s.
 RETIME_EVERY_S = 1.0
+#: ... or at once when its path ahead has moved by more than this from the one it was
+#: re-timed from (the show clock held, a return or a way out replaced the path), m.
+RETIME_PATH_TOL_M = 0.05
 #: Below this a direction (speed, acceleration) is taken as undefined.
 _TINY = 1e-6
 
@@ -797,6 +807,8 @@ class MpcController:
         self._start_distance: FloatArray | None = None
         self._retimer: Retimer | None = None
         self._retimed: Retimed | None = None
+        self._retimed_from: tuple[float, float, FloatArray] | None = None
+        """The path ahead the reference was re-timed from: start, step, samples."""
         self._streamed: MpcRequest | None = None
 
     # -- layout -----------------------------------------------------------------------
@@ -943,6 +955,7 @@ class MpcController:
         self._lin = None
         self._slot_ids[:] = -1
         self._retimed = None
+        self._retimed_from = None
 
     def _check(self, req: MpcRequest) -> None:
         if req.sysid != self.sysid:
@@ -1194,6 +1207,14 @@ class MpcController:
             res = self.solver.solve(raise_error=False)
             iterations += int(res.info.iter)
             status = str(res.info.status)
+            for _ in range(_TIME_LIMIT_RESUMES):
+                if status != _TIME_LIMIT:
+                    break
+                # The pass ran out of (wall) time, usually because this process was not
+                # scheduled: go on from OSQP's own last iterate rather than fall back.
+                res = self.solver.solve(raise_error=False)
+                iterations += int(res.info.iter)
+                status = str(res.info.status)
             if status not in _ACCEPTED_OSQP:
                 if escaping:  # the escape's QP failed: the last pass's cause stands
                     return self._fallback(request, cause, start, iterations, npass)
@@ -1303,9 +1324,12 @@ class MpcController:
         assert req.lookahead is not None
         steps = len(req.lookahead) - 1
         rt = self._retimed
-        stale = rt is None or not (rt.t0 <= req.t0 < rt.t0 + RETIME_EVERY_S) or \
-            rt.end < req.t0 + self.config.horizon_s
+        moved = rt is not None and self._path_moved(req.t0, req.lookahead, req.lookahead_dt)
+        if moved or (rt is not None and rt.end < req.t0 + self.config.horizon_s):
+            rt = self._retimed = None  # no reference to keep if the new one fails
+        stale = rt is None or not (rt.t0 <= req.t0 < rt.t0 + RETIME_EVERY_S)
         if stale:
+            self._retimed_from = (req.t0, req.lookahead_dt, req.lookahead)
             if self._retimer is None or self._retimer.steps != steps or \
                     self._retimer.dt != req.lookahead_dt:
                 self._retimer = Retimer(steps=steps, dt=req.lookahead_dt)
@@ -1315,6 +1339,29 @@ class MpcController:
             return replace(req, lookahead=None)
         rp, rv, ra = rt.sample(req.t0 + self.dt * np.arange(self.N + 1))
         return replace(req, ref_pos=rp, ref_vel=rv, ref_acc=ra, lookahead=None)
+
+    def _path_moved(self, t0: float, lookahead: FloatArray, dt: float) -> bool:
+        """Whether the path ahead (``lookahead`` from ``t0``) is no longer the one the
+        reference was re-timed from, where the two overlap.
+
+        The re-timed reference sets off before its path does; when the show clock holds
+        (or a return replaces the path) the path's future stands still, and a reference
+        kept for ``RETIME_EVERY_S`` would still lead the vehicle off towards where its
+        path would have gone: under load, with the solves late, for seconds, into a
+        neighbour hovering below (1.18 m, seen)."""
+        if self._retimed_from is None:
+            return True
+        t_old, dt_old, old = self._retimed_from
+        times = t0 + dt * np.arange(len(lookahead))
+        u = (times - t_old) / dt_old
+        inside = u <= len(old) - 1
+        if not inside.any():
+            return True
+        u = u[inside]
+        k = np.clip(u.astype(np.intp), 0, len(old) - 2)
+        frac = (u - k)[:, None]
+        then = old[k] * (1.0 - frac) + old[k + 1] * frac
+        return bool(np.abs(then - lookahead[inside]).max() > RETIME_PATH_TOL_M)
 
     def _path_back(self, req: MpcRequest) -> TrajectoryCheck:
         """The path checked as the executor would fly it if the MPC gave nothing: the

@@ -5,7 +5,14 @@ simulated fleet (one socket per vehicle, ArduPilot or PX4 behaviour) stands
 on the plan's takeoff slots and talks to it, and :class:`ShowRunner` flies
 the show exactly as it would fly real drones.  The one difference is the
 clock: a :class:`~groundctl.clock.ScaledClock` shared by both sides lets the
-rehearsal run faster than real time.
+rehearsal run faster than real time.  By default it is a
+:class:`~groundctl.clock.PacedClock`: on a machine too busy to keep that pace
+the clock waits for the late side (the simulator's physics or the ground
+station's tick), so a busy rehearsal machine slows the rehearsal down instead of
+flying the show on stale setpoints; the report says who held the clock and the
+pace actually kept (``pacing``).  ``paced=False`` (``--no-pace``) lets it run
+on regardless, as real vehicles do: a rehearsal of the ground station's own
+load, where its overload guard is what keeps the show safe.
 
 Besides the telemetry-based report the ground station can make for any
 flight, the dry-run knows the truth: where the simulated drones really were
@@ -18,6 +25,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+import time
 from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from groundctl.clock import ScaledClock
+from groundctl.clock import Clock, PacedClock, ScaledClock
 from groundctl.errors import GroundctlError, SimulatorError
 from groundctl.execute.frames import enu_to_show, show_to_enu
 from groundctl.flight.report import flight_report
@@ -101,6 +109,10 @@ class DryRunOptions:
     gcs_sysid: int = 255
     """The ground station's system id (``--gcs-sysid``); the simulated ArduPilots'
     SYSID_MYGCS follows it."""
+    paced: bool = True
+    """The clock waits for a late simulator or ground-station loop (a
+    :class:`~groundctl.clock.PacedClock`); False (``--no-pace``): it runs on at
+    ``speed`` whatever the machine keeps up with."""
 
     def __post_init__(self) -> None:
         if not self.speed > 0:
@@ -164,9 +176,13 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
     operator commands) and is cancelled when the flight ends; ``on_runner``
     gets the runner before it starts (the CLI hooks Ctrl-C to it).
     """
-    clock = ScaledClock(options.speed)
+    paced = PacedClock(options.speed, participants=2) if options.paced else None
+    clock: Clock = paced.participant(0) if paced is not None else ScaledClock(options.speed)
+    sim_clock = paced.participant(1) if paced is not None else clock
+    started = time.monotonic()
     record = options.record_dir
-    recording = None if record is None else Recording(record, clock.now, plan)
+    recording = None if record is None else Recording(record, clock.now, plan,
+                                                      wall=_recording_wall(clock, paced))
     tlog = None if recording is None else recording.tlog
     events = None if recording is None else recording.events
     link = FleetLink((LOOPBACK, 0), clock=clock, expected_ids=range(1, plan.drones + 1),
@@ -184,13 +200,15 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
         config = sim_config(plan, options, link.local_address)
         if customise is not None:
             config = customise(config)
-        fleet = await asyncio.to_thread(SimProcess, config, clock)  # starts flying now
+        assert isinstance(sim_clock, (ScaledClock, PacedClock))
+        fleet = await asyncio.to_thread(SimProcess, config, sim_clock)  # starts flying now
         runner = ShowRunner(plan, link, clock, options.runner, events=events, notify=notify,
                             expected_ids=config.sysids())
         runner.on_tick = _truth_probe(runner, fleet)
         if options.rtk is not None:
-            rtk = RtkForwarder(RtkSource(options.rtk, clock), link, clock, events=events,
-                               notify=notify)
+            field = (plan.origin.lat, plan.origin.lon, plan.origin.alt)  # for a caster's GGA
+            rtk = RtkForwarder(RtkSource(options.rtk, clock, position=field), link, clock,
+                               events=events, notify=notify)
             runner.rtk = rtk
             rtk.start()
         if recording is not None:
@@ -255,12 +273,38 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
             report["true_min_separation_m"] = (round(true_sep, 3) if math.isfinite(true_sep)
                                                else None)
         report.update({"autopilot": str(options.flavour), "speed": options.speed,
+                       "pacing": _pacing(paced, clock, started),
                        "simulator": truth,
                        "record_dir": None if record is None else str(record)})
         if recording is not None:
             recording.finish(report)
     flown = runner is not None and runner.sequence is not None
     return DryRunResult(report, error, flown)
+
+
+def _recording_wall(clock: Clock, paced: PacedClock | None) -> Callable[[], float]:
+    """Unix time for the recording's stamps: real time, or for a paced clock that clock
+    at its full pace from now (a tlog whose vehicles' clocks are lines in its stamps,
+    as MAVExplorer and the replay expect; the clock's waits leave no gaps)."""
+    if paced is None:
+        return time.time
+    speed = paced.speed
+    unix0 = time.time() - clock.now() / speed
+    return lambda: unix0 + clock.now() / speed
+
+
+def _pacing(paced: PacedClock | None, clock: Clock, started: float) -> dict[str, Any]:
+    """The report's ``pacing``: the pace kept, and who held the clock for how long."""
+    wall = time.monotonic() - started
+    out: dict[str, Any] = {"paced": paced is not None,
+                           "effective_speed": round(clock.now() / wall, 2) if wall > 0 else None}
+    if paced is not None:
+        held = paced.held_s()
+        behind = paced.left_behind()
+        out.update({"held_by_ground_station_s": round(held[0], 2),
+                    "held_by_simulator_s": round(held[1], 2),
+                    "left_behind": {"ground_station": behind[0], "simulator": behind[1]}})
+    return out
 
 
 async def _alongside(runner: ShowRunner, fleet: SimProcess, pushes: tuple[Push, ...],
@@ -295,7 +339,8 @@ async def _push(runner: ShowRunner, fleet: SimProcess, push: Push) -> None:
 
 
 def _truth_probe(runner: ShowRunner, fleet: SimProcess) -> Callable[[float, float], None]:
-    """Every tick: where the simulated drones really are, and their LEDs.
+    """Every tick: where the simulated drones really are, and their LEDs (asked on one
+    tick, read on the next).
 
     If the simulator process is gone (killed, crashed) there is no fleet left
     to fly: the probe raises one :class:`SimulatorError` saying so, which ends
@@ -313,7 +358,11 @@ def _truth_probe(runner: ShowRunner, fleet: SimProcess) -> Callable[[float, floa
         if mon is None or seq is None:
             return
         try:
-            positions, leds = fleet.call("truth")  # one round trip per tick
+            # Asked one tick, read the next: the control loop never waits on the
+            # simulator's process (on a busy machine a round trip per tick made the ground
+            # station late for the simulator's scheduling, not its own work).
+            ready, truth = fleet.answer()
+            fleet.ask("truth")
         except SimulatorError as exc:
             err = exc
             if isinstance(exc.__cause__, (EOFError, OSError)):  # its pipe broke: it died
@@ -321,6 +370,9 @@ def _truth_probe(runner: ShowRunner, fleet: SimProcess) -> Callable[[float, floa
                                      f"{fleet.exitcode}): the simulated fleet is gone")
             gone.append(err)
             raise err from exc
+        if not ready:
+            return
+        positions, leds = truth
         mon.observe_truth(now, ids, enu_to_show(origin, positions))
         for sysid, (led, when) in zip(ids, leds, strict=True):
             # On the show clock, which holds and ramps: not simply "when - start".

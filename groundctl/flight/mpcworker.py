@@ -16,7 +16,6 @@ ignores stop signals (the ground station stops it) and runs single-threaded.
 from __future__ import annotations
 
 import logging
-import multiprocessing as mp
 import os
 import pickle
 import time
@@ -26,6 +25,7 @@ from concurrent.futures.process import BrokenProcessPool
 from typing import TYPE_CHECKING
 
 from groundctl.flight.workers import settle_worker
+from groundctl.processes import helper_context
 
 if TYPE_CHECKING:  # numpy must load in the worker only after its thread limits are set
     from groundctl.execute.mpc import MpcConfig, MpcController, MpcRequest, MpcResult
@@ -38,8 +38,8 @@ _controllers: dict[int, MpcController] = {}
 _config: MpcConfig | None = None
 
 
-def _initialise(config_pickle: bytes) -> None:
-    settle_worker()  # before numpy: the config comes as bytes so it is unpickled after
+def _initialise(ground_station: int, config_pickle: bytes) -> None:
+    settle_worker(ground_station)  # before numpy: the config comes as bytes, unpickled after
     global _config
     _config = pickle.loads(config_pickle)
 
@@ -90,9 +90,10 @@ class MpcWorker:
         """Start the worker (it loads numpy, scipy and OSQP in the background)."""
         if self._executor is None:
             self._executor = ProcessPoolExecutor(
-                max_workers=1, mp_context=mp.get_context("spawn"),
+                max_workers=1, mp_context=helper_context(),
                 initializer=_initialise,
-                initargs=(pickle.dumps(self.config, protocol=pickle.HIGHEST_PROTOCOL),))
+                initargs=(os.getpid(),
+                          pickle.dumps(self.config, protocol=pickle.HIGHEST_PROTOCOL)))
             self._warm = self._executor.submit(_ready)
 
     @property

@@ -200,6 +200,12 @@ def render_report(report: dict[str, Any]) -> str:
     if led["changes"]:
         lines.append(f"LED colour timing: {led['changes']} changes, mean |error| "
                      f"{led['mean_abs']} s, max {led['max_abs']} s, unmatched {led['unmatched']}")
+    pacing = report.get("pacing")
+    if pacing and pacing.get("paced") and pacing.get("effective_speed") is not None:
+        lines.append(f"dry-run pace: x{pacing['effective_speed']:g} of x{report['speed']:g} "
+                     f"(the clock waited {pacing['held_by_simulator_s']:g} s for the "
+                     f"simulator, {pacing['held_by_ground_station_s']:g} s for the ground "
+                     "station)")
     lat = report["setpoint_lateness_ms"]
     lines.append(f"setpoint lateness p50 {lat['p50']} ms, p99 {lat['p99']} ms, max {lat['max']} "
                  f"ms over {lat['ticks']} ticks")

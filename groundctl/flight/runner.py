@@ -266,6 +266,8 @@ class ShowRunner:
         self._tasks: set[asyncio.Task[None]] = set()
         self._return_task: asyncio.Task[None] | None = None
         self._leave_tasks: dict[int, asyncio.Task[None]] = {}
+        self._clock_state: tuple[int, ...] = ()
+        """The clocks' revisions the MPC trajectories were last kept for."""
         self._pool: PlannerPool | None = None
         self._pending_notices: list[Notice] = []
         self._last_show_time: float | None = None
@@ -529,15 +531,9 @@ class ShowRunner:
         seq = self._build()
         cfg = self.config
         period = 1.0 / cfg.rate_hz
-        if self._pool is None and self.plan.model == "quadrotor":
-            self._pool = PlannerPool(self.plan)
-            self._pool.start()  # loads in its own process while the fleet arms
-        mpc_on = self.plan.mpc.enabled if cfg.mpc is None else cfg.mpc
-        if mpc_on and self.replanner is None and self.plan.model == "quadrotor":
-            self.replanner = Replanner(self.plan, self.plan.mpc, cfg.rate_hz,
-                                       cfg.mpc_deadline_s)
-            self.replanner.start()  # its worker loads while the fleet arms
+        self._start_workers()
         await self._configure(seq)
+        await self._planner_ready()
         now = self.clock.now()
         self._say(f"arming {len(seq.vehicles)} vehicle(s)", "sequence_started")
         self._perform(seq.start(now))
@@ -550,9 +546,16 @@ class ShowRunner:
         lost_since: float | None = None
         try:
             while seq.phase is not ShowPhase.LANDED:
+                # Nothing to do before the next tick (a dry-run's paced clock waits for
+                # us no further than that); a clock that waited for someone else is
+                # slower than its pace, so the sleep is repeated until the tick is due.
+                self.clock.idle_until(next_tick)
                 wait = next_tick - self.clock.now()
-                if wait > 0:
+                while wait > 0:
                     await asyncio.sleep(self.clock.wall_interval(wait))
+                    wait = next_tick - self.clock.now()
+                    if wait <= 1e-3:
+                        break
                 self.link.drain()  # decide on every packet that has arrived, not a backlog
                 now = self.clock.now()
                 scheduled = next_tick
@@ -576,10 +579,6 @@ class ShowRunner:
                         # Stalled again while the first stall's hold brakes: back at the
                         # last setpoints once more (where the drones stand now).
                         self._stop_at_last_setpoints(seq, now, "stall")
-                    if self.replanner is not None:
-                        # MPC trajectories were checked on the clock before it was put
-                        # back: the next batch is solved on the clock as it is now.
-                        self.replanner.drop_trajectories()
                     # We stalled: setpoints on the clock as it stood would send the fleet
                     # where it never went, so the guard put the show clock back at the last
                     # setpoints' show time first.  Streaming goes on: a PX4 vehicle left
@@ -620,6 +619,7 @@ class ShowRunner:
                     raise FlightError(f"the flight did not finish within {budget:.0f} s: "
                                       f"vehicles still flying or unaccounted for {left}")
         finally:
+            self.clock.idle_until(math.inf)  # no more ticks: nobody waits for this loop
             self._flush_notices()
             self._cancel_led_sends()
         self._say("every vehicle is down", "sequence_finished",
@@ -725,15 +725,53 @@ class ShowRunner:
         return resynced
 
     # -- planning in worker processes ---------------------------------------------------
+    def _start_workers(self) -> None:
+        """Start the planning (and MPC) workers loading numpy, scipy, OSQP and the plan
+        in their own processes, while the link comes up and pre-flight runs."""
+        if self.plan.model != "quadrotor" or self._finished:
+            return
+        if self._pool is None:
+            self._pool = PlannerPool(self.plan)
+            self._pool.start()
+        cfg = self.config
+        mpc_on = self.plan.mpc.enabled if cfg.mpc is None else cfg.mpc
+        if mpc_on and self.replanner is None:
+            self.replanner = Replanner(self.plan, self.plan.mpc, cfg.rate_hz,
+                                       cfg.mpc_deadline_s)
+            self.replanner.start()
+
+    async def _planner_ready(self) -> None:
+        """Wait, before arming, until the planning worker can answer at once: a way out
+        (land-one) or a way home asked for early in the show has only seconds to be
+        planned, and a worker still importing numpy (nice, on a busy machine) spent them
+        all (a land-one 7 s ahead missed its formation and landed after the show)."""
+        if self._pool is None:
+            return
+        started = self.clock.now()
+        try:
+            await self._pool.warm_up()
+        except PlanningTimeout as exc:
+            raise FlightError(f"the planning worker did not start: {exc}; nothing "
+                              "armed") from None
+        waited = self.clock.now() - started
+        if waited >= 1.0:
+            self._say(f"waited {waited:.1f} s for the planning worker to load before arming",
+                      "planner_wait", wait_s=round(waited, 2))
+
     def _start_planning(self, seq: ShowSequence) -> None:
         if seq.return_needed is not None and self._return_task is None:
             self._return_task = asyncio.create_task(self._plan_return(seq))
             self._own(self._return_task)
-        for sysid, track, at, start in seq.leave_needed:
-            if sysid not in self._leave_tasks:
-                self._leave_tasks[sysid] = task = asyncio.create_task(
-                    self._plan_leave(seq, sysid, track, at, start))
-                self._own(task)
+        # One way out at a time: each is planned around the ways out already set, so
+        # several planned at once would each take the others for drones that stay
+        # where they are (a link cut stranded all nine of a PX4 fleet at once under
+        # load, and their nine ways out, planned side by side, crossed at 0.58 m).
+        needed = seq.leave_needed
+        if needed and not self._leave_tasks:
+            sysid, track, at, start = needed[0]
+            self._leave_tasks[sysid] = task = asyncio.create_task(
+                self._plan_leave(seq, sysid, track, at, start))
+            self._own(task)
 
     def _own(self, task: asyncio.Task[None]) -> None:
         # Cancelled with the rest on the way out (see _drain).
@@ -770,12 +808,19 @@ class ShowRunner:
                     obstacles = list(down) + descending
                     static = np.concatenate([column(p) for p in obstacles]) if obstacles \
                         else None
+                    authority, weakest = (1.0, None) if self.replanner is None \
+                        else self.replanner.weakest(sysids)
                     self._say(f"planning a collision-free return for {len(sysids)} "
                               "vehicle(s); they brake along their paths and hover meanwhile"
                               + (f" ({len(down)} drone(s) down kept clear)" if len(down)
-                                 else ""), "return_planning", attempt=attempt)
+                                 else "")
+                              + (f" (within {authority:.0%} of the limits: vehicle "
+                                 f"{weakest} is weak)" if weakest is not None else ""),
+                              "return_planning", attempt=attempt,
+                              authority=round(authority, 2))
                     traj = await self._planner().plan_return(
-                        tracks, start, cfg.return_deadline_s, static, goals=goals)
+                        tracks, start, cfg.return_deadline_s, static, goals=goals,
+                        authority=authority)
                 except PlanningTimeout as exc:
                     self._say(f"return planning attempt {attempt}: {exc}", "return_late")
                     continue
@@ -851,6 +896,13 @@ class ShowRunner:
     # -- streaming --------------------------------------------------------------------
     def _stream_tick(self, seq: ShowSequence, now: float, scheduled: float) -> None:
         assert self._stream is not None and self.monitor is not None
+        if seq.clock_state != self._clock_state:
+            self._clock_state = seq.clock_state
+            if self.replanner is not None:
+                # Held, released, put back after a stall, a return set off: the MPC
+                # trajectories were checked against the neighbours on the clocks as they
+                # were; the next batch is solved on the clocks as they are now.
+                self.replanner.drop_trajectories()
         req = seq.stream_request(now)
         self._request = (now, req)  # the guard reads the same request this tick
         if not req.sysids:
@@ -993,8 +1045,8 @@ class ShowRunner:
                 continue
             colour = (int(batch.rgb[k][0]), int(batch.rgb[k][1]), int(batch.rgb[k][2]))
             wait = max(float(batch.send_at[k]) - t, 0.0)
-            handle = loop.call_later(self.clock.wall_interval(wait), self._send_led,
-                                     sysid, colour)
+            handle = loop.call_later(self.clock.wall_interval(wait), self._send_led_at,
+                                     sysid, colour, now + wait)
             self._led_handles.append(handle)
         self._led_handles = [h for h in self._led_handles if not h.cancelled()
                              and h.when() >= loop.time()]
@@ -1014,6 +1066,17 @@ class ShowRunner:
             rtt = state.median_rtt_s if state is not None else None
             out[i] = 0.0 if rtt is None else min(max(rtt / 2.0, 0.0), 1.0)
         return out
+
+    def _send_led_at(self, sysid: int, colour: tuple[int, int, int], due: float) -> None:
+        """Send at clock time ``due``: again later if the clock is not there yet (a paced
+        dry-run clock that waited for a late loop runs slower than real time)."""
+        wait = due - self.clock.now()
+        if wait > 1e-3:
+            handle = asyncio.get_running_loop().call_later(
+                self.clock.wall_interval(wait), self._send_led_at, sysid, colour, due)
+            self._led_handles.append(handle)
+            return
+        self._send_led(sysid, colour)
 
     def _send_led(self, sysid: int, colour: tuple[int, int, int]) -> None:
         self._leds.sent(sysid, colour, self.clock.now())
@@ -1148,6 +1211,7 @@ class ShowRunner:
         still reports and records instead of unwinding past its ``finally``.
         """
         try:
+            self._start_workers()  # they load while the link comes up
             await self.connect()
             await self.preflight()
             if self.confirm_go is not None:

@@ -5,7 +5,8 @@ thread of the same process the planner holds the GIL the loop needs, and
 under load the loop falls behind.  :class:`PlannerPool` runs
 :func:`~groundctl.flight.returning.plan_return` and
 :func:`~groundctl.flight.returning.plan_leave` in a child process instead
-(``spawn``, so no thread or socket of the parent leaks into it).  The plan is
+(forked from the helpers' fork server, :mod:`groundctl.processes`, so no thread or
+socket of the parent leaks into it).  The plan is
 sent once, when a worker starts; a request carries only its own small
 arguments.
 
@@ -27,13 +28,14 @@ vehicle, which may need one more plan), and stops the workers itself.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import inspect
 import logging
 import math
-import multiprocessing as mp
 import os
 import pickle
 import signal
+import threading
 import time
 from collections.abc import Callable, Collection, Mapping
 from concurrent.futures import CancelledError, Future, ProcessPoolExecutor
@@ -42,6 +44,7 @@ from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
 from groundctl.errors import FlightError, PlanningTimeout
+from groundctl.processes import SINGLE_THREADED, helper_context
 
 # Nothing here may import numpy at module level: a worker imports this module before
 # its initializer runs, and the thread limits below only work before numpy loads.
@@ -63,10 +66,12 @@ REAP_TIMEOUT_S = 2.0
 #: The keyword under which :func:`~groundctl.flight.returning.plan_return` takes
 #: fixed obstacles (k, 3), as :func:`~groundctl.flight.returning.plan_leave` does.
 OBSTACLES_KEYWORD = "static"
-#: Thread-pool sizes of the numerical libraries, pinned in each worker: the planner's
-#: matrices are small, and the control loop's process needs a core of its own.
-_SINGLE_THREADED = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                    "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
+#: How much nicer than the control loop a worker runs (os.nice): on a busy machine the
+#: loop that streams setpoints must win the CPU from its own planning and MPC, which have
+#: deadlines and safe fallbacks (measured: MPC started on five vehicles of a ground
+#: station already late, and its solves made the loop later still, until the overload
+#: guard held the show).
+WORKER_NICE = 5
 
 
 # -- the worker's side ---------------------------------------------------------------------
@@ -75,24 +80,62 @@ _SINGLE_THREADED = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"
 _plan: Plan | None = None
 
 
-def settle_worker() -> None:
-    """What every worker process does first (planning, MPC): ignore stop signals and go
-    single-threaded.  It must run before numpy is imported, so a worker's initializer
-    takes its arguments as pickled bytes and unpickles them after this."""
+def settle_worker(ground_station: int) -> None:
+    """What every worker process does first (planning, MPC): ignore stop signals, go
+    single-threaded (numpy loaded after this; a worker forked from the fork server has it
+    single-threaded already) and leave with ``ground_station`` (its process id).  A
+    worker's initializer takes its arguments as pickled bytes and unpickles them after
+    this."""
     # Stop signals reach the whole process group (Ctrl-C, a closed terminal, a service
     # manager); the parent decides what they mean and stops this worker itself.
     for name in ("SIGINT", "SIGTERM", "SIGHUP"):
         if hasattr(signal, name):
             signal.signal(getattr(signal, name), signal.SIG_IGN)
     # Read by OpenBLAS / MKL / OpenMP when they load, i.e. with numpy.
-    for variable in _SINGLE_THREADED:
+    for variable in SINGLE_THREADED:
         os.environ[variable] = "1"
+    with contextlib.suppress(OSError):
+        os.nice(WORKER_NICE)
+    # Ignoring the stop signals, a worker whose ground station was killed outright
+    # (SIGKILL, a crash) would live on for ever: it leaves once the ground station is
+    # gone.  Not "once its parent is gone": its parent is the fork server, which in turn
+    # lives as long as any process it forked (each holds the server's keep-alive pipe).
+    threading.Thread(target=_leave_with, args=(ground_station,), daemon=True,
+                     name="parent-watch").start()
 
 
-def _initialise(plan_pickle: bytes) -> None:
+#: Wall seconds between a worker's looks at whether its ground station is still there.
+PARENT_POLL_S = 0.5
+
+
+def process_gone(pid: int) -> bool:
+    """Whether process ``pid`` has ended (a zombie, dead but not yet reaped, has)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            # "pid (comm) state ...": comm may hold spaces and parentheses.
+            return f.read().rsplit(b")", 1)[1].split()[0] in (b"Z", b"X")
+    except FileNotFoundError:
+        return True
+    except OSError:  # no /proc: ask the kernel
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        except PermissionError:
+            return False
+        return False
+
+
+def _leave_with(ground_station: int) -> None:
+    while not process_gone(ground_station):
+        time.sleep(PARENT_POLL_S)
+    os._exit(0)
+
+
+def _initialise(ground_station: int, plan_pickle: bytes) -> None:
     """Worker start-up: :func:`settle_worker`, load the plan, import the planner (so that
     the first request does not pay for it)."""
-    settle_worker()
+    settle_worker(ground_station)
     global _plan
     _plan = pickle.loads(plan_pickle)
     import groundctl.flight.returning  # noqa: F401  (the import is the point)
@@ -145,8 +188,8 @@ class PlannerPool:
             raise FlightError("the planning pool is closed; create a new one")
         if self._executor is None:
             self._executor = ProcessPoolExecutor(
-                max_workers=self.max_workers, mp_context=mp.get_context("spawn"),
-                initializer=_initialise, initargs=(self._plan_pickle,))
+                max_workers=self.max_workers, mp_context=helper_context(),
+                initializer=_initialise, initargs=(os.getpid(), self._plan_pickle))
             # Processes start on demand: this no-op starts one, and loads the plan there.
             self._warming = self._executor.submit(_worker_pid)
 

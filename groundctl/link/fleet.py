@@ -259,8 +259,10 @@ class FleetLink:
         self.stats.socket_errors += 1
         log.debug("socket error: %s", exc)
 
-    def _on_datagram(self, data: bytes, addr: Address) -> None:
+    def _on_datagram(self, data: bytes, addr: Address, age_s: float = 0.0) -> None:
         now = self.clock.now()
+        if age_s > 0.0:
+            now -= self.clock.ago(age_s)  # when it arrived, not when our busy loop read it
         self.stats.datagrams += 1
         result = self._parser(addr).feed(data)
         for reason in result.bad:

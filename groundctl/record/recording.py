@@ -11,6 +11,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import re
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -61,7 +62,8 @@ class Recording:
     """
 
     def __init__(self, directory: Path, now: Callable[[], float],
-                 plan: Plan | None = None) -> None:
+                 plan: Plan | None = None, *,
+                 wall: Callable[[], float] = time.time) -> None:
         try:
             directory.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
@@ -74,9 +76,11 @@ class Recording:
             except OSError as exc:
                 raise GroundctlError(f"{directory / PLAN}: cannot write the plan: "
                                      f"{exc.strerror or exc}") from exc
-        self.tlog = TlogWriter(directory / TLOG)
+        # ``wall`` stamps the tlog and the show clock log (Unix time); a paced dry-run
+        # passes its clock made Unix time, so its waits leave no gaps in the recording.
+        self.tlog = TlogWriter(directory / TLOG, wall=wall)
         self.events = EventLog(directory / EVENTS, now)
-        self.show_clock = ShowClockLog(directory / SHOW_CLOCK)
+        self.show_clock = ShowClockLog(directory / SHOW_CLOCK, wall=wall)
 
     def follow(self, runner: ShowRunner) -> None:
         """Log the show clock on every tick of ``runner``, chained before any

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import heapq
 import logging
+import math
 import selectors
 import socket
 import threading
@@ -378,14 +379,26 @@ class SimFleet:
                     while self.t + self.dt <= now:
                         self._tick()
                     self.max_lag = max(self.max_lag, self.clock.now() - self.t - self.dt)
+                # Nothing to do before the next physics tick (a paced dry-run clock waits
+                # for us no further than that).
+                self.clock.idle_until(self.t + self.dt)
                 wait = self.clock.wall_interval(self.t + self.dt - self.clock.now())
-                if wait > 0 and self._selector.select(wait):
-                    # Packets arrived between ticks: answer now rather than at the next tick.
-                    with self._lock:
-                        self._receive(self.t)
+                if wait > 0:
+                    if self._selector.select(wait):
+                        # Packets arrived between ticks: answer now rather than at the
+                        # next tick.
+                        with self._lock:
+                            self._receive(self.t)
+                else:
+                    # Behind: let the other threads (the parent's calls: truth, faults) have
+                    # the lock between catch-ups; CPython's locks are not fair, and a loop
+                    # that takes its lock straight back starved them for seconds.
+                    time.sleep(0)
         except Exception as exc:  # pragma: no cover - reported by stop()
             log.exception("simulator loop failed")
             self._error = exc
+        finally:
+            self.clock.idle_until(math.inf)
 
     def _tick(self) -> None:
         now = self.t

@@ -3,12 +3,14 @@
 In one process the simulator's thread and the ground station's event loop
 share the GIL, and the dry-run of a 64-drone show cannot even keep real
 time on a small machine.  :class:`SimProcess` runs the same
-:class:`~groundctl.sim.fleet.SimFleet` in a child process (``spawn``, so no
-thread or socket of the parent leaks into it) and forwards calls over a
+:class:`~groundctl.sim.fleet.SimFleet` in a child process (forked from the helpers'
+fork server, :mod:`groundctl.processes`, so no thread or socket of the parent leaks into
+it) and forwards calls over a
 pipe: ``proc.call("cut_link", 3)`` is ``fleet.cut_link(3)`` over there,
 ``proc.get("overruns")`` reads an attribute.  Both sides share the
 :class:`~groundctl.clock.ScaledClock` (it is defined on CLOCK_MONOTONIC, which
-every process of the machine sees alike).
+every process of the machine sees alike) or the dry-run's
+:class:`~groundctl.clock.PacedClock` (in memory both processes map).
 
 The child ignores Ctrl-C: the ground station decides what a Ctrl-C means
 (land every vehicle) and the simulated vehicles must keep flying meanwhile.
@@ -18,15 +20,16 @@ It stops when told, or when the parent goes away (its pipe closes).
 from __future__ import annotations
 
 import contextlib
-import multiprocessing as mp
 import signal
 import threading
+import time
 from multiprocessing.connection import Connection
 from types import TracebackType
 from typing import Any
 
-from groundctl.clock import ScaledClock
+from groundctl.clock import PacedClock, ScaledClock
 from groundctl.errors import SimulatorError
+from groundctl.processes import helper_context
 from groundctl.sim.config import SimConfig
 
 #: Seconds to wait for the child to build its fleet, or to answer a call.
@@ -34,7 +37,7 @@ START_TIMEOUT_S = 60.0
 CALL_TIMEOUT_S = 10.0
 
 
-def _serve(conn: Connection, config: SimConfig, clock: ScaledClock) -> None:
+def _serve(conn: Connection, config: SimConfig, clock: ScaledClock | PacedClock) -> None:
     # Stop signals reach the whole process group (Ctrl-C, a closed terminal, a service
     # manager): the parent lands the simulated fleet first and then stops this child
     # itself; a parent that dies outright closes the pipe, which ends the loop below.
@@ -78,15 +81,17 @@ def _serve(conn: Connection, config: SimConfig, clock: ScaledClock) -> None:
 class SimProcess:
     """A :class:`~groundctl.sim.fleet.SimFleet` running in a child process."""
 
-    def __init__(self, config: SimConfig, clock: ScaledClock) -> None:
-        if not isinstance(clock, ScaledClock):
-            raise SimulatorError("a simulator process needs a ScaledClock (shared by both "
-                                 "processes)")
-        ctx = mp.get_context("spawn")
+    def __init__(self, config: SimConfig, clock: ScaledClock | PacedClock) -> None:
+        if not isinstance(clock, (ScaledClock, PacedClock)):
+            raise SimulatorError("a simulator process needs a ScaledClock or a PacedClock "
+                                 "(shared by both processes)")
+        ctx = helper_context()
         self._conn, child = ctx.Pipe()
         self._proc = ctx.Process(target=_serve, args=(child, config, clock),
                                  name="groundctl-sim", daemon=True)
         self._lock = threading.Lock()
+        self._asked: tuple[str, float] | None = None  # (name, when) of a call not read yet
+        self._answered: tuple[str, Any] | None = None  # its (kind, value), read meanwhile
         self._proc.start()
         child.close()
         info = self._receive(START_TIMEOUT_S, "start")
@@ -122,14 +127,25 @@ class SimProcess:
         return error
 
     def _receive(self, timeout: float, what: str) -> Any:
+        return self._unwrap(self._receive_raw(timeout, what))
+
+    def _receive_raw(self, timeout: float, what: str) -> tuple[str, Any]:
         try:
             if not self._conn.poll(timeout):
-                self._kill()
-                raise SimulatorError(f"the simulator process did not answer {what} within "
-                                     f"{timeout:.0f} s")
+                raise self._no_answer(what, timeout)
             kind, value = self._conn.recv()
         except (EOFError, OSError) as exc:
             raise self._died(what, exc) from exc
+        return kind, value
+
+    def _no_answer(self, what: str, timeout: float) -> SimulatorError:
+        self._kill()
+        return SimulatorError(f"the simulator process did not answer {what} within "
+                              f"{timeout:.0f} s")
+
+    @staticmethod
+    def _unwrap(answer: tuple[str, Any]) -> Any:
+        kind, value = answer
         if kind == "err":
             raise value
         return value
@@ -140,11 +156,51 @@ class SimProcess:
             if self._stopped:
                 raise SimulatorError(f"the simulator process has stopped: cannot {kind} "
                                      f"{name}")
+            if self._asked is not None:  # its answer comes first on the pipe: keep it
+                self._answered = self._receive_raw(CALL_TIMEOUT_S, self._asked[0])
+                self._asked = None
             try:
                 self._conn.send((kind, name, args, kwargs))
             except OSError as exc:  # BrokenPipeError, ConnectionResetError: the child is gone
                 raise self._died(name, exc) from exc
             return self._receive(CALL_TIMEOUT_S, name)
+
+    def ask(self, name: str, *args: Any, **kwargs: Any) -> None:
+        """Send ``fleet.name(*args, **kwargs)`` without waiting for it: :meth:`answer`
+        reads what it returned once it has come.  One at a time (while one is
+        outstanding this does nothing), for a caller that must not wait on the child:
+        the dry-run's truth probe runs on the ground station's control loop, which
+        waited a scheduling delay of the simulator's process every tick on a busy
+        machine."""
+        with self._lock:
+            if self._asked is not None or self._answered is not None or self._stopped:
+                return
+            try:
+                self._conn.send(("call", name, args, kwargs))
+            except OSError as exc:
+                raise self._died(name, exc) from exc
+            self._asked = (name, time.monotonic())
+
+    def answer(self) -> tuple[bool, Any]:
+        """``(True, value)`` of what the call sent by :meth:`ask` returned, once it has
+        come (never waits; its exception is raised here); ``(False, None)`` before."""
+        with self._lock:
+            if self._answered is not None:
+                got, self._answered = self._answered, None
+                return True, self._unwrap(got)
+            if self._asked is None:
+                return False, None
+            name, at = self._asked
+            try:
+                ready = self._conn.poll(0)
+            except (EOFError, OSError) as exc:
+                raise self._died(name, exc) from exc
+            if not ready:
+                if time.monotonic() - at > CALL_TIMEOUT_S:
+                    raise self._no_answer(name, CALL_TIMEOUT_S)
+                return False, None
+            self._asked = None
+            return True, self._unwrap(self._receive_raw(0.0, name))
 
     def call(self, name: str, *args: Any, **kwargs: Any) -> Any:
         """``fleet.name(*args, **kwargs)`` in the child; its exception is raised here.

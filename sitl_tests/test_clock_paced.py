@@ -1,0 +1,143 @@
+"""The dry-run's paced clock: runs at its pace, waits for a late participant (in this
+process or another), never goes back, dates the past across its waits, and leaves a
+participant behind that holds it too long.
+
+Real time is involved (the clock is defined on CLOCK_MONOTONIC), so every bound
+here holds however late this process is scheduled: a busy machine can only make
+the clock wait longer, never run past a participant.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import time
+from multiprocessing.connection import Connection
+
+import pytest
+
+from groundctl.clock import PacedClock
+
+
+def test_with_nobody_taking_part_it_runs_at_its_pace() -> None:
+    clock = PacedClock(50.0)
+    t0, w0 = clock.now(), time.monotonic()
+    time.sleep(0.05)
+    t1, w1 = clock.now(), time.monotonic()
+    # 50x: 0.05 s of real time is at least 2.5 s, at most 50x the real time that passed.
+    assert 2.5 <= t1 - t0 <= 50.0 * (w1 - w0) + 1e-6
+
+
+def test_a_late_participant_holds_it_and_it_resumes_from_where_it_waited() -> None:
+    clock = PacedClock(100.0, slack=0.05)
+    me = clock.participant(0)
+    me.idle_until(0.5)
+    time.sleep(0.05)  # 5 s at full pace: the clock waits at 0.5 + slack for us
+    held = me.now()
+    assert held == pytest.approx(0.55)
+    time.sleep(0.02)
+    assert me.now() == pytest.approx(0.55)  # still waiting
+    w = time.monotonic()
+    me.idle_until(2.0)
+    resumed = me.now()
+    # Rises from where it waited, not by the 7 s of real time that passed at its pace.
+    assert 0.55 <= resumed <= 0.55 + 100.0 * (time.monotonic() - w) + 1e-6
+    time.sleep(0.05)
+    assert me.now() == pytest.approx(2.05)  # and waits again at the next due time
+    assert clock.held_s()[0] >= 0.05  # real seconds it waited for slot 0
+    assert clock.held_s()[1] == 0.0
+
+
+def test_it_never_goes_back_when_a_participant_reports_an_earlier_time() -> None:
+    clock = PacedClock(100.0)
+    a, b = clock.participant(0), clock.participant(1)
+    a.idle_until(1.0)
+    time.sleep(0.03)
+    assert a.now() == pytest.approx(1.05)
+    b.idle_until(0.2)  # joins late, behind the clock: it stands still, not back
+    assert b.now() == pytest.approx(1.05)
+    b.idle_until(math.inf)
+    assert a.now() == pytest.approx(1.05)
+    seen = [a.now() for _ in range(1000)]
+    assert seen == sorted(seen)
+
+
+def test_the_past_is_dated_on_the_clock_as_it_ran() -> None:
+    clock = PacedClock(10.0, slack=0.05)
+    me = clock.participant(0)
+    me.idle_until(0.3)
+    time.sleep(0.08)  # reaches 0.35 after 0.035 s, then waits
+    during_wait = time.monotonic()
+    time.sleep(0.05)
+    assert me.now() == pytest.approx(0.35)
+    assert clock.at_wall(during_wait) == pytest.approx(0.35)
+    me.idle_until(10.0)
+    time.sleep(0.03)
+    # A datagram stamped during the wait is 0.35 on this clock, not "now minus its real
+    # age at full pace" (which would put it before the wait).
+    assert clock.at_wall(during_wait) == pytest.approx(0.35)
+    age = time.monotonic() - during_wait
+    assert me.ago(age) == pytest.approx(me.now() - 0.35, abs=0.02)
+
+
+def test_a_participant_holding_it_longer_than_the_valve_is_left_behind() -> None:
+    clock = PacedClock(100.0, valve_s=0.1)
+    me, other = clock.participant(0), clock.participant(1)
+    me.idle_until(0.2)
+    time.sleep(0.05)
+    assert other.now() == pytest.approx(0.25)
+    time.sleep(0.1)  # frozen past the valve: the clock runs on without it
+    assert other.now() > 1.0
+    assert clock.left_behind() == [1, 0]
+    now = other.now()
+    me.idle_until(now + 1.0)  # back: it takes part again
+    time.sleep(0.05)
+    assert other.now() == pytest.approx(now + 1.05, abs=0.01)
+
+
+def _child(clock: PacedClock, conn: Connection) -> None:
+    me = clock.participant(1)
+    due = me.now() + 1.0
+    me.idle_until(due)
+    conn.send(due)
+    conn.recv()  # until the parent has seen the clock wait for us
+    me.idle_until(math.inf)
+    conn.send("released")
+
+
+def test_a_participant_in_another_process_holds_it() -> None:
+    clock = PacedClock(100.0)
+    ctx = mp.get_context("spawn")
+    ours, theirs = ctx.Pipe()
+    child = ctx.Process(target=_child, args=(clock, theirs), daemon=True)
+    child.start()
+    try:
+        assert ours.poll(60.0)
+        due = ours.recv()
+        time.sleep(0.05)  # 5 s at full pace
+        assert clock.now() == pytest.approx(due + 0.05)
+        ours.send("go")
+        assert ours.poll(60.0) and ours.recv() == "released"
+        time.sleep(0.02)
+        assert clock.now() > due + 1.0
+    finally:
+        child.join(10.0)
+        if child.is_alive():
+            child.kill()
+    assert clock.held_s()[1] > 0.0
+
+
+@pytest.mark.parametrize("bad", [{"speed": 0.0}, {"participants": 0}, {"slack": 0.0},
+                                 {"valve_s": -1.0}])
+def test_bad_arguments_name_the_parameter(bad: dict[str, float]) -> None:
+    name = next(iter(bad))
+    with pytest.raises(ValueError, match=f"`{name}`"):
+        PacedClock(**bad)  # type: ignore[arg-type]
+
+
+def test_only_a_participant_can_say_it_is_idle() -> None:
+    clock = PacedClock(1.0)
+    with pytest.raises(ValueError, match="participant"):
+        clock.idle_until(1.0)
+    with pytest.raises(ValueError, match="`slot`"):
+        clock.participant(2)
