@@ -75,8 +75,19 @@ def test_dry_run_json_report_and_recordings(tmp_path: Path) -> None:
         assert key in report
     assert report["safe"] and report["landed"] and len(report["vehicles"]) == 9
     assert report["autopilot"] == "ardupilot" and report["speed"] == 4.0
+    pacing = report["pacing"]  # paced by default: the pace kept and who held the clock
+    assert pacing["paced"] and 0 < pacing["effective_speed"] <= 4.0
+    assert set(pacing) >= {"held_by_simulator_s", "held_by_ground_station_s", "left_behind"}
     assert json.loads((tmp_path / "report.json").read_text())["safe"]
     assert (tmp_path / "flight.tlog").stat().st_size > 10_000
+
+
+def test_dry_run_no_pace_lets_the_clock_run_free() -> None:
+    from groundctl.cli import build_parser
+
+    parser = build_parser()
+    assert parser.parse_args(["dry-run"]).paced is True
+    assert parser.parse_args(["dry-run", "--no-pace"]).paced is False
 
 
 def test_dry_run_of_a_malformed_show_is_one_clear_line(tmp_path: Path) -> None:

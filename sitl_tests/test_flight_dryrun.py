@@ -322,3 +322,27 @@ def test_a_three_second_link_cut_mid_show(flavour: Flavour) -> None:
         assert "m off its plan" in reason
     else:  # GUIDED flew on along its last velocity for GUID_TIMEOUT: close, or held off
         assert reason is None or "m off its plan" in reason
+
+
+def test_asked_for_more_pace_than_the_machine_has_the_clock_waits_and_the_show_is_flown(
+        tmp_path: Path) -> None:
+    """x60: no 2-core machine runs nine simulated vehicles and the ground station that
+    fast.  The paced clock waits for whichever loop is late, so the flight is the one
+    planned -- no hold for our own stall or overload, no vehicle late or lost -- and the
+    report says what pace was kept and who held the clock."""
+    result = dry_run(tmp_path, speed=60.0)
+    assert result.error is None and result.flown
+    report = result.report
+    _assert_flown_safely(report)
+    assert report["max_tracking_error_m"] < 0.5
+    pacing = report["pacing"]
+    assert pacing["paced"] and pacing["effective_speed"] < 60.0
+    assert pacing["held_by_simulator_s"] + pacing["held_by_ground_station_s"] > 0.0
+    assert pacing["left_behind"] == {"ground_station": 0, "simulator": 0}
+    events = list(read_events(tmp_path / "events.jsonl"))
+    held = {e["reason"] for e in events if e["event"] == "show_held"}
+    assert not held & {"stall", "overload", "silence"}, held
+    assert not [e for e in events if e["event"] in ("vehicle_lost", "vehicle_late")]
+    # Setpoints on time on the flight's clock: a tick is never more than the clock's
+    # slack (50 ms) late, however slowly the machine ran it.
+    assert report["setpoint_lateness_ms"]["max"] <= 60.0
