@@ -108,22 +108,28 @@ class PacedClock:
     flight's, not the machine's.  Waits are counted per participant
     (:meth:`held_s`) so a report can say who held the clock and for how long.
 
-    A participant that holds the clock for more than ``valve_s`` real seconds
-    (stopped in a debugger, frozen by SIGSTOP, killed) is left behind: the clock
-    runs on without it until it reports again, so nothing else hangs on it.
+    A participant that has held the clock for more than ``valve_s`` real
+    seconds on end (stopped in a debugger, frozen by SIGSTOP, killed) is left
+    behind: the clock runs on without it until it reports again, so nothing
+    else hangs on it.  A process killed while it held the lock (a few
+    microseconds at a time) cannot hang the others either: after
+    :data:`LOCK_TIMEOUT_S` each reader runs on at full pace from what it last saw.
 
     Every instance made by :meth:`participant` shares one block of memory with
     its parent, across processes started by ``multiprocessing`` (pass it as a
-    ``Process`` argument); a lock makes each read consistent.  The clock is
-    piecewise linear: it rises at ``speed`` from an *anchor* and is flat while
-    held; the last :data:`ANCHORS` anchors are kept so that a moment in the
-    recent past (a datagram's kernel time stamp) is dated exactly
-    (:meth:`at_wall`).
+    ``Process`` argument).  The clock is piecewise linear: it rises at
+    ``speed`` from an *anchor* and is flat while held; the last :data:`ANCHORS`
+    anchors are kept so that a moment in the recent past (a datagram's kernel
+    time stamp) is dated on the clock as it ran (:meth:`at_wall`).
     """
 
-    ANCHORS = 64
+    ANCHORS = 512
+    LOCK_TIMEOUT_S = 2.0
     _SPEED, _SLACK, _VALVE, _HEAD, _LAST, _LAST_WALL = range(6)
     _RING = 8
+    # Per participant, after the anchors: due time, holding since (wall; NaN when not
+    # holding), real seconds held, times left behind.
+    _DUE, _SINCE, _HELD, _BEHIND = range(4)
 
     def __init__(self, speed: float = 1.0, participants: int = 2, *, slack: float = 0.05,
                  valve_s: float = 5.0) -> None:
@@ -139,12 +145,12 @@ class PacedClock:
 
         ctx = helper_context()
         self._n = participants
-        self._due0 = self._RING + 2 * self.ANCHORS
-        size = self._due0 + 4 * participants
-        self._mem = ctx.RawArray("d", size)
+        self._p0 = self._RING + 2 * self.ANCHORS
+        self._mem = ctx.RawArray("d", self._p0 + 4 * participants)
         self._lock = ctx.Lock()
         self._slot: int | None = None
         self.speed = float(speed)
+        self._seen = (0.0, time.monotonic())  # this process's last reading, and when
         m = self._mem
         m[self._SPEED], m[self._SLACK], m[self._VALVE] = self.speed, slack, valve_s
         wall = time.monotonic()
@@ -152,10 +158,13 @@ class PacedClock:
         m[self._RING], m[self._RING + 1] = wall, 0.0
         m[self._LAST], m[self._LAST_WALL] = 0.0, wall
         for p in range(participants):
-            m[self._due0 + p] = math.inf  # not taking part until it first says so
-            m[self._due0 + participants + p] = wall  # when it last said so
-            m[self._due0 + 2 * participants + p] = 0.0  # real seconds it held the clock
-            m[self._due0 + 3 * participants + p] = 0.0  # times it was left behind
+            m[self._at(p, self._DUE)] = math.inf  # not taking part until it says so
+            m[self._at(p, self._SINCE)] = math.nan
+            m[self._at(p, self._HELD)] = 0.0
+            m[self._at(p, self._BEHIND)] = 0.0
+
+    def _at(self, participant: int, field: int) -> int:
+        return self._p0 + field * self._n + participant
 
     def participant(self, slot: int) -> PacedClock:
         """The same clock, as seen by participant ``slot`` (its :meth:`idle_until` speaks
@@ -169,32 +178,59 @@ class PacedClock:
     # -- reading ---------------------------------------------------------------------
 
     def now(self) -> float:
-        wall = time.monotonic()
-        with self._lock:
-            return self._read(wall)
+        if not self._lock.acquire(timeout=self.LOCK_TIMEOUT_S):
+            return self._unlocked()
+        try:
+            value = self._read()
+        finally:
+            self._lock.release()
+        self._seen = (value, time.monotonic())
+        return value
 
-    def _read(self, wall: float) -> float:
-        m, n, d0 = self._mem, self._n, self._due0
+    def _unlocked(self) -> float:
+        """The lock's holder died holding it: at full pace from this process's last
+        reading (never back), without waiting for anybody."""
+        value, wall = self._seen
+        return value + self.speed * max(time.monotonic() - wall, 0.0)
+
+    def _read(self) -> float:
+        """The clock now; with the lock held.  The time is read under the lock, so a
+        reader that waited for it never works with an older time than the last writer."""
+        m, n = self._mem, self._n
+        wall = max(time.monotonic(), m[self._LAST_WALL])
         head = int(m[self._HEAD])
         at = self._RING + 2 * (head % self.ANCHORS)
         a_wall, a_sim = m[at], m[at + 1]
         free = a_sim + self.speed * (wall - a_wall)
+        last = m[self._LAST]
         while True:
-            due = min(range(n), key=lambda p: m[d0 + p])
-            cap = m[d0 + due] + m[self._SLACK]
+            due = min(range(n), key=lambda p: m[self._at(p, self._DUE)])
+            cap = m[self._at(due, self._DUE)] + m[self._SLACK]
             if free <= cap:
                 value = free
                 break
-            # Held by ``due``.  Left behind once it has held the clock too long.
-            if wall - m[d0 + n + due] > m[self._VALVE]:
-                m[d0 + due] = math.inf
-                m[d0 + 3 * n + due] += 1.0
+            since = self._at(due, self._SINCE)
+            if math.isnan(m[since]):
+                # It holds the clock from when the clock met its cap (or from the last
+                # reading, if that was later).
+                m[since] = max(a_wall + max(min(cap, free) - a_sim, 0.0) / self.speed,
+                               m[self._LAST_WALL]) if cap >= last else m[self._LAST_WALL]
+            if wall - m[since] > m[self._VALVE]:  # held too long on end: left behind
+                m[self._at(due, self._HELD)] += wall - m[since]
+                m[self._at(due, self._DUE)] = math.inf
+                m[since] = math.nan
+                m[self._at(due, self._BEHIND)] += 1.0
+                # It stood at the cap until now, and runs on from here (the others did
+                # not hold it meanwhile).
+                held_at = max(cap, last)
+                if held_at > a_sim:
+                    head += 1
+                    at = self._RING + 2 * (head % self.ANCHORS)
+                    m[self._HEAD] = float(head)
+                m[at], m[at + 1] = wall, held_at
+                a_wall, a_sim, free = wall, held_at, held_at
                 continue
-            value = max(cap, m[self._LAST])
-            # Who held it, for how long (real seconds since it met the cap, or since the
-            # last read if that was later).
-            met = a_wall + max(value - a_sim, 0.0) / self.speed
-            m[d0 + 2 * n + due] += max(wall - max(met, m[self._LAST_WALL]), 0.0)
+            value = max(cap, last)
             if value <= a_sim:  # flat since the anchor: the flat stretch goes on
                 m[at] = wall
             else:  # it rose, then met the cap: it rises again from here once released
@@ -203,6 +239,7 @@ class PacedClock:
                 m[nxt], m[nxt + 1] = wall, value
                 m[self._HEAD] = float(head)
             break
+        value = max(value, last)
         m[self._LAST], m[self._LAST_WALL] = value, wall
         return value
 
@@ -211,27 +248,42 @@ class PacedClock:
         a caller sleeping for this rechecks the clock)."""
         return seconds / self.speed
 
+    def _dated(self, wall: float, now: float) -> float:
+        """The clock at ``time.monotonic()`` = ``wall`` (not in the future), given that it
+        reads ``now``; with the lock held."""
+        m = self._mem
+        head = int(m[self._HEAD])
+        later = now
+        oldest = head
+        for k in range(head, max(head - self.ANCHORS, -1), -1):
+            at = self._RING + 2 * (k % self.ANCHORS)
+            a_wall, a_sim = m[at], m[at + 1]
+            if a_wall <= wall:
+                return min(a_sim + self.speed * (wall - a_wall), later)
+            later, oldest = a_sim, k
+        # Older than every anchor kept: the oldest one's reading, at most (it may have
+        # waited before it; it never ran faster than its pace).
+        at = self._RING + 2 * (oldest % self.ANCHORS)
+        return min(m[at + 1], later) - self.speed * max(m[at] - wall, 0.0)
+
     def at_wall(self, wall: float) -> float:
         """The clock's reading at ``time.monotonic()`` = ``wall`` (not in the future)."""
-        with self._lock:
-            now = self._read(time.monotonic())
-            m = self._mem
-            head = int(m[self._HEAD])
-            later: float | None = None
-            for k in range(head, max(head - self.ANCHORS, -1), -1):
-                at = self._RING + 2 * (k % self.ANCHORS)
-                a_wall, a_sim = m[at], m[at + 1]
-                if a_wall <= wall:
-                    value = a_sim + self.speed * (wall - a_wall)
-                    return min(value, now if later is None else later)
-                later = a_sim
-            # Older than every anchor kept: as if it ran at full pace since (a bound).
-            return (later if later is not None else now) - self.speed * (a_wall - wall)
+        if not self._lock.acquire(timeout=self.LOCK_TIMEOUT_S):
+            return self._unlocked() - self.speed * max(time.monotonic() - wall, 0.0)
+        try:
+            return self._dated(wall, self._read())
+        finally:
+            self._lock.release()
 
     def ago(self, wall_seconds: float) -> float:
-        """Clock seconds since ``wall_seconds`` of real time ago."""
-        wall = time.monotonic()
-        return self.now() - self.at_wall(wall - wall_seconds)
+        """Clock seconds since ``wall_seconds`` of real time ago (one look at the lock)."""
+        if not self._lock.acquire(timeout=self.LOCK_TIMEOUT_S):
+            return self.speed * wall_seconds
+        try:
+            now = self._read()
+            return now - self._dated(time.monotonic() - wall_seconds, now)
+        finally:
+            self._lock.release()
 
     # -- taking part -------------------------------------------------------------------
 
@@ -240,21 +292,26 @@ class PacedClock:
         may run to ``t + slack`` without it (``math.inf``: it takes no more part)."""
         if self._slot is None:
             raise ValueError("idle_until() on the shared clock itself: use participant()")
-        wall = time.monotonic()
-        with self._lock:
-            self._read(wall)  # a wait for us ends now, not at whoever read the clock last
-            d = self._due0 + self._slot
-            self._mem[d] = t
-            self._mem[self._due0 + self._n + self._slot] = wall
+        if not self._lock.acquire(timeout=self.LOCK_TIMEOUT_S):
+            return
+        try:
+            self._read()  # a wait for us ends now, not at whoever read the clock last
+            m = self._mem
+            since = self._at(self._slot, self._SINCE)
+            if not math.isnan(m[since]):
+                m[self._at(self._slot, self._HELD)] += max(m[self._LAST_WALL] - m[since], 0.0)
+                m[since] = math.nan
+            m[self._at(self._slot, self._DUE)] = t
+        finally:
+            self._lock.release()
 
     def held_s(self) -> list[float]:
-        """Real seconds each participant has held the clock, by slot."""
-        d = self._due0 + 2 * self._n
+        """Real seconds each participant has held the clock, by slot (up to its last
+        report)."""
         with self._lock:
-            return [self._mem[d + p] for p in range(self._n)]
+            return [self._mem[self._at(p, self._HELD)] for p in range(self._n)]
 
     def left_behind(self) -> list[int]:
         """Times each participant was left behind (held the clock over ``valve_s``)."""
-        d = self._due0 + 3 * self._n
         with self._lock:
-            return [int(self._mem[d + p]) for p in range(self._n)]
+            return [int(self._mem[self._at(p, self._BEHIND)]) for p in range(self._n)]

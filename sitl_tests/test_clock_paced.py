@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import math
 import multiprocessing as mp
+import os
+import signal
 import time
 from multiprocessing.connection import Connection
 
@@ -86,9 +88,11 @@ def test_a_participant_holding_it_longer_than_the_valve_is_left_behind() -> None
     me.idle_until(0.2)
     time.sleep(0.05)
     assert other.now() == pytest.approx(0.25)
-    time.sleep(0.1)  # frozen past the valve: the clock runs on without it
-    assert other.now() > 1.0
+    time.sleep(0.1)  # frozen past the valve: the clock runs on without it, from where
+    assert other.now() == pytest.approx(0.25)  # it waited (no jump by the time it waited)
     assert clock.left_behind() == [1, 0]
+    time.sleep(0.02)
+    assert other.now() > 1.0
     now = other.now()
     me.idle_until(now + 1.0)  # back: it takes part again
     time.sleep(0.05)
@@ -141,3 +145,63 @@ def test_only_a_participant_can_say_it_is_idle() -> None:
         clock.idle_until(1.0)
     with pytest.raises(ValueError, match="`slot`"):
         clock.participant(2)
+
+
+def test_the_valve_counts_from_when_a_participant_began_to_hold_not_its_last_report() -> None:
+    clock = PacedClock(100.0, valve_s=0.1)
+    early, late = clock.participant(0), clock.participant(1)
+    early.idle_until(5.0)  # reports once, long before it holds the clock
+    late.idle_until(0.2)
+    time.sleep(0.15)
+    assert early.now() == pytest.approx(0.25)  # the late one held it past the valve:
+    assert clock.left_behind() == [0, 1]  # left behind, and the clock goes on from here
+    time.sleep(0.08)  # the clock reaches 5.05 and waits there for the early one...
+    assert early.now() == pytest.approx(5.05)  # ...which is not left behind at once
+    assert clock.left_behind() == [0, 1]
+
+
+def _die_holding_the_lock(clock: PacedClock) -> None:
+    clock._lock.acquire()
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def test_a_process_killed_while_it_holds_the_lock_hangs_nobody(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(PacedClock, "LOCK_TIMEOUT_S", 0.2)
+    clock = PacedClock(10.0)
+    before = clock.now()
+    ctx = mp.get_context("spawn")
+    child = ctx.Process(target=_die_holding_the_lock, args=(clock,), daemon=True)
+    child.start()
+    child.join(60.0)
+    assert child.exitcode == -signal.SIGKILL
+    t0 = time.monotonic()
+    first = clock.now()  # waits LOCK_TIMEOUT_S, then runs on from what it last saw
+    assert time.monotonic() - t0 < 5.0
+    time.sleep(0.05)
+    assert before <= first < clock.now()
+    clock.participant(0).idle_until(1.0)  # does not hang either
+
+
+def test_a_stop_signal_to_the_process_group_leaves_the_helpers_fork_server_alive() -> None:
+    from multiprocessing import forkserver
+
+    from groundctl.processes import helper_context
+
+    ctx = helper_context()
+    if ctx.get_start_method() != "forkserver":
+        pytest.skip("no fork server on this platform")
+    probe = ctx.Process(target=time.sleep, args=(0.0,))
+    probe.start()  # makes sure the server runs
+    probe.join(60.0)
+    server = forkserver._forkserver._forkserver_pid  # type: ignore[attr-defined]
+    assert server is not None
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        os.kill(server, sig)  # as a Ctrl-C-like stop to the whole group would
+    time.sleep(0.3)
+    os.kill(server, 0)  # still there: the ground station lands the fleet with its helpers
+    again = ctx.Process(target=time.sleep, args=(0.0,))
+    again.start()
+    again.join(60.0)
+    assert again.exitcode == 0
+    assert forkserver._forkserver._forkserver_pid == server  # type: ignore[attr-defined]

@@ -106,6 +106,9 @@ log = logging.getLogger(__name__)
 PERMANENT_CHECKS = frozenset({"battery", "slot"})
 #: More notices than this of one kind in one tick are folded into one line.
 FOLD_AFTER = 3
+#: Real seconds between looks at a clock that has stopped (a paced dry-run clock waiting
+#: for the simulator).
+HELD_POLL_S = 0.002
 #: Phases in which a vehicle is (or may be) in the air, for the guard's closest pair.
 _AIRBORNE = frozenset({VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
                        VehiclePhase.RETURNING})
@@ -544,6 +547,7 @@ class ShowRunner:
         next_check = now
         next_progress = now + cfg.progress_every_s
         lost_since: float | None = None
+        previous = now
         try:
             while seq.phase is not ShowPhase.LANDED:
                 # Nothing to do before the next tick (a dry-run's paced clock waits for
@@ -553,9 +557,12 @@ class ShowRunner:
                 wait = next_tick - self.clock.now()
                 while wait > 0:
                     await asyncio.sleep(self.clock.wall_interval(wait))
-                    wait = next_tick - self.clock.now()
-                    if wait <= 1e-3:
+                    remaining = next_tick - self.clock.now()
+                    if remaining <= 1e-3:
                         break
+                    if remaining == wait:  # it has not moved: it waits for someone else
+                        await asyncio.sleep(HELD_POLL_S)
+                    wait = remaining
                 self.link.drain()  # decide on every packet that has arrived, not a backlog
                 now = self.clock.now()
                 scheduled = next_tick
@@ -567,7 +574,12 @@ class ShowRunner:
                     self.overruns += skipped
                     next_tick += skipped * period
                 if seq.holds - {"land-all"}:
-                    deadline += period  # held: the flight's time budget does not run
+                    # Held: the flight's time budget does not run -- for all the time since
+                    # the last tick, not one period (an overloaded loop skips ticks, and a
+                    # budget that ran on while the show was held ended the flight with the
+                    # fleet in the air, measured at x6 beside two busy processes).
+                    deadline += now - previous
+                previous = now
                 self.link.check_lost(now)
                 self._perform(seq.update(now, self.link.vehicles))
                 stalled = lag > cfg.guard.stall_s and seq.started_at is not None

@@ -51,6 +51,9 @@ log = logging.getLogger(__name__)
 #: Largest number of physics ticks run in one go when the loop falls behind; beyond
 #: that the loop is not keeping real time and skips ahead (counted in ``overruns``).
 MAX_CATCHUP_TICKS = 25
+#: Real seconds between looks at a clock that has stopped (a paced dry-run clock waiting
+#: for the ground station).
+HELD_POLL_S = 0.002
 
 
 class SimFleet:
@@ -368,6 +371,7 @@ class SimFleet:
     # -- the loop -----------------------------------------------------------------------------
 
     def _run(self) -> None:
+        held = math.nan
         try:
             while not self._stop.is_set():
                 now = self.clock.now()
@@ -382,7 +386,13 @@ class SimFleet:
                 # Nothing to do before the next physics tick (a paced dry-run clock waits
                 # for us no further than that).
                 self.clock.idle_until(self.t + self.dt)
-                wait = self.clock.wall_interval(self.t + self.dt - self.clock.now())
+                now = self.clock.now()
+                wait = self.clock.wall_interval(self.t + self.dt - now)
+                if now == held:
+                    # The clock has not moved since the last look: a paced clock waits
+                    # for someone else.  No polling it at the physics rate meanwhile.
+                    wait = max(wait, HELD_POLL_S)
+                held = now
                 if wait > 0:
                     if self._selector.select(wait):
                         # Packets arrived between ticks: answer now rather than at the
