@@ -265,6 +265,8 @@ class ShowRunner:
         self._led_schedule: LedSchedule | None = None
         self._led_handles: list[asyncio.TimerHandle] = []
         self._led_window_end = -math.inf
+        self._led_dues: list[float] = []  # clock instants of the LED sends scheduled
+        self._next_tick = math.inf
         self._leds = LedTracker(self.config.led_refresh_s)
         self._tasks: set[asyncio.Task[None]] = set()
         self._return_task: asyncio.Task[None] | None = None
@@ -553,7 +555,8 @@ class ShowRunner:
                 # Nothing to do before the next tick (a dry-run's paced clock waits for
                 # us no further than that); a clock that waited for someone else is
                 # slower than its pace, so the sleep is repeated until the tick is due.
-                self.clock.idle_until(next_tick)
+                self._next_tick = next_tick
+                self.clock.idle_until(self._idle_due())
                 wait = next_tick - self.clock.now()
                 while wait > 0:
                     await asyncio.sleep(self.clock.wall_interval(wait))
@@ -631,9 +634,10 @@ class ShowRunner:
                     raise FlightError(f"the flight did not finish within {budget:.0f} s: "
                                       f"vehicles still flying or unaccounted for {left}")
         finally:
-            self.clock.idle_until(math.inf)  # no more ticks: nobody waits for this loop
             self._flush_notices()
             self._cancel_led_sends()
+            self._next_tick = math.inf
+            self.clock.idle_until(math.inf)  # no more ticks: nobody waits for this loop
         self._say("every vehicle is down", "sequence_finished",
                   phases={str(s): str(v.phase) for s, v in seq.vehicles.items()})
         await self._drain()
@@ -1060,6 +1064,7 @@ class ShowRunner:
             handle = loop.call_later(self.clock.wall_interval(wait), self._send_led_at,
                                      sysid, colour, now + wait)
             self._led_handles.append(handle)
+            self._led_dues.append(now + wait)
         self._led_handles = [h for h in self._led_handles if not h.cancelled()
                              and h.when() >= loop.time()]
         # The periodic refresh, of the colour the vehicle should show when it arrives.
@@ -1085,10 +1090,19 @@ class ShowRunner:
         wait = due - self.clock.now()
         if wait > 1e-3:
             handle = asyncio.get_running_loop().call_later(
-                self.clock.wall_interval(wait), self._send_led_at, sysid, colour, due)
+                max(self.clock.wall_interval(wait), HELD_POLL_S), self._send_led_at, sysid,
+                colour, due)
             self._led_handles.append(handle)
             return
         self._send_led(sysid, colour)
+        with contextlib.suppress(ValueError):
+            self._led_dues.remove(due)
+        self.clock.idle_until(self._idle_due())
+
+    def _idle_due(self) -> float:
+        """The next clock instant this loop must act at: its next tick, or an LED send
+        scheduled before it (a paced clock waits for us no further than that)."""
+        return min(self._next_tick, min(self._led_dues, default=math.inf))
 
     def _send_led(self, sysid: int, colour: tuple[int, int, int]) -> None:
         self._leds.sent(sysid, colour, self.clock.now())
@@ -1099,6 +1113,7 @@ class ShowRunner:
         for handle in self._led_handles:
             handle.cancel()
         self._led_handles.clear()
+        self._led_dues.clear()
         self._led_window_end = -math.inf
 
     def _flag_late(self, seq: ShowSequence, now: float) -> None:

@@ -182,8 +182,9 @@ class RtkSource:
         while True:
             for epoch in self.epochs:
                 wait = due - self.clock.now()
-                if wait > 0:
-                    await asyncio.sleep(self.clock.wall_interval(wait))
+                while wait > 0:  # again if a paced dry-run clock ran slower than its pace
+                    await asyncio.sleep(max(self.clock.wall_interval(wait), 0.001))
+                    wait = due - self.clock.now()
                 due = max(due + period, self.clock.now() - period)
                 yield b"".join(epoch)
             self.loops += 1
