@@ -72,3 +72,21 @@ def test_led_changes_are_timed_against_the_plans_colour_keys() -> None:
     assert len(mon.vehicles[1].led_errors_s) == 1
     mon.observe_led(1, (0, 255, 0), changed_at=101.0, show_time_of=6.0)  # never in the plan
     assert mon.vehicles[1].led_unmatched == 1
+
+
+def test_the_flight_budget_does_not_run_while_the_show_is_held_skipped_ticks_included() -> None:
+    from groundctl.flight.runner import FlightBudget
+
+    budget = FlightBudget(100.0, started=10.0)
+    now = 10.0
+    for _ in range(50):  # flying: 5 s of the budget gone
+        now += 0.1
+        budget.tick(now, held=False)
+    # Held, on a loop so late that it ticks once every 2 s (19 ticks skipped each time):
+    # all 60 s are held time, not 30 periods of 0.1 s.
+    for _ in range(30):
+        now += 2.0
+        budget.tick(now, held=True)
+    assert budget.held_s == pytest.approx(60.0)
+    assert not budget.expired(now + 94.0)  # 5 s flown + 94 s < 100 s
+    assert budget.expired(now + 95.5)

@@ -227,6 +227,36 @@ class VehicleRecord:
     """Times it was flagged late during the flight."""
 
 
+@dataclass
+class FlightBudget:
+    """How long the flight may take: ``seconds`` of the runner's clock, not counting the
+    time the show is held (the operator's hold, the guard's)."""
+
+    seconds: float
+    """The budget."""
+    started: float
+    """Clock time it started."""
+    held_s: float = 0.0
+    """Time held so far, not counted."""
+    _last: float | None = field(default=None, init=False, repr=False)
+
+    def tick(self, now: float, held: bool) -> None:
+        """A tick of the loop at ``now``; ``held``: the show has been held since the last
+        one.  All the time since the last tick counts as held, not one period: a loop
+        late by many periods skips ticks, and a budget that ran on through them while
+        the show was held ended the flight with the fleet in the air (measured: the demo
+        at x6 beside two busy processes, ``--no-pace``: "did not finish within 399 s"
+        with all 64 drones in the show)."""
+        last = self.started if self._last is None else self._last
+        if held:
+            self.held_s += max(now - last, 0.0)
+        self._last = now
+
+    def expired(self, now: float) -> bool:
+        """Whether the flight has run past its budget at ``now``."""
+        return now > self.started + self.seconds + self.held_s
+
+
 class ShowRunner:
     """Flies ``plan`` with the vehicles on ``link``; see the module docstring."""
 
@@ -544,12 +574,11 @@ class ShowRunner:
         self._perform(seq.start(now))
         budget = (cfg.sequence.takeoff_timeout_s + 2 * cfg.sequence.step_timeout_s
                   * cfg.sequence.max_attempts + self.plan.duration + cfg.landing_timeout_s)
-        deadline = now + budget
+        clock_budget = FlightBudget(budget, now)
         next_tick = now
         next_check = now
         next_progress = now + cfg.progress_every_s
         lost_since: float | None = None
-        previous = now
         try:
             while seq.phase is not ShowPhase.LANDED:
                 # Nothing to do before the next tick (a dry-run's paced clock waits for
@@ -576,13 +605,7 @@ class ShowRunner:
                     skipped = int((now - next_tick) / period) + 1
                     self.overruns += skipped
                     next_tick += skipped * period
-                if seq.holds - {"land-all"}:
-                    # Held: the flight's time budget does not run -- for all the time since
-                    # the last tick, not one period (an overloaded loop skips ticks, and a
-                    # budget that ran on while the show was held ended the flight with the
-                    # fleet in the air, measured at x6 beside two busy processes).
-                    deadline += now - previous
-                previous = now
+                clock_budget.tick(now, held=bool(seq.holds - {"land-all"}))
                 self.link.check_lost(now)
                 self._perform(seq.update(now, self.link.vehicles))
                 stalled = lag > cfg.guard.stall_s and seq.started_at is not None
@@ -627,7 +650,7 @@ class ShowRunner:
                             "airborne, under their own failsafe")
                 else:
                     lost_since = None
-                if now > deadline:
+                if clock_budget.expired(now):
                     left = {s: str(v.phase) for s, v in seq.vehicles.items()
                             if v.phase not in (VehiclePhase.LANDED, VehiclePhase.FAILED,
                                                VehiclePhase.KILLED)}
