@@ -16,9 +16,12 @@ callable), never ``time.monotonic`` directly, so that
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import copy
 import math
 import time
+from collections.abc import Iterator
 from typing import Protocol
 
 
@@ -42,6 +45,25 @@ class Clock(Protocol):
         """A loop on this clock has nothing to do before ``t`` (only a
         :class:`PacedClock` waits for it; the others ignore it)."""
         ...
+
+
+#: Real seconds between looks at a clock that has stopped (a paced dry-run clock waiting
+#: for another loop): no polling it at a loop's own rate meanwhile.
+HELD_POLL_S = 0.002
+
+
+async def sleep_until(clock: Clock, t: float) -> None:
+    """Sleep until ``clock`` reads ``t`` (within 1 ms).  A wall-time sleep is only an
+    estimate of a paced clock's time, which runs slower while it waits for a late loop:
+    the sleep is repeated until the clock is there, every HELD_POLL_S while it stands."""
+    wait = t - clock.now()
+    while wait > 1e-3:
+        await asyncio.sleep(clock.wall_interval(wait))
+        left = t - clock.now()
+        if left == wait:  # it has not moved: it waits for someone else
+            await asyncio.sleep(HELD_POLL_S)
+            left = t - clock.now()
+        wait = left
 
 
 class ScaledClock:
@@ -125,10 +147,11 @@ class PacedClock:
 
     ANCHORS = 512
     LOCK_TIMEOUT_S = 2.0
-    _SPEED, _SLACK, _VALVE, _HEAD, _LAST, _LAST_WALL = range(6)
-    _RING = 8
-    # Per participant, after the anchors: due time, holding since (wall; NaN when not
-    # holding), real seconds held, times left behind.
+    # Shared memory: the head of the anchor ring, the last reading and when, the ring
+    # (wall, clock) pairs, then per participant its due time, holding since (wall; NaN
+    # when not holding), real seconds held and times left behind.
+    _HEAD, _LAST, _LAST_WALL = range(3)
+    _RING = 3
     _DUE, _SINCE, _HELD, _BEHIND = range(4)
 
     def __init__(self, speed: float = 1.0, participants: int = 2, *, slack: float = 0.05,
@@ -144,27 +167,28 @@ class PacedClock:
         from groundctl.processes import helper_context
 
         ctx = helper_context()
+        self.speed = float(speed)
+        self.slack = float(slack)
+        self.valve_s = float(valve_s)
         self._n = participants
         self._p0 = self._RING + 2 * self.ANCHORS
         self._mem = ctx.RawArray("d", self._p0 + 4 * participants)
         self._lock = ctx.Lock()
         self._slot: int | None = None
-        self.speed = float(speed)
-        self._seen = (0.0, time.monotonic())  # this process's last reading, and when
-        m = self._mem
-        m[self._SPEED], m[self._SLACK], m[self._VALVE] = self.speed, slack, valve_s
         wall = time.monotonic()
-        m[self._HEAD] = 0.0
-        m[self._RING], m[self._RING + 1] = wall, 0.0
+        self._seen = (0.0, wall)  # this process's last reading, and when
+        m = self._mem
+        m[self._RING], m[self._RING + 1] = wall, 0.0  # anchor 0: zero, now
         m[self._LAST], m[self._LAST_WALL] = 0.0, wall
         for p in range(participants):
             m[self._at(p, self._DUE)] = math.inf  # not taking part until it says so
             m[self._at(p, self._SINCE)] = math.nan
-            m[self._at(p, self._HELD)] = 0.0
-            m[self._at(p, self._BEHIND)] = 0.0
 
     def _at(self, participant: int, field: int) -> int:
         return self._p0 + field * self._n + participant
+
+    def _anchor(self, k: int) -> int:
+        return self._RING + 2 * (k % self.ANCHORS)
 
     def participant(self, slot: int) -> PacedClock:
         """The same clock, as seen by participant ``slot`` (its :meth:`idle_until` speaks
@@ -175,17 +199,22 @@ class PacedClock:
         view._slot = slot
         return view
 
+    @contextlib.contextmanager
+    def _locked(self) -> Iterator[bool]:
+        """The lock, held; False if its holder died holding it (after LOCK_TIMEOUT_S)."""
+        if not self._lock.acquire(timeout=self.LOCK_TIMEOUT_S):
+            yield False
+            return
+        try:
+            yield True
+        finally:
+            self._lock.release()
+
     # -- reading ---------------------------------------------------------------------
 
     def now(self) -> float:
-        if not self._lock.acquire(timeout=self.LOCK_TIMEOUT_S):
-            return self._unlocked()
-        try:
-            value = self._read()
-        finally:
-            self._lock.release()
-        self._seen = (value, time.monotonic())
-        return value
+        with self._locked() as ok:
+            return self._read() if ok else self._unlocked()
 
     def _unlocked(self) -> float:
         """The lock's holder died holding it: at full pace from this process's last
@@ -196,52 +225,49 @@ class PacedClock:
     def _read(self) -> float:
         """The clock now; with the lock held.  The time is read under the lock, so a
         reader that waited for it never works with an older time than the last writer."""
-        m, n = self._mem, self._n
+        m = self._mem
         wall = max(time.monotonic(), m[self._LAST_WALL])
-        head = int(m[self._HEAD])
-        at = self._RING + 2 * (head % self.ANCHORS)
-        a_wall, a_sim = m[at], m[at + 1]
-        free = a_sim + self.speed * (wall - a_wall)
         last = m[self._LAST]
+        at = self._anchor(int(m[self._HEAD]))
+        value = m[at + 1] + self.speed * (wall - m[at])
         while True:
-            due = min(range(n), key=lambda p: m[self._at(p, self._DUE)])
-            cap = m[self._at(due, self._DUE)] + m[self._SLACK]
-            if free <= cap:
-                value = free
+            due = min(range(self._n), key=lambda p: m[self._at(p, self._DUE)])
+            cap = m[self._at(due, self._DUE)] + self.slack
+            if value <= cap:
                 break
+            # Held by ``due``: since the clock met its cap, or the last reading if later.
             since = self._at(due, self._SINCE)
             if math.isnan(m[since]):
-                # It holds the clock from when the clock met its cap (or from the last
-                # reading, if that was later).
-                m[since] = max(a_wall + max(min(cap, free) - a_sim, 0.0) / self.speed,
-                               m[self._LAST_WALL]) if cap >= last else m[self._LAST_WALL]
-            if wall - m[since] > m[self._VALVE]:  # held too long on end: left behind
-                m[self._at(due, self._HELD)] += wall - m[since]
-                m[self._at(due, self._DUE)] = math.inf
-                m[since] = math.nan
-                m[self._at(due, self._BEHIND)] += 1.0
-                # It stood at the cap until now, and runs on from here (the others did
-                # not hold it meanwhile).
-                held_at = max(cap, last)
-                if held_at > a_sim:
-                    head += 1
-                    at = self._RING + 2 * (head % self.ANCHORS)
-                    m[self._HEAD] = float(head)
-                m[at], m[at + 1] = wall, held_at
-                a_wall, a_sim, free = wall, held_at, held_at
-                continue
+                met = m[at] + max(cap - m[at + 1], 0.0) / self.speed
+                m[since] = max(met, m[self._LAST_WALL])
+            held = wall - m[since]
             value = max(cap, last)
-            if value <= a_sim:  # flat since the anchor: the flat stretch goes on
-                m[at] = wall
-            else:  # it rose, then met the cap: it rises again from here once released
-                head += 1
-                nxt = self._RING + 2 * (head % self.ANCHORS)
-                m[nxt], m[nxt + 1] = wall, value
-                m[self._HEAD] = float(head)
-            break
+            at = self._stand(value, wall)
+            if held <= self.valve_s:
+                break
+            # Held too long on end: left behind, and the clock runs on from where it
+            # waited (the others did not hold it meanwhile).
+            m[self._at(due, self._HELD)] += held
+            m[self._at(due, self._BEHIND)] += 1.0
+            m[self._at(due, self._DUE)] = math.inf
+            m[since] = math.nan
         value = max(value, last)
         m[self._LAST], m[self._LAST_WALL] = value, wall
+        self._seen = (value, wall)
         return value
+
+    def _stand(self, value: float, wall: float) -> int:
+        """The clock stands at ``value`` at ``wall`` and rises from there once released:
+        the flat stretch of the last anchor goes on, or a new anchor; its index."""
+        m = self._mem
+        head = int(m[self._HEAD])
+        at = self._anchor(head)
+        if value > m[at + 1]:  # it rose, then met the cap
+            m[self._HEAD] = float(head + 1)
+            at = self._anchor(head + 1)
+            m[at + 1] = value
+        m[at] = wall
+        return at
 
     def wall_interval(self, seconds: float) -> float:
         """Real seconds that ``seconds`` take at full pace (longer while the clock waits:
@@ -256,34 +282,30 @@ class PacedClock:
         later = now
         oldest = head
         for k in range(head, max(head - self.ANCHORS, -1), -1):
-            at = self._RING + 2 * (k % self.ANCHORS)
+            at = self._anchor(k)
             a_wall, a_sim = m[at], m[at + 1]
             if a_wall <= wall:
                 return min(a_sim + self.speed * (wall - a_wall), later)
             later, oldest = a_sim, k
         # Older than every anchor kept: the oldest one's reading, at most (it may have
         # waited before it; it never ran faster than its pace).
-        at = self._RING + 2 * (oldest % self.ANCHORS)
+        at = self._anchor(oldest)
         return min(m[at + 1], later) - self.speed * max(m[at] - wall, 0.0)
 
     def at_wall(self, wall: float) -> float:
         """The clock's reading at ``time.monotonic()`` = ``wall`` (not in the future)."""
-        if not self._lock.acquire(timeout=self.LOCK_TIMEOUT_S):
-            return self._unlocked() - self.speed * max(time.monotonic() - wall, 0.0)
-        try:
+        with self._locked() as ok:
+            if not ok:
+                return self._unlocked() - self.speed * max(time.monotonic() - wall, 0.0)
             return self._dated(wall, self._read())
-        finally:
-            self._lock.release()
 
     def ago(self, wall_seconds: float) -> float:
         """Clock seconds since ``wall_seconds`` of real time ago (one look at the lock)."""
-        if not self._lock.acquire(timeout=self.LOCK_TIMEOUT_S):
-            return self.speed * wall_seconds
-        try:
+        with self._locked() as ok:
+            if not ok:
+                return self.speed * wall_seconds
             now = self._read()
             return now - self._dated(time.monotonic() - wall_seconds, now)
-        finally:
-            self._lock.release()
 
     # -- taking part -------------------------------------------------------------------
 
@@ -292,9 +314,9 @@ class PacedClock:
         may run to ``t + slack`` without it (``math.inf``: it takes no more part)."""
         if self._slot is None:
             raise ValueError("idle_until() on the shared clock itself: use participant()")
-        if not self._lock.acquire(timeout=self.LOCK_TIMEOUT_S):
-            return
-        try:
+        with self._locked() as ok:
+            if not ok:
+                return
             self._read()  # a wait for us ends now, not at whoever read the clock last
             m = self._mem
             since = self._at(self._slot, self._SINCE)
@@ -302,8 +324,6 @@ class PacedClock:
                 m[self._at(self._slot, self._HELD)] += max(m[self._LAST_WALL] - m[since], 0.0)
                 m[since] = math.nan
             m[self._at(self._slot, self._DUE)] = t
-        finally:
-            self._lock.release()
 
     def held_s(self) -> list[float]:
         """Real seconds each participant has held the clock, by slot (up to its last

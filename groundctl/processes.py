@@ -23,11 +23,12 @@ method) helpers are spawned as before.
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
+import signal
 from multiprocessing.context import ForkServerContext, SpawnContext
 
-#: Imported by the fork server before it forks anything.  The first sets the numerical
-#: libraries single-threaded (read when they load: every helper's matrices are small,
-#: and the control loop needs a core of its own).
+#: Imported by the fork server before it forks anything; the first one settles it
+#: (:func:`settle_helper`) before numpy loads.
 PRELOAD = ("groundctl.helperenv", "numpy", "scipy.sparse", "scipy.linalg", "osqp",
            "pymavlink.dialects.v20.ardupilotmega", "groundctl.flight.returning",
            "groundctl.execute.mpc", "groundctl.sim.fleet")
@@ -36,6 +37,24 @@ PRELOAD = ("groundctl.helperenv", "numpy", "scipy.sparse", "scipy.linalg", "osqp
 #: are small, and the control loop's process needs a core of its own.
 SINGLE_THREADED = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
                    "VECLIB_MAXIMUM_THREADS", "NUMEXPR_NUM_THREADS")
+
+def settle_helper() -> None:
+    """What every helper process does first, and the fork server before it forks:
+
+    * ignore the stop signals -- they reach the whole process group (Ctrl-C, a closed
+      terminal, a service manager); the ground station decides what they mean (land
+      the fleet, which needs its helpers) and stops them itself.  A fork server killed
+      by one would take its children with it (their sentinels close: broken pools in
+      the middle of that landing);
+    * pin the numerical libraries to one thread (OpenBLAS, MKL and OpenMP read it when
+      they load, with numpy: a helper forked from the server has it already).
+    """
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), signal.SIG_IGN)
+    for variable in SINGLE_THREADED:
+        os.environ[variable] = "1"
+
 
 _context: ForkServerContext | SpawnContext | None = None
 

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import contextlib
 import json
 import subprocess
 import sys
+from collections.abc import AsyncIterator, Awaitable, Callable
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -178,6 +180,15 @@ def test_file_without_frames_is_refused(tmp_path: Path) -> None:
         load_epochs(p)
 
 
+@contextlib.asynccontextmanager
+async def _loopback_server(serve: Callable[[asyncio.StreamReader, asyncio.StreamWriter],
+                                           Awaitable[None]]) -> AsyncIterator[int]:
+    """A TCP server on 127.0.0.1 running ``serve`` for each connection: its port."""
+    server = await asyncio.start_server(serve, "127.0.0.1", 0)
+    async with server:
+        yield server.sockets[0].getsockname()[1]
+
+
 async def _collect(source: RtkSource, want: int) -> bytes:
     got = b""
     async for chunk in source.chunks():
@@ -196,9 +207,7 @@ def test_tcp_source() -> None:
             await w.drain()
             w.close()
 
-        server = await asyncio.start_server(serve, "127.0.0.1", 0)
-        port = server.sockets[0].getsockname()[1]
-        async with server:
+        async with _loopback_server(serve) as port:
             src = RtkSource(parse_source(f"tcp:127.0.0.1:{port}"), ScaledClock(1.0))
             return await asyncio.wait_for(_collect(src, len(data)), 20)
 
@@ -229,9 +238,7 @@ def test_ntrip_client_against_a_local_caster(version: str) -> None:
             await w.drain()
             w.close()
 
-        server = await asyncio.start_server(serve, "127.0.0.1", 0)
-        port = server.sockets[0].getsockname()[1]
-        async with server:
+        async with _loopback_server(serve) as port:
             good = RtkSource(parse_source(f"ntrip://me:pw@127.0.0.1:{port}/MNT"),
                              ScaledClock(1.0))
             got = await asyncio.wait_for(_collect(good, len(data)), 20)
@@ -285,9 +292,7 @@ def test_an_ntrip_client_tells_a_network_caster_where_it_is() -> None:
             await w.drain()
             w.close()
 
-        server = await asyncio.start_server(serve, "127.0.0.1", 0)
-        port = server.sockets[0].getsockname()[1]
-        async with server:
+        async with _loopback_server(serve) as port:
             src = RtkSource(parse_source(f"ntrip://127.0.0.1:{port}/VRS"), ScaledClock(1.0),
                             position=(47.3977, 8.5456, 488.0),
                             utc=lambda: datetime(2026, 12, 2, 13, 5, 9, tzinfo=UTC))

@@ -177,8 +177,13 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
     gets the runner before it starts (the CLI hooks Ctrl-C to it).
     """
     paced = PacedClock(options.speed, participants=2) if options.paced else None
-    clock: Clock = paced.participant(0) if paced is not None else ScaledClock(options.speed)
-    sim_clock = paced.participant(1) if paced is not None else clock
+    # The ground station's clock, and the simulator's.
+    clock: ScaledClock | PacedClock
+    sim_clock: ScaledClock | PacedClock
+    if paced is not None:
+        clock, sim_clock = paced.participant(0), paced.participant(1)
+    else:
+        clock = sim_clock = ScaledClock(options.speed)
     started = time.monotonic()
     record = options.record_dir
     recording = None if record is None else Recording(record, clock.now, plan,
@@ -200,7 +205,6 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
         config = sim_config(plan, options, link.local_address)
         if customise is not None:
             config = customise(config)
-        assert isinstance(sim_clock, (ScaledClock, PacedClock))
         fleet = await asyncio.to_thread(SimProcess, config, sim_clock)  # starts flying now
         runner = ShowRunner(plan, link, clock, options.runner, events=events, notify=notify,
                             expected_ids=config.sysids())

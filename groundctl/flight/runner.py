@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from groundctl.clock import Clock
+from groundctl.clock import HELD_POLL_S, Clock, sleep_until
 from groundctl.errors import (
     CommandRefused,
     FlightError,
@@ -106,9 +106,6 @@ log = logging.getLogger(__name__)
 PERMANENT_CHECKS = frozenset({"battery", "slot"})
 #: More notices than this of one kind in one tick are folded into one line.
 FOLD_AFTER = 3
-#: Real seconds between looks at a clock that has stopped (a paced dry-run clock waiting
-#: for the simulator).
-HELD_POLL_S = 0.002
 #: Phases in which a vehicle is (or may be) in the air, for the guard's closest pair.
 _AIRBORNE = frozenset({VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
                        VehiclePhase.RETURNING})
@@ -586,15 +583,7 @@ class ShowRunner:
                 # slower than its pace, so the sleep is repeated until the tick is due.
                 self._next_tick = next_tick
                 self.clock.idle_until(self._idle_due())
-                wait = next_tick - self.clock.now()
-                while wait > 0:
-                    await asyncio.sleep(self.clock.wall_interval(wait))
-                    remaining = next_tick - self.clock.now()
-                    if remaining <= 1e-3:
-                        break
-                    if remaining == wait:  # it has not moved: it waits for someone else
-                        await asyncio.sleep(HELD_POLL_S)
-                    wait = remaining
+                await sleep_until(self.clock, next_tick)
                 self.link.drain()  # decide on every packet that has arrived, not a backlog
                 now = self.clock.now()
                 scheduled = next_tick

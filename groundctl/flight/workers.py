@@ -34,7 +34,6 @@ import logging
 import math
 import os
 import pickle
-import signal
 import threading
 import time
 from collections.abc import Callable, Collection, Mapping
@@ -44,7 +43,7 @@ from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
 from groundctl.errors import FlightError, PlanningTimeout
-from groundctl.processes import SINGLE_THREADED, helper_context
+from groundctl.processes import helper_context, settle_helper
 
 # Nothing here may import numpy at module level: a worker imports this module before
 # its initializer runs, and the thread limits below only work before numpy loads.
@@ -86,14 +85,7 @@ def settle_worker(ground_station: int) -> None:
     single-threaded already) and leave with ``ground_station`` (its process id).  A
     worker's initializer takes its arguments as pickled bytes and unpickles them after
     this."""
-    # Stop signals reach the whole process group (Ctrl-C, a closed terminal, a service
-    # manager); the parent decides what they mean and stops this worker itself.
-    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
-        if hasattr(signal, name):
-            signal.signal(getattr(signal, name), signal.SIG_IGN)
-    # Read by OpenBLAS / MKL / OpenMP when they load, i.e. with numpy.
-    for variable in SINGLE_THREADED:
-        os.environ[variable] = "1"
+    settle_helper()
     with contextlib.suppress(OSError):
         os.nice(WORKER_NICE)
     # Ignoring the stop signals, a worker whose ground station was killed outright

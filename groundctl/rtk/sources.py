@@ -28,7 +28,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from urllib.parse import unquote, urlsplit
 
-from groundctl.clock import Clock
+from groundctl.clock import Clock, sleep_until
 from groundctl.errors import EXIT_USAGE, GroundctlError
 from groundctl.rtk.rtcm import RtcmFramer, split_epochs
 
@@ -181,10 +181,7 @@ class RtkSource:
         due = self.clock.now()
         while True:
             for epoch in self.epochs:
-                wait = due - self.clock.now()
-                while wait > 0:  # again if a paced dry-run clock ran slower than its pace
-                    await asyncio.sleep(max(self.clock.wall_interval(wait), 0.001))
-                    wait = due - self.clock.now()
+                await sleep_until(self.clock, due)
                 due = max(due + period, self.clock.now() - period)
                 yield b"".join(epoch)
             self.loops += 1

@@ -33,7 +33,7 @@ from types import TracebackType
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from groundctl.clock import Clock, ManualClock, ScaledClock
+from groundctl.clock import HELD_POLL_S, Clock, ManualClock, ScaledClock
 from groundctl.errors import SimulatorError
 from groundctl.link.flavours import Flavour
 from groundctl.sim.ardupilot import ArduPilotVehicle
@@ -51,9 +51,6 @@ log = logging.getLogger(__name__)
 #: Largest number of physics ticks run in one go when the loop falls behind; beyond
 #: that the loop is not keeping real time and skips ahead (counted in ``overruns``).
 MAX_CATCHUP_TICKS = 25
-#: Real seconds between looks at a clock that has stopped (a paced dry-run clock waiting
-#: for the ground station).
-HELD_POLL_S = 0.002
 
 
 class SimFleet:

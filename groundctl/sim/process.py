@@ -20,7 +20,6 @@ It stops when told, or when the parent goes away (its pipe closes).
 from __future__ import annotations
 
 import contextlib
-import signal
 import threading
 import time
 from multiprocessing.connection import Connection
@@ -29,7 +28,7 @@ from typing import Any
 
 from groundctl.clock import PacedClock, ScaledClock
 from groundctl.errors import SimulatorError
-from groundctl.processes import helper_context
+from groundctl.processes import helper_context, settle_helper
 from groundctl.sim.config import SimConfig
 
 #: Seconds to wait for the child to build its fleet, or to answer a call.
@@ -38,12 +37,9 @@ CALL_TIMEOUT_S = 10.0
 
 
 def _serve(conn: Connection, config: SimConfig, clock: ScaledClock | PacedClock) -> None:
-    # Stop signals reach the whole process group (Ctrl-C, a closed terminal, a service
-    # manager): the parent lands the simulated fleet first and then stops this child
-    # itself; a parent that dies outright closes the pipe, which ends the loop below.
-    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
-        if hasattr(signal, name):
-            signal.signal(getattr(signal, name), signal.SIG_IGN)
+    # The parent lands the simulated fleet on a stop signal first and then stops this
+    # child itself; a parent that dies outright closes the pipe, which ends the loop below.
+    settle_helper()
     from groundctl.sim.fleet import SimFleet
 
     try:
