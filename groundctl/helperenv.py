@@ -1,9 +1,13 @@
 """Imported first by the helpers' fork server (:mod:`groundctl.processes`), before numpy,
-to settle it (:func:`~groundctl.processes.settle_helper`).  Nothing else imports this
-module: its import is its effect."""
+to settle it (:func:`~groundctl.processes.settle_helper`).  Only there: the server
+starts with :data:`~groundctl.processes.SERVER_MARK` in its environment, and any
+other importer is left as it is."""
 
 from __future__ import annotations
 
-from groundctl.processes import settle_helper
+import os
 
-settle_helper()
+from groundctl.processes import SERVER_MARK, settle_helper
+
+if os.environ.pop(SERVER_MARK, None) == "1":
+    settle_helper()

@@ -56,11 +56,18 @@ def settle_helper() -> None:
         os.environ[variable] = "1"
 
 
+#: In the environment the fork server starts with, and only there: the sign for
+#: :mod:`groundctl.helperenv` that it runs in the server (anybody else may import it --
+#: a test importing every module did -- and a ground station settled as a helper would
+#: ignore Ctrl-C, and so would every program it starts).
+SERVER_MARK = "GROUNDCTL_HELPER_SERVER"
+
 _context: ForkServerContext | SpawnContext | None = None
 
 
 def helper_context() -> ForkServerContext | SpawnContext:
-    """The multiprocessing context every helper process is started from."""
+    """The multiprocessing context every helper process is started from (its fork
+    server running, and settled)."""
     global _context
     if _context is None:
         if "forkserver" in mp.get_all_start_methods():
@@ -69,4 +76,13 @@ def helper_context() -> ForkServerContext | SpawnContext:
             _context = ctx
         else:
             _context = mp.get_context("spawn")
+    if _context.get_start_method() == "forkserver":
+        from multiprocessing import forkserver
+
+        # The server inherits the environment it starts with: the mark only for it.
+        os.environ[SERVER_MARK] = "1"
+        try:
+            forkserver.ensure_running()
+        finally:
+            os.environ.pop(SERVER_MARK, None)
     return _context

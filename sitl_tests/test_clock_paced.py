@@ -181,27 +181,3 @@ def test_a_process_killed_while_it_holds_the_lock_hangs_nobody(
     time.sleep(0.05)
     assert before <= first < clock.now()
     clock.participant(0).idle_until(1.0)  # does not hang either
-
-
-def test_a_stop_signal_to_the_process_group_leaves_the_helpers_fork_server_alive() -> None:
-    from multiprocessing import forkserver
-
-    from groundctl.processes import helper_context
-
-    ctx = helper_context()
-    if ctx.get_start_method() != "forkserver":
-        pytest.skip("no fork server on this platform")
-    probe = ctx.Process(target=time.sleep, args=(0.0,))
-    probe.start()  # makes sure the server runs
-    probe.join(60.0)
-    server = forkserver._forkserver._forkserver_pid  # type: ignore[attr-defined]
-    assert server is not None
-    for sig in (signal.SIGTERM, signal.SIGHUP):
-        os.kill(server, sig)  # as a Ctrl-C-like stop to the whole group would
-    time.sleep(0.3)
-    os.kill(server, 0)  # still there: the ground station lands the fleet with its helpers
-    again = ctx.Process(target=time.sleep, args=(0.0,))
-    again.start()
-    again.join(60.0)
-    assert again.exitcode == 0
-    assert forkserver._forkserver._forkserver_pid == server  # type: ignore[attr-defined]
