@@ -45,8 +45,15 @@ def test_helpers_from_the_fork_server_are_single_threaded() -> None:
     ctx = helper_context()
     if ctx.get_start_method() != "forkserver":
         pytest.skip("no fork server on this platform")
-    with ctx.Pool(1) as pool:
-        assert set(pool.apply(_thread_limits).values()) == {"1"}
+    # Not ``with Pool``: its exit is terminate(), a SIGTERM that helpers ignore (by design,
+    # see settle_helper), and it hung when the worker had not yet read its sentinel.
+    pool = ctx.Pool(1)
+    try:
+        limits = pool.apply(_thread_limits)
+    finally:
+        pool.close()
+        pool.join()
+    assert set(limits.values()) == {"1"}
 
 
 def test_importing_the_servers_settling_module_leaves_the_importer_as_it_is() -> None:
