@@ -10,6 +10,7 @@ from test_execute_support import make_plan, make_vehicle, set_altitude
 
 from groundctl.execute.leaving import Leave
 from groundctl.execute.sequence import (
+    HOVER_BEFORE_SHOW_S,
     Arm,
     Disarm,
     Kill,
@@ -127,6 +128,23 @@ def test_the_show_clock_starts_without_a_straggler_once_the_settle_time_is_over(
     assert seq.update(1.0, states) == []
     assert seq.update(10.9, states) == []
     assert seq.update(11.0, states) == [Notice(None, "show started with 2 vehicle(s)")]
+
+
+def test_the_show_clock_waits_until_every_vehicle_has_hovered_ready_long_enough() -> None:
+    """A flight hovers each vehicle HOVER_BEFORE_SHOW_S before its show: its hover throttle
+    (its thrust left) is measured before its path asks anything of it."""
+    states = _fleet(ARDU)
+    seq = ShowSequence(make_plan(), {1: 0, 2: 1}, {1: ARDU, 2: ARDU},
+                       SequenceConfig(hover_before_show_s=HOVER_BEFORE_SHOW_S))
+    _armed_ardupilot(seq, states, 0.0)
+    set_altitude(states[1], 3.0)
+    assert seq.update(1.0, states) == []  # vehicle 1 ready (and settled) at 1.0
+    set_altitude(states[2], 3.0)
+    assert seq.update(2.0, states) == []  # vehicle 2 ready at 2.0, both settled
+    assert seq.update(1.0 + HOVER_BEFORE_SHOW_S, states) == []  # vehicle 2 not long enough
+    assert seq.phase is not ShowPhase.SHOW
+    assert seq.update(2.0 + HOVER_BEFORE_SHOW_S, states) == [
+        Notice(None, "show started with 2 vehicle(s)")]
 
 
 def test_px4_streams_setpoints_before_asking_for_offboard() -> None:

@@ -288,6 +288,9 @@ class SequenceConfig:
     """The show clock starts once every ready vehicle is this close to its first plan point."""
     settle_timeout_s: float = 10.0
     """...or once they have been ready this long, whatever their distance, s."""
+    hover_before_show_s: float = 0.0
+    """...and never before each of them has hovered ready this long, s (the flight's
+    runner asks for :data:`HOVER_BEFORE_SHOW_S`)."""
     rejoin_tolerance_m: float = 1.0
     """A vehicle heard again mid-show rejoins its plan if it is this close to it, m;
     farther, it holds where it is and leaves the show on a planned way out."""
@@ -304,6 +307,15 @@ class SequenceConfig:
     return_timeout_s: float = 30.0
     """A returning vehicle not over its landing point this long after its return should
     have ended lands where it is, s."""
+
+
+#: What a flight hovers ready before its show starts, s: each vehicle's hover throttle,
+#: which says how much thrust it has (a weak motor, a tired battery:
+#: :mod:`groundctl.execute.authority`), is then known before its path asks anything of
+#: it, and the MPC flies a weak one from the first second (VFR_HUD comes at 4 Hz and the
+#: estimate wants 8 readings; without the hover, a weak vehicle fell behind its first
+#: climb before it was known).
+HOVER_BEFORE_SHOW_S = 3.0
 
 
 @dataclass
@@ -342,6 +354,8 @@ class VehicleRun:
     """Heard again off its plan: where it hovers (show frame) until its way out begins."""
     gap_seen: int = 0
     """Its telemetry's own silences (gaps on the vehicle's clock) already looked at."""
+    ready_at: float | None = None
+    """Our time it became READY (hovering at its first point's column, before the show)."""
     returning_since: float | None = None
     """Our time it started returning to its landing point."""
     landing_point: tuple[float, float, float] | None = None
@@ -1403,6 +1417,7 @@ class ShowSequence:
                 v.pending = None
                 if v.flavour is Flavour.ARDUPILOT:
                     v.phase = VehiclePhase.READY  # already in GUIDED since before arming
+                    v.ready_at = now
                 return []
             if now - v.sent_at >= cfg.takeoff_timeout_s:
                 return self._give_up(v, f"takeoff did not reach {cmd.alt_m:.1f} m within "
@@ -1415,7 +1430,7 @@ class ShowSequence:
             return []
         elif isinstance(cmd, SetMode) and cmd.mode == "OFFBOARD":
             if state.mode == "OFFBOARD":
-                v.phase, v.pending = VehiclePhase.READY, None
+                v.phase, v.pending, v.ready_at = VehiclePhase.READY, None, now
                 return []
         elif v.phase is VehiclePhase.RETURNING:
             return self._returning(v, state, now)
@@ -1594,6 +1609,9 @@ class ShowSequence:
         # put that whole offset into the first seconds of the show.
         if self._ready_since is None:
             self._ready_since = now
+        if any(v.ready_at is not None and now - v.ready_at < self.config.hover_before_show_s
+               for v in ready):
+            return []
         if now - self._ready_since < self.config.settle_timeout_s \
                 and not all(self._settled(v) for v in ready):
             return []

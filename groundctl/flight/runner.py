@@ -67,6 +67,7 @@ from groundctl.execute.preflight import (
 from groundctl.execute.sequence import (
     AIRBORNE_M,
     FLEET_HOLDS,
+    HOVER_BEFORE_SHOW_S,
     Action,
     Arm,
     Command,
@@ -166,7 +167,8 @@ class RunnerConfig:
     """System id -> plan track from a fleet file; None maps vehicles by position."""
     thresholds: Thresholds = field(default_factory=Thresholds)
     """Pre-flight limits."""
-    sequence: SequenceConfig = field(default_factory=SequenceConfig)
+    sequence: SequenceConfig = field(
+        default_factory=lambda: SequenceConfig(hover_before_show_s=HOVER_BEFORE_SHOW_S))
     """Sequence tolerances and timeouts."""
     landing_timeout_s: float = 180.0
     """After the show ends (or land-all), every vehicle must be down within this."""
@@ -765,7 +767,7 @@ class ShowRunner:
         mpc_on = self.plan.mpc.enabled if cfg.mpc is None else cfg.mpc
         if mpc_on and self.replanner is None:
             self.replanner = Replanner(self.plan, self.plan.mpc, cfg.rate_hz,
-                                       cfg.mpc_deadline_s)
+                                       cfg.mpc_deadline_s, self.clock)
             self.replanner.start()
 
     async def _planner_ready(self) -> None:
