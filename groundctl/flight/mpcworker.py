@@ -7,6 +7,20 @@ deadline is discarded (the caller keeps streaming the previous trajectory,
 which carries on along its last velocity) and counted late; only one batch is
 ever in flight, so a slow machine degrades to fewer solves, never to a queue.
 
+Two times, two meanings:
+
+* the *deadline* is the flight's: measured on the runner's clock, as real seconds at
+  its pace (``clock.wall_interval``).  In flight that is real time.  In a paced dry-run
+  (:class:`~groundctl.clock.PacedClock`) on a machine too busy to keep the pace, the
+  clock waits for the late loops and the deadline with it, as every other timeout of
+  the rehearsal does;
+* the worker's *budgets* (the batch's, and how long a solve that OSQP stopped at its
+  wall-time limit is resumed) are CPU seconds of the worker's thread: the work the
+  solve may cost.  A worker preempted on a busy machine used to hit its wall limits
+  with the work not done and fall back to stopping the vehicle (a weak one, stopped
+  on its first climb, was 3.7 m off its path two seconds later); now it finishes, and
+  if that is past the deadline the batch is dropped and the vehicle keeps what it flew.
+
 The worker keeps one :class:`~groundctl.execute.mpc.MpcController` per vehicle
 between batches (OSQP set up once per vehicle, warm-started tick to tick) and
 solves each batch with :func:`~groundctl.execute.mpc.solve_in_priority`.  It
@@ -19,7 +33,7 @@ import logging
 import os
 import pickle
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import TYPE_CHECKING
@@ -28,6 +42,7 @@ from groundctl.flight.workers import settle_worker
 from groundctl.processes import helper_context
 
 if TYPE_CHECKING:  # numpy must load in the worker only after its thread limits are set
+    from groundctl.clock import Clock
     from groundctl.execute.mpc import MpcConfig, MpcController, MpcRequest, MpcResult
 
 log = logging.getLogger(__name__)
@@ -45,7 +60,7 @@ def _initialise(ground_station: int, config_pickle: bytes) -> None:
 
 
 def _solve_batch(requests: Sequence[MpcRequest], budget_s: float) -> dict[int, MpcResult]:
-    """Solve in priority order until ``budget_s`` wall seconds are spent: the vehicles
+    """Solve in priority order until ``budget_s`` CPU seconds are spent: the vehicles
     not reached get no result this time (they keep their last trajectory, then their
     path), rather than the whole batch arriving late."""
     from groundctl.execute.mpc import MpcController, solve_in_priority
@@ -56,8 +71,8 @@ def _solve_batch(requests: Sequence[MpcRequest], budget_s: float) -> dict[int, M
             del _controllers[sysid]
     for sysid in wanted:
         if sysid not in _controllers:
-            _controllers[sysid] = MpcController(sysid, _config)
-    return solve_in_priority(_controllers, requests, budget_s, time.monotonic)
+            _controllers[sysid] = MpcController(sysid, _config, clock=time.thread_time)
+    return solve_in_priority(_controllers, requests, budget_s, time.thread_time)
 
 
 def _ready() -> int:
@@ -70,7 +85,10 @@ def _ready() -> int:
 class MpcWorker:
     """One worker process solving MPC batches; see the module docstring."""
 
-    def __init__(self, config: MpcConfig, deadline_s: float) -> None:
+    def __init__(self, config: MpcConfig, deadline_s: float,
+                 clock: Clock | None = None) -> None:
+        """``deadline_s`` is real seconds at the pace of ``clock``, the flight's (module
+        docstring; None: real time)."""
         if not deadline_s > 0:
             raise ValueError(f"`deadline_s` must be positive, got {deadline_s}")
         self.config = config
@@ -82,6 +100,8 @@ class MpcWorker:
         """Batches lost to a worker that died (a new one is started)."""
         self._executor: ProcessPoolExecutor | None = None
         self._future: Future[dict[int, MpcResult]] | None = None
+        self._now: Callable[[], float] = time.monotonic if clock is None \
+            else (lambda: clock.wall_interval(clock.now()))
         self._sent_at = 0.0
         self._done_at: float | None = None
         self._warm: Future[int] | None = None
@@ -117,10 +137,10 @@ class MpcWorker:
         except (BrokenProcessPool, RuntimeError):
             self._restart()
             return False
-        self._sent_at, self._done_at = time.monotonic(), None
+        self._sent_at, self._done_at = self._now(), None
 
         def finished(_f: Future[dict[int, MpcResult]]) -> None:
-            self._done_at = time.monotonic()  # when it came back, not when it is looked at
+            self._done_at = self._now()  # when it came back, not when it is looked at
         future.add_done_callback(finished)
         self._future = future
         return True
@@ -132,7 +152,7 @@ class MpcWorker:
         if fut is None or not fut.done():
             return None
         self._future = None
-        done = self._done_at if self._done_at is not None else time.monotonic()
+        done = self._done_at if self._done_at is not None else self._now()
         late = done - self._sent_at > self.deadline_s
         try:
             results = fut.result()
@@ -151,12 +171,12 @@ class MpcWorker:
 
     def overdue(self) -> bool:
         """A batch in flight is past its deadline (its result will be dropped)."""
-        return self._future is not None and time.monotonic() - self._sent_at > self.deadline_s
+        return self._future is not None and self._now() - self._sent_at > self.deadline_s
 
     def hung(self) -> bool:
         """A batch has been in flight for ten deadlines: the worker is stuck."""
         return self._future is not None \
-            and time.monotonic() - self._sent_at > 10 * self.deadline_s
+            and self._now() - self._sent_at > 10 * self.deadline_s
 
     def _restart(self) -> None:
         self.close()

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from groundctl.clock import Clock
 from groundctl.execute.authority import AuthorityEstimator, beyond, scaled_limits
 from groundctl.execute.mpc import MpcConfig, MpcRequest, MpcResult, speed_violations
 from groundctl.execute.paths import Path, PathClocks, sample_paths
@@ -78,7 +79,9 @@ class ReplanStats:
     """What the MPC did over the flight (the report's ``mpc``)."""
 
     solve_ms: list[float] = field(default_factory=list)
-    """Every solve's wall time, ms."""
+    """Every solve's time, ms: CPU time of the worker's thread (what the solve cost; on a
+    busy machine its wall time is longer, and its batch's deadline says whether it came
+    in time: ``late``)."""
     fallbacks: int = 0
     """Solves that gave the verified stop (or an unsafe result) instead of a correction."""
     unsafe: int = 0
@@ -111,13 +114,15 @@ class Replanner:
     """MPC replanning of the fleet; see the module docstring."""
 
     def __init__(self, plan: Plan, settings: MpcSettings, rate_hz: float,
-                 deadline_s: float) -> None:
+                 deadline_s: float, clock: Clock | None = None) -> None:
+        """``deadline_s``: real seconds at the pace of ``clock`` (the flight's) a batch of
+        solves may take (:class:`~groundctl.flight.mpcworker.MpcWorker`)."""
         self.plan = plan
         self.settings = settings
         steps = max(2, round(settings.horizon_s * rate_hz))
         self.config = MpcConfig(dt=1.0 / rate_hz, steps=steps)
         self.supervisor = ReplanSupervisor(settings)
-        self.worker = MpcWorker(self.config, deadline_s)
+        self.worker = MpcWorker(self.config, deadline_s, clock)
         self.stats = ReplanStats()
         self.results: dict[int, MpcResult] = {}
         """The trajectory each vehicle under MPC flies now (accepted, or the stop)."""
