@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/bench_tight.py                       # 100 drones
     .venv/bin/python benchmarks/bench_tight.py --sizes 100 300 --timeout 60
     .venv/bin/python benchmarks/bench_tight.py --families wall sphere --spacings 1.02 1.05
+    .venv/bin/python benchmarks/bench_tight.py --sizes 1000 --times 1.2 --workers 2
 
 One transition per case, from a horizontal takeoff-height grid to a formation
 whose closest slots are ``spacing`` x the minimum separation apart, in
@@ -85,11 +86,13 @@ def formation(family: str, n: int, spacing: float) -> tuple[FloatArray, FloatArr
     return start, goal[cols]
 
 
-def _case(q: Any, start: FloatArray, goal: FloatArray, duration: float) -> None:
+def _case(q: Any, start: FloatArray, goal: FloatArray, duration: float, workers: int,
+          budget: float | None) -> None:
     t0 = time.perf_counter()
     try:
-        res = plan_quad_transition(1, "tight", start, goal, duration, LIMITS,
-                                   PlannerSettings())
+        settings = PlannerSettings() if budget is None else PlannerSettings(budget_s=budget)
+        res = plan_quad_transition(1, "tight", start, goal, duration, LIMITS, settings,
+                                   workers=workers)
     except GroundctlError as exc:
         q.put({"outcome": "refused", "seconds": time.perf_counter() - t0,
                "message": str(exc)})
@@ -109,8 +112,8 @@ def _case(q: Any, start: FloatArray, goal: FloatArray, duration: float) -> None:
            "min_sep": ver.overall.min_separation, "safe": ver.safe})
 
 
-def run(family: str, n: int, spacing_x: float, time_x: float, timeout: float
-        ) -> dict[str, Any]:
+def run(family: str, n: int, spacing_x: float, time_x: float, timeout: float,
+        workers: int = 1, budget: float | None = None) -> dict[str, Any]:
     start, goal = formation(family, n, spacing_x * LIMITS.min_separation)
     bound = min_transition_time(start, goal, LIMITS, QuadrotorModel()).seconds
     duration = time_x * bound
@@ -119,7 +122,8 @@ def run(family: str, n: int, spacing_x: float, time_x: float, timeout: float
                            "duration": duration, "lines": lines.min_separation_m,
                            "lines_safe": lines.keeps_limit}
     q: Any = mp.get_context("spawn").Queue()
-    p = mp.get_context("spawn").Process(target=_case, args=(q, start, goal, duration))
+    p = mp.get_context("spawn").Process(target=_case,
+                                        args=(q, start, goal, duration, workers, budget))
     t0 = time.perf_counter()
     p.start()
     p.join(timeout)
@@ -141,6 +145,10 @@ def main() -> None:
     ap.add_argument("--times", type=float, nargs="+", default=[1.1, 1.5],
                     help="transition times as multiples of the minimum")
     ap.add_argument("--timeout", type=float, default=60.0, help="per case, s")
+    ap.add_argument("--workers", type=int, default=1,
+                    help="processes solving a transition's conflict groups (this one too)")
+    ap.add_argument("--budget", type=float, default=None,
+                    help="[planner] budget, s (default: the show default)")
     args = ap.parse_args()
     head = (f"{'family':>8} {'n':>5} {'space':>5} {'time':>5} {'T s':>6} {'lines m':>7} "
             f"{'outcome':>9} {'plan s':>7} {'ver s':>6} {'iter':>4} {'qp':>5} {'grp':>4} "
@@ -149,7 +157,7 @@ def main() -> None:
     print("-" * len(head))
     for n, fam, sp, tx in itertools.product(args.sizes, args.families, args.spacings,
                                             args.times):
-        r = run(fam, n, sp, tx, args.timeout)
+        r = run(fam, n, sp, tx, args.timeout, args.workers, args.budget)
 
         def f(key: str, fmt: str, r: dict[str, Any] = r) -> str:
             v = r.get(key)

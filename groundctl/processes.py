@@ -25,6 +25,8 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import signal
+import threading
+import time
 from multiprocessing.context import ForkServerContext, SpawnContext
 
 #: Imported by the fork server before it forks anything; the first one settles it
@@ -86,3 +88,37 @@ def helper_context() -> ForkServerContext | SpawnContext:
         finally:
             os.environ.pop(SERVER_MARK, None)
     return _context
+
+
+#: Wall seconds between a helper's looks at whether the process it serves is still there.
+PARENT_POLL_S = 0.5
+
+
+def process_gone(pid: int) -> bool:
+    """Whether process ``pid`` has ended (a zombie, dead but not yet reaped, has)."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            # "pid (comm) state ...": comm may hold spaces and parentheses.
+            return f.read().rsplit(b")", 1)[1].split()[0] in (b"Z", b"X")
+    except FileNotFoundError:
+        return True
+    except OSError:  # no /proc: ask the kernel
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        except PermissionError:
+            return False
+        return False
+
+
+def leave_with(pid: int) -> None:
+    """Make this helper leave (``os._exit(0)``) once process ``pid`` -- the one it
+    serves -- is gone, also after a SIGKILL that left it no time to say so: a daemon
+    thread looks every :data:`PARENT_POLL_S`.  Not "once its parent is gone": a helper's
+    parent is the fork server, which lives as long as any process it forked."""
+    def watch() -> None:
+        while not process_gone(pid):
+            time.sleep(PARENT_POLL_S)
+        os._exit(0)
+    threading.Thread(target=watch, daemon=True, name="parent-watch").start()

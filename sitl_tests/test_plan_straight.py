@@ -159,6 +159,7 @@ def test_groundctl_plan_flies_a_tight_show_on_its_straight_lines(
             ] == [("low", True, 0), ("shifted", True, 0), ("landing", True, 0)]
     assert all(t["straight_min_separation_m"] == pytest.approx(1.526)
                for t in report["transitions"])
+    assert all(t["converged"] for t in report["transitions"])
 
 
 def test_a_planning_worker_that_dies_does_not_lose_the_show() -> None:

@@ -34,7 +34,6 @@ import logging
 import math
 import os
 import pickle
-import threading
 import time
 from collections.abc import Callable, Collection, Mapping
 from concurrent.futures import CancelledError, Future, ProcessPoolExecutor
@@ -43,7 +42,7 @@ from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
 from groundctl.errors import FlightError, PlanningTimeout
-from groundctl.processes import helper_context, settle_helper
+from groundctl.processes import helper_context, leave_with, settle_helper
 
 # Nothing here may import numpy at module level: a worker imports this module before
 # its initializer runs, and the thread limits below only work before numpy loads.
@@ -92,36 +91,7 @@ def settle_worker(ground_station: int) -> None:
     # (SIGKILL, a crash) would live on for ever: it leaves once the ground station is
     # gone.  Not "once its parent is gone": its parent is the fork server, which in turn
     # lives as long as any process it forked (each holds the server's keep-alive pipe).
-    threading.Thread(target=_leave_with, args=(ground_station,), daemon=True,
-                     name="parent-watch").start()
-
-
-#: Wall seconds between a worker's looks at whether its ground station is still there.
-PARENT_POLL_S = 0.5
-
-
-def process_gone(pid: int) -> bool:
-    """Whether process ``pid`` has ended (a zombie, dead but not yet reaped, has)."""
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as f:
-            # "pid (comm) state ...": comm may hold spaces and parentheses.
-            return f.read().rsplit(b")", 1)[1].split()[0] in (b"Z", b"X")
-    except FileNotFoundError:
-        return True
-    except OSError:  # no /proc: ask the kernel
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
-            return True
-        except PermissionError:
-            return False
-        return False
-
-
-def _leave_with(ground_station: int) -> None:
-    while not process_gone(ground_station):
-        time.sleep(PARENT_POLL_S)
-    os._exit(0)
+    leave_with(ground_station)
 
 
 def _initialise(ground_station: int, plan_pickle: bytes) -> None:

@@ -60,7 +60,9 @@ def _chain(show: Show) -> tuple[list[FloatArray], list[NDArray[np.intp]]]:
 
 
 def _quad_job(args: tuple) -> TransitionResult:  # type: ignore[type-arg]
-    return plan_quad_transition(*args)
+    index, name, start, goal, duration, limits, settings, group_workers = args
+    return plan_quad_transition(index, name, start, goal, duration, limits, settings,
+                                workers=group_workers)
 
 
 def _lost(job: tuple, why: str) -> PlanningError:  # type: ignore[type-arg]
@@ -75,7 +77,8 @@ def plan_show(show: Show, workers: int | None = None,
     """Plan and verify ``show``.  Raises InfeasibleTransition or PlanningError.
 
     Quadrotor transitions run on ``executor`` (default: ``workers`` local processes,
-    one per core); the caller owns and closes an executor it passes.  Unicycle
+    one per core); the caller owns and closes an executor it passes.  Local workers
+    the transitions leave idle (one transition, two cores) solve its conflict groups.  Unicycle
     transitions depend on each other and are planned here, in order."""
     t0 = time.perf_counter()
     goals, slots_of = _chain(show)
@@ -99,10 +102,14 @@ def plan_show(show: Show, workers: int | None = None,
             if progress:
                 progress(len(results), total)
     else:
-        jobs = [(f.index, f.name, s, g, f.transition_s, show.limits, show.planner)
-                for f, s, g in zip(show.formations, starts, goals, strict=True)]
         if executor is None:
             executor = LocalExecutor(workers if workers is not None else os.cpu_count() or 1)
+        # Fewer transitions than local workers: the spare ones solve conflict groups.
+        spare = (executor.workers // len(show.formations)
+                 if isinstance(executor, LocalExecutor) and show.formations else 1)
+        jobs = [(f.index, f.name, s, g, f.transition_s, show.limits, show.planner,
+                 max(1, spare))
+                for f, s, g in zip(show.formations, starts, goals, strict=True)]
         for res in executor.map(_quad_job, jobs, _lost):
             results.append(res)
             if progress:

@@ -56,3 +56,60 @@ def rest_to_rest(steps: int, dt: float) -> Profile:
     v[-1] = 0.0  # exact zero, not 1e-17
     s[-1] = 1.0
     return Profile(s=s, ds=v, dds=a)
+
+
+#: Caps of :func:`capped_profile` are rounded down onto a geometric grid of this ratio,
+#: so drones with nearly the same caps share one solve (and stay within their own).
+CAP_GRID = 1.002
+
+
+def _grid_down(x: float) -> float:
+    return float(CAP_GRID ** np.floor(np.log(x) / np.log(CAP_GRID)))
+
+
+def capped_profile(steps: int, dt: float, ds_max: float, dds_max: float) -> Profile | None:
+    """The minimum-effort rest-to-rest profile with ``|ds| <= ds_max`` (1/s) and
+    ``|dds| <= dds_max`` (1/s^2), or None if no profile of ``steps`` steps keeps them.
+
+    The unconstrained profile (:func:`rest_to_rest`) peaks at 1.5 times the mean speed;
+    a transition given less than 1.5 times the time a trapezoidal speed profile needs
+    (:func:`~groundctl.plan.feasibility.min_transition_time`) breaks the speed limit of
+    its longest movers on it.  Their straight line with this profile keeps the limits.
+    The caps are rounded down a little (:data:`CAP_GRID`), so the result keeps them
+    exactly although OSQP's equalities only hold to its tolerance."""
+    if ds_max <= 0 or dds_max <= 0:
+        raise ValueError("`ds_max` and `dds_max` must be positive")
+    return _capped(steps, dt, _grid_down(ds_max), _grid_down(dds_max))
+
+
+@lru_cache(maxsize=4096)
+def _capped(steps: int, dt: float, ds_max: float, dds_max: float) -> Profile | None:
+    import osqp
+    import scipy.sparse as sp
+
+    k = np.arange(steps)
+    # v_k = dt sum_{i<k} a_i (k = 1..N-1, interior), v_N = 0, s_N = 1.
+    tril = np.tril(np.ones((steps - 1, steps)) * dt, 0)
+    c_v = np.full((1, steps), dt)
+    c_s = (dt * dt * (0.5 + (steps - 1 - k)))[None, :]
+    a_mat = sp.csc_matrix(np.vstack([c_s, c_v, tril, np.eye(steps)]))
+    # A little inside the caps: what ADMM leaves over stays within them.
+    v_cap, a_cap = ds_max * (1 - 1e-3), dds_max * (1 - 1e-3)
+    lo = np.concatenate([[1.0, 0.0], np.full(steps - 1, -v_cap), np.full(steps, -a_cap)])
+    hi = np.concatenate([[1.0, 0.0], np.full(steps - 1, v_cap), np.full(steps, a_cap)])
+    solver = osqp.OSQP()
+    solver.setup(P=sp.triu(sp.csc_matrix(effort_hessian(steps, dt)), format="csc"),
+                 q=np.zeros(steps), A=a_mat, l=lo, u=hi, verbose=False, eps_abs=1e-6,
+                 eps_rel=1e-6, max_iter=20000, polishing=True, polish_refine_iter=10)
+    res = solver.solve(raise_error=False)
+    if res.info.status not in ("solved", "solved inaccurate"):
+        return None
+    a = np.asarray(res.x, dtype=float)
+    v = np.concatenate([[0.0], np.cumsum(a * dt)])
+    s = np.concatenate([[0.0], np.cumsum(v[:-1] * dt + 0.5 * a * dt * dt)])
+    if (abs(s[-1] - 1.0) > 1e-6 or abs(v[-1]) > 1e-6 or np.abs(v).max() > ds_max
+            or np.abs(a).max() > dds_max):
+        return None
+    v[-1] = 0.0
+    s[-1] = 1.0
+    return Profile(s=s, ds=v, dds=a)

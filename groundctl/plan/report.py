@@ -28,6 +28,7 @@ def report_dict(result: PlanResult) -> dict[str, Any]:
             "plan_seconds": tr.seconds,
             "qp_drones": tr.qp_drones,
             "straight_lines": tr.straight,
+            "converged": tr.converged,
             "straight_min_separation_m": _finite(tr.straight_min_separation),
             "path_length_mean_m": w.path_length_mean,
             "straight_length_mean_m": tr.straight_length,
@@ -88,4 +89,9 @@ def report_table(report: dict[str, Any]) -> str:
         f"pattern error {report['pattern_error_m']:.3f} m, planned in "
         f"{report['plan_seconds']:.2f} s")
     lines.extend(f"  violation: {v}" for v in report["violations"])
+    lines.extend(
+        f"  transition {row['index']} '{row['name']}': the [planner] budget ran out before "
+        "the SCP converged; its last iterate, which keeps every pair apart, is the plan "
+        "(a larger budget polishes it to less effort)"
+        for row in report["transitions"] if not row.get("converged", True))
     return "\n".join(lines)

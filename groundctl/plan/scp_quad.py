@@ -43,7 +43,7 @@ LDL factorisation fills in over a pairs-by-time mesh.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -60,14 +60,14 @@ from groundctl.plan.conflicts import (
     widen,
     within,
 )
-from groundctl.plan.feasibility import min_transition_time
-from groundctl.plan.profile import rest_to_rest
+from groundctl.plan.feasibility import line_speed_limits, min_transition_time
+from groundctl.plan.groupsolve import Failed, GroupSolvers, GroupSpec, SolveJob, colour_classes
+from groundctl.plan.profile import capped_profile, rest_to_rest
 from groundctl.plan.qp_build import (
     BUILD_MARGIN,
     BUILD_WIDEN,
     MAX_TOLERANCE,
     NEED_MARGIN,
-    OSQP_SETTINGS,
     SLACK_TOL,
     chord_clearance,
 )
@@ -80,7 +80,7 @@ from groundctl.plan.quad_qp import (
 )
 from groundctl.plan.straight import StraightCheck, check_straight_lines
 from groundctl.plan.trajectory import Trajectories
-from groundctl.plan.verify import close_pairs
+from groundctl.plan.verify import LIMIT_TOL, close_pairs
 from groundctl.show.model import Limits, PlannerSettings, QuadrotorModel
 
 FloatArray = NDArray[np.float64]
@@ -134,13 +134,20 @@ class TransitionResult:
     straight: bool = False
     """The straight lines were flown as they are (they keep every pair apart, or the
     optimiser found nothing better that keeps the limit)."""
+    converged: bool = True
+    """The SCP converged.  False: the budget ran out on an iterate that already keeps
+    every pair apart and every drone within its limits, which is the plan (safe, not
+    yet the least effort)."""
 
 
 @dataclass
 class _Group:
     """One group's QP and where its SCP stands."""
 
-    qp: GroupQP
+    spec: GroupSpec
+    """What its QP is built from."""
+    gid: int
+    """Its id in the transition's :class:`GroupSolvers`."""
     keys: NDArray[np.int64]
     """Pair-segment keys the QP has rows for."""
     rows: NDArray[np.int64]
@@ -161,14 +168,18 @@ def _steps(duration: float, settings: PlannerSettings) -> tuple[int, float]:
     return steps, duration / steps
 
 
-def _limit_violators(V: FloatArray, A: FloatArray, lim: Limits) -> NDArray[np.intp]:
+def _limit_violators(V: FloatArray, A: FloatArray, lim: Limits, rel: float = 0.0
+                     ) -> NDArray[np.intp]:
+    """Drones over a speed or acceleration limit at a knot by more than 1e-6 plus ``rel``
+    of the limit."""
     tol = 1e-6
+    f = 1.0 + rel
     vh = np.linalg.norm(V[:, :, :2], axis=2).max(axis=1)
     up = V[:, :, 2].max(axis=1)
     down = -V[:, :, 2].min(axis=1)
     acc = np.linalg.norm(A, axis=2).max(axis=1)
-    bad = ((vh > lim.max_speed_h + tol) | (up > lim.max_speed_up + tol)
-           | (down > lim.max_speed_down + tol) | (acc > lim.max_accel + tol))
+    bad = ((vh > lim.max_speed_h * f + tol) | (up > lim.max_speed_up * f + tol)
+           | (down > lim.max_speed_down * f + tol) | (acc > lim.max_accel * f + tol))
     return np.flatnonzero(bad)
 
 
@@ -192,11 +203,12 @@ def _pair_margin(start: FloatArray, goal: FloatArray, d_row: float, wanted: floa
 
 
 def _build_group(members: NDArray[np.intp], inside: NDArray[np.bool_],
-                 near_build: NDArray[np.int64], had_rows: NDArray[np.int64],
+                 near_build: NDArray[np.int64], had_rows: Sequence[NDArray[np.int64]],
                  start: FloatArray, goal: FloatArray, ref: FloatArray, steps: int, dt: float,
                  limits: Limits, settings: PlannerSettings, trust: float,
-                 margin: Callable[[NDArray[np.int64], NDArray[np.int64]], FloatArray]) -> _Group:
-    """A group's QP with rows for every pair-segment of its drones within BUILD_MARGIN.
+                 margin: Callable[[NDArray[np.int64], NDArray[np.int64]], FloatArray],
+                 gid: int = 0) -> _Group:
+    """A group's QP spec with rows for every pair-segment of its drones within BUILD_MARGIN.
 
     Pairs inside the group get coupled rows, pairs with a drone outside it obstacle
     rows on the group's drone.  Rows only ever grow: a pair-segment that had rows
@@ -205,8 +217,8 @@ def _build_group(members: NDArray[np.intp], inside: NDArray[np.bool_],
     n = len(inside)
     touch = near_build[inside[near_build[:, 0]] | inside[near_build[:, 1]]]
     glob = widen(touch, steps, BUILD_WIDEN)
-    mine = inside[had_rows[:, 0]] | inside[had_rows[:, 1]]
-    glob = unique_segments(np.concatenate([glob, had_rows[mine]]), n, steps)
+    mine = [h[inside[h[:, 0]] | inside[h[:, 1]]] for h in had_rows]
+    glob = unique_segments(np.concatenate([glob, *mine]), n, steps)
     local = np.full(n, -1, dtype=np.intp)
     local[members] = np.arange(len(members))
     both = inside[glob[:, 0]] & inside[glob[:, 1]]
@@ -218,16 +230,18 @@ def _build_group(members: NDArray[np.intp], inside: NDArray[np.bool_],
     other = np.where(first_in, external[:, 1], external[:, 0]).astype(np.intp)
     obstacles = ObstacleSegments(local[mine_drone], external[:, 2].astype(np.intp),
                                  margin(mine_drone, other))
-    qp = GroupQP(start[members], goal[members], ref[members], steps, dt, limits, pairs,
-                 settings.alpha, settings.beta, OSQP_SETTINGS, obstacles)
-    return _Group(qp, segment_keys(glob, n, steps), rows=glob, obs_other=other, trust=trust)
+    spec = GroupSpec(start[members], goal[members], ref[members], steps, dt, limits, pairs,
+                     obstacles, settings.alpha, settings.beta)
+    return _Group(spec, gid, segment_keys(glob, n, steps), rows=glob, obs_other=other,
+                  trust=trust)
 
 
 def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatArray,
                          duration: float, limits: Limits,
                          settings: PlannerSettings, lines_at_limit: bool = True,
                          budget_s: float | None = None,
-                         clock: Callable[[], float] = time.perf_counter) -> TransitionResult:
+                         clock: Callable[[], float] = time.perf_counter,
+                         workers: int = 1) -> TransitionResult:
     """Plan one quadrotor transition from ``start`` to ``goal`` (n, 3) in ``duration`` s.
 
     With the tracking margin first; if that cannot be met, without it (the
@@ -236,29 +250,33 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
     the optimiser fails, lines that keep only the limit are flown unless
     ``lines_at_limit`` is False (a return flown unrehearsed wants its margin).
     Past ``budget_s`` (default ``settings.budget_s``) of ``clock`` the search stops with a
-    SeparationConflict.
+    SeparationConflict.  ``workers`` > 1 solves the conflict groups in that many worker
+    processes (:mod:`groundctl.plan.groupsolve`; the same plan as with one).
     """
     t0 = time.perf_counter()
     budget_s = settings.budget_s if budget_s is None else budget_s
     deadline = clock() + budget_s
-    steps, _, _, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
-                                           settings)
+    guess = _straight_lines(index, name, start, goal, duration, limits, settings)
+    steps, P, V, A = guess.steps, guess.P, guess.V, guess.A
     lines = check_straight_lines(start, goal, limits.min_separation, settings.tracking_margin)
     # The floor (plan.straight): lines that keep every pair at its target need nothing
     # more; lines that keep the limit are what is flown if the optimiser finds nothing.
-    usable = lines.keeps_limit and len(_limit_violators(V, A, limits)) == 0
+    # Both only on the shared profile: lines on the slower, capped one of a long mover
+    # are not synchronised and the exact check says nothing of them.
+    usable = (guess.synchronised and lines.keeps_limit
+              and len(_limit_violators(V, A, limits)) == 0)
     if usable and lines.keeps_target:
         return _straight_result(index, name, start, goal, duration, steps, P, V, lines, t0)
     try:
         try:
             result = _plan(index, name, start, goal, duration, limits, settings, t0,
-                           deadline, clock, budget_s)
+                           deadline, clock, budget_s, workers)
         except PlanningError:
             if settings.tracking_margin <= 0 or clock() >= deadline:
                 raise
             result = _plan(index, name, start, goal, duration, limits,
                            replace(settings, tracking_margin=0.0), t0, deadline, clock,
-                           budget_s)
+                           budget_s, workers)
     except PlanningError:
         if not (usable and lines_at_limit):
             raise
@@ -277,12 +295,28 @@ def _straight_result(index: int, name: str, start: FloatArray, goal: FloatArray,
         straight_min_separation=lines.min_separation_m, straight=True)
 
 
+@dataclass(frozen=True)
+class _Lines:
+    """The SCP's steps and its initial guess: every drone on its straight line."""
+
+    steps: int
+    dt: float
+    ref: FloatArray
+    """(n, N+1, 3) reference positions (the guess's)."""
+    P: FloatArray
+    V: FloatArray
+    A: FloatArray
+    synchronised: bool
+    """Every drone on the shared rest-to-rest profile (:mod:`groundctl.plan.straight`'s
+    exact check holds only then)."""
+
+
 def _straight_lines(index: int, name: str, start: FloatArray, goal: FloatArray,
-                    duration: float, limits: Limits, settings: PlannerSettings
-                    ) -> tuple[int, float, FloatArray, FloatArray, FloatArray, FloatArray]:
+                    duration: float, limits: Limits, settings: PlannerSettings) -> _Lines:
     """Steps, dt, and the initial guess: reference positions and the (P, V, A) of every
-    drone on its straight line with the rest-to-rest profile.  InfeasibleTransition if
-    ``duration`` is shorter than the limits allow."""
+    drone on its straight line with the rest-to-rest profile, or where that breaks the
+    drone's limits the one that keeps them.  InfeasibleTransition if ``duration`` is
+    shorter than the limits allow."""
     bound = min_transition_time(start, goal, limits, QuadrotorModel())
     if bound.seconds > duration + 1e-9:
         raise InfeasibleTransition(
@@ -292,10 +326,29 @@ def _straight_lines(index: int, name: str, start: FloatArray, goal: FloatArray,
     steps, dt = _steps(duration, settings)
     prof = rest_to_rest(steps, dt)
     delta = goal - start
-    ref = start[:, None, :] + prof.s[None, :, None] * delta[:, None, :]
-    V = prof.ds[None, :, None] * delta[:, None, :]
-    A = prof.dds[None, :, None] * delta[:, None, :]
-    return steps, dt, ref, ref.copy(), V, A
+    s = np.tile(prof.s, (len(start), 1))
+    ds = np.tile(prof.ds, (len(start), 1))
+    dds = np.tile(prof.dds, (len(start), 1))
+    # The shared profile peaks at 1.5 x the mean speed: with less than 1.5 x the minimum
+    # time a long mover breaks its speed limit on it (and its QP, held near it by the
+    # trust region, could not get back within it).  Such drones fly their line on the
+    # profile that keeps their limits instead.
+    dist = np.linalg.norm(delta, axis=1)
+    moving = dist > 1e-9
+    cap_v = np.full(len(start), np.inf)
+    cap_a = np.full(len(start), np.inf)
+    cap_v[moving] = line_speed_limits(delta[moving], limits) / dist[moving]
+    cap_a[moving] = limits.max_accel / dist[moving]
+    fast = np.flatnonzero((prof.ds.max() > cap_v) | (np.abs(prof.dds).max() > cap_a))
+    for i in fast:
+        capped = capped_profile(steps, dt, float(cap_v[i]), float(cap_a[i]))
+        if capped is not None:
+            s[i], ds[i], dds[i] = capped.s, capped.ds, capped.dds
+
+    ref = start[:, None, :] + s[:, :, None] * delta[:, None, :]
+    V = ds[:, :, None] * delta[:, None, :]
+    A = dds[:, :, None] * delta[:, None, :]
+    return _Lines(steps, dt, ref, ref.copy(), V, A, synchronised=len(fast) == 0)
 
 
 def _conflict(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
@@ -325,10 +378,19 @@ def _closest_slots(points: FloatArray) -> float:
 def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
           limits: Limits, settings: PlannerSettings, t0: float,
           deadline: float = np.inf, clock: Callable[[], float] = time.perf_counter,
-          budget_s: float = BUDGET_S) -> TransitionResult:
+          budget_s: float = BUDGET_S, workers: int = 1) -> TransitionResult:
+    with GroupSolvers(index, workers) as solvers:
+        return _scp(index, name, start, goal, duration, limits, settings, t0, deadline,
+                    clock, budget_s, solvers)
+
+
+def _scp(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
+         limits: Limits, settings: PlannerSettings, t0: float, deadline: float,
+         clock: Callable[[], float], budget_s: float, solvers: GroupSolvers
+         ) -> TransitionResult:
     n = start.shape[0]
-    steps, dt, ref, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
-                                              settings)
+    guess = _straight_lines(index, name, start, goal, duration, limits, settings)
+    steps, dt, ref, P, V, A = guess.steps, guess.dt, guess.ref, guess.P, guess.V, guess.A
     delta = goal - start
     d_sep = chord_separation(limits, dt)  # the widest bulge: for the searches' radii
     d_row = limits.min_separation + SEPARATION_BUFFER  # what the rows ask, bulge apart
@@ -340,6 +402,8 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
     links = np.empty((0, 3), dtype=np.int64)
     violators_all = np.empty(0, dtype=np.intp)
     had_rows = np.empty((0, 3), dtype=np.int64)
+    built = 0
+    out_of_time = False
     if settings.tolerance > MAX_TOLERANCE:
         raise ValueError(f"`tolerance` must be at most {MAX_TOLERANCE} m")
     for iterations in range(1, settings.max_iterations + 1):
@@ -361,6 +425,7 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
         for key, st in states.items():
             trust_of[list(key)] = st.trust
         new_states: dict[tuple[int, ...], _Group] = {}
+        fresh: list[NDArray[np.int64]] = []
         for members in grouped:
             key = tuple(int(x) for x in members)
             qp_drones.update(key)
@@ -370,61 +435,90 @@ def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: 
             state = states.get(key)
             if state is None or not np.all(np.isin(segment_keys(mine_need, n, steps),
                                                    state.keys)):
-                state = _build_group(members, inside, near_build, had_rows, start, goal, ref,
-                                     steps, dt, limits, settings,
-                                     trust=float(trust_of[members].min()), margin=margin)
-                had_rows = unique_segments(np.concatenate([had_rows, state.rows]), n, steps)
+                built += 1
+                state = _build_group(members, inside, near_build, [had_rows, *fresh], start,
+                                     goal, ref, steps, dt, limits, settings,
+                                     trust=float(trust_of[members].min()), margin=margin,
+                                     gid=built)
+                solvers.build(state.gid, state.spec)
+                fresh.append(state.rows)
             new_states[key] = state
-            if state.converged:
-                continue
-            # Gauss-Seidel: obstacles are where the other drones are now, including
-            # groups solved earlier in this iteration.  Every group keeps the rows
-            # against them, so each pair is safe after whichever of its two groups
-            # was solved last, and a group's current iterate is always feasible.
-            others = np.stack([P[state.obs_other, state.qp.obstacles.k],
-                               P[state.obs_other, state.qp.obstacles.k + 1]], axis=1)
-            state.qp.linearise(P[members], V[members], A[members], state.trust, others,
-                               A[state.obs_other, state.qp.obstacles.k])
-            left = deadline - clock()
-            try:
-                if left <= 0:
-                    raise PlanningError(index, "out of time")
-                Pg, Vg, Ag, Sg = state.qp.solve(index, time_limit=left)
-            except PlanningError as exc:
-                if clock() >= deadline:
-                    raise _conflict(index, name, start, goal, duration, P, V, limits,
-                                    f"no plan within the {budget_s:g} s budget "
-                                    f"({iterations} SCP iterations)") from None
-                # OSQP gave up on this group (it can call a badly scaled QP infeasible):
-                # the group keeps its trajectory, which every neighbour solved since was
-                # kept clear of, and tries again with a smaller trust region.
-                state.failures += 1
-                if state.failures > GROUP_FAILURES:
-                    raise _conflict(index, name, start, goal, duration, P, V, limits,
-                                    f"{exc.status} for a group of {len(members)} drones "
-                                    f"after {iterations} SCP iterations") from None
-                state.slack = np.inf
-                state.trust = max(state.trust * 0.5, settings.tolerance / 4)
-                continue
-            change = float(np.abs(Pg - P[members]).max())
-            state.slack = float(Sg.max(initial=0.0))
-            P[members], V[members], A[members] = Pg, Vg, Ag
-            if state.slack < SLACK_TOL:
-                state.converged = change < settings.tolerance
-                state.trust = max(state.trust * 0.5, settings.tolerance / 4)
+        # Every row a group was ever built with, once per iteration (per build, the
+        # growing set's unique pass was most of a 1000-drone transition's time).
+        had_rows = unique_segments(np.concatenate([had_rows, *fresh]), n, steps)
+        kept = {st.gid for st in new_states.values()}
+        solvers.forget([st.gid for st in states.values() if st.gid not in kept])
+        # Gauss-Seidel, one colour at a time: obstacles are where the other drones are
+        # now, including groups solved in earlier batches of this iteration.  Every group
+        # keeps the rows against them, so each pair is safe after whichever of its two
+        # groups was solved last, and a group's current iterate is always feasible.
+        # Groups of one batch never read each other's drones: solved in any order, or
+        # at the same time, they give the same iterate.
+        todo = [(key, st) for key, st in new_states.items() if not st.converged]
+        for batch in colour_classes([np.asarray(k, dtype=np.intp) for k, _ in todo],
+                                    [st.obs_other for _, st in todo], n):
+            if clock() >= deadline:
+                out_of_time = True
+                break
+            jobs = []
+            for b in batch:
+                key, state = todo[b]
+                ks = state.spec.obstacles.k
+                jobs.append(SolveJob(state.gid, P[list(key)], V[list(key)], A[list(key)],
+                                     state.trust,
+                                     np.stack([P[state.obs_other, ks],
+                                               P[state.obs_other, ks + 1]], axis=1),
+                                     A[state.obs_other, ks], max(deadline - clock(), 1e-3)))
+            for b, outcome in zip(batch, solvers.solve(jobs), strict=True):
+                key, state = todo[b]
+                members = np.asarray(key, dtype=np.intp)
+                if isinstance(outcome, Failed):
+                    if clock() >= deadline:
+                        out_of_time = True  # it keeps the iterate of its last solve
+                        continue
+                    # OSQP gave up on this group (it can call a badly scaled QP
+                    # infeasible): the group keeps its trajectory, which every neighbour
+                    # solved since was kept clear of, and tries again with a smaller
+                    # trust region.
+                    state.failures += 1
+                    if state.failures > GROUP_FAILURES:
+                        raise _conflict(index, name, start, goal, duration, P, V, limits,
+                                        f"{outcome.status} for a group of {len(members)} "
+                                        f"drones after {iterations} SCP iterations")
+                    state.slack = np.inf
+                    state.trust = max(state.trust * 0.5, settings.tolerance / 4)
+                    continue
+                change = float(np.abs(outcome.P - P[members]).max())
+                state.slack = float(outcome.S.max(initial=0.0))
+                P[members], V[members], A[members] = outcome.P, outcome.V, outcome.A
+                if state.slack < SLACK_TOL:
+                    state.converged = change < settings.tolerance
+                    state.trust = max(state.trust * 0.5, settings.tolerance / 4)
         states = new_states
-        if all(st.converged for st in states.values()):
+        if out_of_time or all(st.converged for st in states.values()):
             break
     max_slack = max((st.slack for st in states.values()), default=0.0)
-    if max_slack >= SLACK_TOL:
+    times = np.linspace(0.0, duration, steps + 1)
+    if out_of_time:
+        # Every solve keeps its group clear of everybody where they are, so an iterate
+        # with no slack left is a plan -- not yet the optimum, the budget stopped the
+        # polishing.  It is kept only if it is certainly safe: no pair closer than the
+        # limit in continuous time (rows exist only for close pairs, and a group moves
+        # up to its trust region per solve) and no drone over its limits.
+        if (max_slack >= SLACK_TOL or len(_limit_violators(V, A, limits, LIMIT_TOL / 2))
+                or close_pairs(Trajectories(times, P, V), limits.min_separation)):
+            raise _conflict(index, name, start, goal, duration, P, V, limits,
+                            f"no plan within the {budget_s:g} s budget "
+                            f"({iterations} SCP iterations)")
+    elif max_slack >= SLACK_TOL:
         raise _conflict(index, name, start, goal, duration, P, V, limits,
                         f"slack {max_slack:.3f} m after {iterations} SCP iterations")
-    times = np.linspace(0.0, duration, steps + 1)
     return TransitionResult(
         index=index, name=name, trajectories=Trajectories(times, P, V), steps=steps,
         iterations=iterations, seconds=time.perf_counter() - t0, qp_drones=len(qp_drones),
         groups=len(states), max_slack=max_slack,
-        straight_length=float(np.linalg.norm(delta, axis=1).mean()))
+        straight_length=float(np.linalg.norm(delta, axis=1).mean()),
+        converged=not out_of_time)
 
 
 def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
@@ -443,8 +537,8 @@ def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, durat
     """
     t0 = time.perf_counter()
     g = start.shape[0]
-    steps, dt, ref, P, V, A = _straight_lines(index, name, start, goal, duration, limits,
-                                              settings)
+    guess = _straight_lines(index, name, start, goal, duration, limits, settings)
+    steps, dt, ref, P, V, A = guess.steps, guess.dt, guess.ref, guess.P, guess.V, guess.A
     delta = goal - start
     times = np.linspace(0.0, duration, steps + 1)
     others = np.asarray(others_at(times), dtype=float).reshape(-1, steps + 1, 3)
@@ -460,6 +554,7 @@ def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, durat
     inside = np.zeros(n, dtype=bool)
     inside[:g] = True
     state: _Group | None = None
+    qp: GroupQP | None = None
     fixed = np.empty((0, 2, 3))
     iterations, slack = 0, np.inf
     for iterations in range(1, settings.max_iterations + 1):  # noqa: B007 (used after)
@@ -470,16 +565,18 @@ def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, durat
         if state is None or not np.all(np.isin(segment_keys(need, n, steps), state.keys)):
             # A rebuilt group keeps every row it had (_build_group carries state.rows).
             state = _build_group(members, inside, near_build,
-                                 np.empty((0, 3), dtype=np.int64) if state is None
-                                 else state.rows, start_all, goal_all, ref_all, steps, dt,
+                                 [] if state is None else [state.rows], start_all, goal_all,
+                                 ref_all, steps, dt,
                                  limits, settings,
                                  trust=TRUST_RADIUS if state is None else state.trust,
                                  margin=margin)
+            qp = state.spec.build()
             # The obstacles never move: their rows' positions are set once per build.
-            fixed = np.stack([every[state.obs_other, state.qp.obstacles.k],
-                              every[state.obs_other, state.qp.obstacles.k + 1]], axis=1)
-        state.qp.linearise(P, V, A, state.trust, fixed)
-        Pg, Vg, Ag, Sg = state.qp.solve(index)
+            fixed = np.stack([every[state.obs_other, qp.obstacles.k],
+                              every[state.obs_other, qp.obstacles.k + 1]], axis=1)
+        assert qp is not None
+        qp.linearise(P, V, A, state.trust, fixed)
+        Pg, Vg, Ag, Sg = qp.solve(index)
         change = float(np.abs(Pg - P).max())
         slack = float(Sg.max(initial=0.0))
         P, V, A = Pg, Vg, Ag
