@@ -132,7 +132,7 @@ def test_a_killed_worker_loses_only_time(caplog: pytest.LogCaptureFixture) -> No
     with GroupSolvers(1, workers=2) as solvers:
         for spec, job in cases:
             solvers.build(job.group, spec)
-        victim = solvers._procs[0]
+        victim = solvers._slots[0].process  # type: ignore[union-attr]
         assert victim.pid is not None
         os.kill(victim.pid, signal.SIGKILL)
         victim.join(10)

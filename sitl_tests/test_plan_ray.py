@@ -6,6 +6,7 @@ One local Ray cluster (2 CPUs) for the whole module: Ray starts slowly on a busy
 
 from __future__ import annotations
 
+import logging
 import subprocess
 import sys
 import zipfile
@@ -17,10 +18,14 @@ import pytest
 
 from groundctl.errors import EXIT_USAGE, PlanningError
 from groundctl.plan.distribute import LocalExecutor, RayExecutor
+from groundctl.plan.groupsolve import GroupSolvers, Solved
 from groundctl.plan.planner import plan_show
 from groundctl.plan.report import report_dict
 from groundctl.show.loader import load_show
+from sitl_tests.plan_fixtures import points_show
 from sitl_tests.test_errors import CROSSING_SHOW
+from sitl_tests.test_plan_groupsolve import LIM as WALL_LIMITS
+from sitl_tests.test_plan_groupsolve import _specs, grid_to_wall
 
 ray = pytest.importorskip("ray")
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
@@ -54,6 +59,42 @@ def test_ray_and_local_plans_are_identical(cluster: RayExecutor) -> None:
     assert np.array_equal(local.plan.trajectories.vel, remote.plan.trajectories.vel)
     assert np.array_equal(local.plan.trajectories.times, remote.plan.trajectories.times)
     assert _figures(report_dict(local)) == _figures(report_dict(remote))
+
+
+def test_one_transition_on_the_cluster_solves_its_groups_on_actors_as_locally(
+        cluster: RayExecutor) -> None:
+    # One transition, two CPUs: the spare one goes to the conflict groups (a Ray actor
+    # beside the transition's task); the plan is the one planned in one process.
+    start, goal, duration = grid_to_wall(side=4)
+    home = start.copy()
+    home[:, 2] = 0.0
+    show = points_show(home, [goal], transition=duration, limits=WALL_LIMITS,
+                       takeoff_altitude=3.0)
+    assert cluster.cpus == 2
+    local = plan_show(show, executor=LocalExecutor(1))
+    remote = plan_show(show, executor=cluster)
+    assert local.transitions[0].qp_drones > 0
+    assert np.array_equal(local.plan.trajectories.pos, remote.plan.trajectories.pos)
+
+
+def test_groups_on_ray_actors_solve_as_here_and_a_killed_actor_loses_only_time(
+        cluster: RayExecutor, caplog: pytest.LogCaptureFixture) -> None:
+    cases = _specs(4)
+    with GroupSolvers(1) as here:
+        for spec, job in cases:
+            here.build(job.group, spec)
+        alone = here.solve([job for _, job in cases])
+    with GroupSolvers(1, workers=2, ray=True) as spread:
+        for spec, job in cases:
+            spread.build(job.group, spec)
+        assert sorted(spread._where.values()) == [-1, -1, 0, 0]
+        together = spread.solve([job for _, job in cases])
+        ray.kill(spread._slots[0].actor)  # type: ignore[union-attr]
+        with caplog.at_level(logging.WARNING):
+            again = spread.solve([job for _, job in cases])
+        assert "a group solver Ray actor died" in caplog.text
+    assert all(isinstance(o, Solved) for o in again)
+    assert all(np.array_equal(a.P, b.P) for a, b in zip(alone, together, strict=True))
 
 
 def test_a_planning_error_comes_back_as_itself(cluster: RayExecutor, tmp_path: Path) -> None:

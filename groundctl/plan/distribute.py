@@ -138,6 +138,12 @@ class RayExecutor:
             self._owns = True
         self._options: dict[str, Any] = {"max_retries": max_retries}
 
+    @property
+    def cpus(self) -> int:
+        """The cluster's CPUs (at least 1): transitions, and their conflict groups when
+        there are fewer transitions than CPUs, are spread over them."""
+        return max(1, int(self._ray.cluster_resources().get("CPU", 1)))
+
     def map(self, fn: Callable[[J], R], jobs: Sequence[J], lost: Lost) -> Iterator[R]:
         ray = self._ray
         task = ray.remote(fn).options(**self._options)

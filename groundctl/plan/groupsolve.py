@@ -15,13 +15,17 @@ fewest when it is built, so which worker holds it depends only on the order of b
 solution depends only on its own history of updates; so the plan is the same with
 any number of workers (tested).
 
-A worker that dies (killed, out of memory) loses nothing but time: its groups are
+A worker that dies (killed, out of memory) costs time, not the plan: its groups are
 built again here from their specs and its share of the batch is solved here, with a
-warning.  Workers leave with this process, also if it is killed outright.
+warning (their warm starts are lost, so from then on the plan may differ from an
+undisturbed one within OSQP's tolerance).  Workers leave with this process, also if it
+is killed outright.  With ``ray`` the workers are actors on the Ray cluster the
+process is connected to (``groundctl plan --ray``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import time
@@ -29,6 +33,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -163,31 +168,32 @@ def colour_classes(members: Sequence[NDArray[np.intp]],
 class GroupSolvers:
     """The groups' QPs of one transition, and where they are solved.
 
-    ``workers`` 1: here.  More: this process and ``workers - 1`` worker processes,
-    started at the first build.  Close it (or use it as a context manager) to stop
-    them."""
+    ``workers`` 1: here.  More: this process and ``workers - 1`` worker processes
+    (``ray``: actors on the Ray cluster this process is connected to), started at the
+    first build.  Close it (or use it as a context manager) to stop them."""
 
-    def __init__(self, transition: int, workers: int = 1) -> None:
+    def __init__(self, transition: int, workers: int = 1, ray: bool = False) -> None:
         if workers < 1:
             raise ValueError("`workers` must be at least 1")
         self.transition = transition
         self.workers = workers
+        self.ray = ray
         self._specs: dict[int, GroupSpec] = {}
         self._here: dict[int, GroupQP] = {}
-        self._where: dict[int, int] = {}  # group -> worker (-1: here)
-        self._procs: list[BaseProcess] = []
-        self._conns: list[Connection | None] = []
+        self._where: dict[int, int] = {}  # group -> slot (-1: here)
+        self._slots: list[_Slot | None] = []
         self._load: list[int] = []
         self._here_load = 0
+        self._started = False
 
     # -- the parent's side -------------------------------------------------------------
     def build(self, group: int, spec: GroupSpec) -> None:
         """Build group ``group``'s QP (in a worker: sent, built while the SCP goes on)."""
         self._specs[group] = spec
-        if self.workers > 1 and not self._procs:
+        if self.workers > 1 and not self._started:
             self._start()
         # This process is a solver too (slot -1): it would only wait for the others.
-        live = [-1] + [w for w, c in enumerate(self._conns) if c is not None]
+        live = [-1] + [w for w, c in enumerate(self._slots) if c is not None]
         w = min(live, key=lambda w: (self._here_load if w < 0 else self._load[w], w))
         self._where[group] = w
         if w < 0:
@@ -195,12 +201,11 @@ class GroupSolvers:
             self._here_load += 1
             return
         self._load[w] += 1
-        if not self._send(w, ("build", group, spec)):
-            self._take_back(w)
+        self._send(w, ("build", group, spec))
 
     def forget(self, groups: Sequence[int]) -> None:
         """Drop QPs that are no longer needed (their groups merged or were rebuilt)."""
-        by_worker: dict[int, list[int]] = {}
+        by_slot: dict[int, list[int]] = {}
         for g in groups:
             self._specs.pop(g, None)
             if self._here.pop(g, None) is not None:
@@ -208,10 +213,9 @@ class GroupSolvers:
             w = self._where.pop(g, -1)
             if w >= 0:
                 self._load[w] -= 1
-                by_worker.setdefault(w, []).append(g)
-        for w, gs in by_worker.items():
-            if self._conns[w] is not None and not self._send(w, ("forget", gs)):
-                self._take_back(w)
+                by_slot.setdefault(w, []).append(g)
+        for w, gs in by_slot.items():
+            self._send(w, ("forget", gs))
 
     def solve(self, jobs: Sequence[SolveJob]) -> list[Outcome]:
         """Solve a batch of groups that do not see each other; outcomes in job order."""
@@ -222,27 +226,29 @@ class GroupSolvers:
             w = self._where[job.group]
             if w >= 0:
                 sent.setdefault(w, []).append(q)
-        for w, qs in list(sent.items()):
-            if not self._send(w, ("solve", [jobs[q] for q in qs])):
-                self._take_back(w)
-                del sent[w]
-        # Our own share while the workers solve theirs.
+        for w, qs in sent.items():
+            self._send(w, ("solve", [jobs[q] for q in qs]))
+        # Our own share while the workers solve theirs (and what a dead one left).
         for q, job in enumerate(jobs):
             if self._where[job.group] == -1:
                 out[q] = _solve(self._here[job.group], job, self.transition, since)
         for w, qs in sent.items():
-            conn = self._conns[w]
-            try:
-                if conn is None:
-                    raise EOFError
-                reply = conn.recv()
-            except (EOFError, OSError):
-                self._take_back(w)
+            todo = [q for q in qs if out[q] is None]  # its worker died on the send: done
+            if not todo:
+                continue
+            slot = self._slots[w]
+            reply: list[Outcome] | Exception | None = None
+            if slot is not None:
+                try:
+                    reply = slot.receive()
+                except EOFError:
+                    self._take_back(w)
+            if reply is None:  # its worker is gone: here
                 reply = [_solve(self._here[jobs[q].group], jobs[q], self.transition, since)
-                         for q in qs]
-            if isinstance(reply, BaseException):
+                         for q in todo]
+            if isinstance(reply, Exception):
                 raise reply
-            for q, outcome in zip(qs, reply, strict=True):
+            for q, outcome in zip(todo, reply, strict=True):
                 out[q] = outcome
         done = [o for o in out if o is not None]
         if len(done) != len(jobs):
@@ -251,16 +257,10 @@ class GroupSolvers:
 
     def close(self) -> None:
         """Stop the workers (each leaves when told; one that does not is killed)."""
-        for w, conn in enumerate(self._conns):
-            if conn is not None:
-                self._send(w, None)
-                conn.close()
-        for p in self._procs:
-            p.join(CLOSE_TIMEOUT_S)
-            if p.is_alive():
-                p.kill()
-                p.join()
-        self._procs, self._conns, self._load = [], [], []
+        for slot in self._slots:
+            if slot is not None:
+                slot.close()
+        self._slots, self._load = [], []
 
     def __enter__(self) -> GroupSolvers:
         return self
@@ -269,39 +269,28 @@ class GroupSolvers:
         self.close()
 
     def _start(self) -> None:
-        from groundctl.processes import helper_context
-
-        ctx = helper_context()
+        self._started = True
         for _ in range(self.workers - 1):
-            mine, theirs = ctx.Pipe()
-            p = ctx.Process(target=_serve, args=(theirs, os.getpid(), self.transition),
-                            name="groundctl-group-solver", daemon=True)
-            p.start()
-            theirs.close()
-            self._procs.append(p)
-            self._conns.append(mine)
+            slot: _Slot = (_RaySlot(self.transition) if self.ray
+                           else _ProcessSlot(self.transition))
+            self._slots.append(slot)
             self._load.append(0)
 
-    def _send(self, w: int, message: object) -> bool:
-        conn = self._conns[w]
-        if conn is None:
-            return False
-        try:
-            conn.send(message)
-        except (OSError, ValueError):
-            return False
-        return True
+    def _send(self, w: int, message: tuple[object, ...]) -> None:
+        slot = self._slots[w]
+        if slot is not None and not slot.send(message):
+            self._take_back(w)
 
     def _take_back(self, w: int) -> None:
         """Worker ``w`` died: build its groups here from their specs."""
-        conn = self._conns[w]
-        if conn is None:
+        slot = self._slots[w]
+        if slot is None:
             return
-        self._conns[w] = None
-        conn.close()
+        self._slots[w] = None
         mine = [g for g, at in self._where.items() if at == w]
-        log.warning("a group solver process died (exit code %s): solving its %d group(s) "
-                    "in the planning process", self._procs[w].exitcode, len(mine))
+        log.warning("a group solver %s died (%s): solving its %d group(s) in the planning "
+                    "process", slot.kind, slot.why(), len(mine))
+        slot.close()
         for g in mine:
             self._here[g] = self._specs[g].build()
             self._where[g] = -1
@@ -309,15 +298,152 @@ class GroupSolvers:
         self._load[w] = 0
 
 
+class _Keeper:
+    """A worker's groups: builds, forgets and solves what it is sent."""
+
+    def __init__(self, transition: int) -> None:
+        self.transition = transition
+        self.qps: dict[int, GroupQP | Exception] = {}
+
+    def build(self, group: int, spec: GroupSpec) -> None:
+        try:
+            self.qps[group] = spec.build()
+        except Exception as exc:  # raised by the parent at the group's next solve
+            self.qps[group] = exc
+
+    def forget(self, groups: Sequence[int]) -> None:
+        for g in groups:
+            self.qps.pop(g, None)
+
+    def solve(self, jobs: Sequence[SolveJob]) -> list[Outcome] | Exception:
+        """The outcomes, or the exception a bug raised (the parent raises it)."""
+        since = time.perf_counter()
+        try:
+            return [_solve(_built(self.qps[job.group]), job, self.transition, since)
+                    for job in jobs]
+        except Exception as exc:
+            return exc
+
+
+def _built(qp: GroupQP | Exception) -> GroupQP:
+    if isinstance(qp, Exception):
+        raise qp
+    return qp
+
+
+class _Slot(Protocol):
+    kind: str
+
+    def send(self, message: tuple[object, ...]) -> bool:
+        """Pass a ("build", group, spec), ("forget", groups) or ("solve", jobs) on;
+        False if the worker is gone."""
+        ...
+
+    def receive(self) -> list[Outcome] | Exception:
+        """The reply to the last "solve"; EOFError if the worker is gone."""
+        ...
+
+    def why(self) -> str:
+        ...
+
+    def close(self) -> None:
+        ...
+
+
+class _ProcessSlot:
+    """A worker process forked from the helpers' fork server, over a pipe."""
+
+    kind = "process"
+
+    def __init__(self, transition: int) -> None:
+        from groundctl.processes import helper_context
+
+        ctx = helper_context()
+        self.conn, theirs = ctx.Pipe()
+        self.process: BaseProcess = ctx.Process(
+            target=_serve, args=(theirs, os.getpid(), transition),
+            name="groundctl-group-solver", daemon=True)
+        self.process.start()
+        theirs.close()
+
+    def send(self, message: tuple[object, ...]) -> bool:
+        try:
+            self.conn.send(message)
+        except (OSError, ValueError):
+            return False
+        return True
+
+    def receive(self) -> list[Outcome] | Exception:
+        try:
+            reply: list[Outcome] | Exception = self.conn.recv()
+        except (EOFError, OSError):
+            raise EOFError from None
+        return reply
+
+    def why(self) -> str:
+        return f"exit code {self.process.exitcode}"
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError, ValueError):
+            self.conn.send(None)
+        self.conn.close()
+        self.process.join(CLOSE_TIMEOUT_S)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join()
+
+
+class _RaySlot:
+    """An actor on the Ray cluster this process is connected to (inside a Ray task: the
+    task's own cluster).  It asks for no CPU of its own -- the transition's task holds
+    one and mostly waits for its actors -- and actors are spread over the nodes."""
+
+    kind = "Ray actor"
+
+    def __init__(self, transition: int) -> None:
+        import ray
+
+        self._ray: Any = ray
+        keeper: Any = ray.remote(num_cpus=0, max_restarts=0)(_Keeper)
+        self.actor: Any = keeper.options(scheduling_strategy="SPREAD").remote(transition)
+        self._pending: object | None = None
+        self._why = ""
+
+    def send(self, message: tuple[object, ...]) -> bool:
+        kind = message[0]
+        if kind == "build":
+            self.actor.build.remote(message[1], message[2])
+        elif kind == "forget":
+            self.actor.forget.remote(message[1])
+        elif kind == "solve":
+            self._pending = self.actor.solve.remote(message[1])
+        return True
+
+    def receive(self) -> list[Outcome] | Exception:
+        try:
+            reply: list[Outcome] | Exception = self._ray.get(self._pending)
+        except self._ray.exceptions.RayError as exc:
+            self._why = type(exc).__name__
+            raise EOFError from None
+        return reply
+
+    def why(self) -> str:
+        return self._why or "lost"
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self._ray.kill(self.actor)
+
+
 # -- the worker's side ---------------------------------------------------------------------
 def _serve(conn: Connection, planner: int, transition: int) -> None:
-    """A worker: build, forget and solve what ``conn`` brings until told to stop (None)
-    or until the planning process ``planner`` is gone."""
+    """A worker process: build, forget and solve what ``conn`` brings until told to stop
+    (None) or until the planning process ``planner`` is gone."""
     from groundctl.processes import leave_with, settle_helper
 
     settle_helper()
     leave_with(planner)
-    qps: dict[int, GroupQP | Exception] = {}
+    keeper = _Keeper(transition)
     while True:
         try:
             message = conn.recv()
@@ -327,28 +453,12 @@ def _serve(conn: Connection, planner: int, transition: int) -> None:
             return
         kind = message[0]
         if kind == "build":
-            try:
-                qps[message[1]] = message[2].build()
-            except Exception as exc:  # raised by the parent at the next solve
-                qps[message[1]] = exc
+            keeper.build(message[1], message[2])
         elif kind == "forget":
-            for g in message[1]:
-                qps.pop(g, None)
+            keeper.forget(message[1])
         elif kind == "solve":
-            since = time.perf_counter()
-            try:
-                reply: list[Outcome] | Exception = [
-                    _solve(_built(qps[job.group]), job, transition, since)
-                    for job in message[1]]
-            except Exception as exc:  # a bug, not an OSQP status: the parent raises it
-                reply = exc
+            reply = keeper.solve(message[1])
             try:
                 conn.send(reply)
             except Exception:  # an exception that does not pickle
                 conn.send(RuntimeError(repr(reply)))
-
-
-def _built(qp: GroupQP | Exception) -> GroupQP:
-    if isinstance(qp, Exception):
-        raise qp
-    return qp

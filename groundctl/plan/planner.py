@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from groundctl.errors import PlanningError
 from groundctl.plan.assign import assign_chain
-from groundctl.plan.distribute import LocalExecutor, TransitionExecutor
+from groundctl.plan.distribute import LocalExecutor, RayExecutor, TransitionExecutor
 from groundctl.plan.plan import FormationWindow, Plan
 from groundctl.plan.scp_quad import TransitionResult, plan_quad_transition
 from groundctl.plan.scp_unicycle import plan_unicycle_transition
@@ -60,9 +60,9 @@ def _chain(show: Show) -> tuple[list[FloatArray], list[NDArray[np.intp]]]:
 
 
 def _quad_job(args: tuple) -> TransitionResult:  # type: ignore[type-arg]
-    index, name, start, goal, duration, limits, settings, group_workers = args
+    index, name, start, goal, duration, limits, settings, group_workers, on_ray = args
     return plan_quad_transition(index, name, start, goal, duration, limits, settings,
-                                workers=group_workers)
+                                workers=group_workers, ray=on_ray)
 
 
 def _lost(job: tuple, why: str) -> PlanningError:  # type: ignore[type-arg]
@@ -104,11 +104,14 @@ def plan_show(show: Show, workers: int | None = None,
     else:
         if executor is None:
             executor = LocalExecutor(workers if workers is not None else os.cpu_count() or 1)
-        # Fewer transitions than local workers: the spare ones solve conflict groups.
-        spare = (executor.workers // len(show.formations)
-                 if isinstance(executor, LocalExecutor) and show.formations else 1)
-        jobs = [(f.index, f.name, s, g, f.transition_s, show.limits, show.planner,
-                 max(1, spare))
+        # Fewer transitions than workers (local processes, or the Ray cluster's CPUs):
+        # the spare ones solve conflict groups.
+        on_ray = isinstance(executor, RayExecutor)
+        capacity = executor.cpus if isinstance(executor, RayExecutor) else (
+            executor.workers if isinstance(executor, LocalExecutor) else 1)
+        spare = max(1, capacity // max(1, len(show.formations)))
+        jobs = [(f.index, f.name, s, g, f.transition_s, show.limits, show.planner, spare,
+                 on_ray)
                 for f, s, g in zip(show.formations, starts, goals, strict=True)]
         for res in executor.map(_quad_job, jobs, _lost):
             results.append(res)

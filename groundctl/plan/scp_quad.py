@@ -241,7 +241,7 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
                          settings: PlannerSettings, lines_at_limit: bool = True,
                          budget_s: float | None = None,
                          clock: Callable[[], float] = time.perf_counter,
-                         workers: int = 1) -> TransitionResult:
+                         workers: int = 1, ray: bool = False) -> TransitionResult:
     """Plan one quadrotor transition from ``start`` to ``goal`` (n, 3) in ``duration`` s.
 
     With the tracking margin first; if that cannot be met, without it (the
@@ -251,7 +251,8 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
     ``lines_at_limit`` is False (a return flown unrehearsed wants its margin).
     Past ``budget_s`` (default ``settings.budget_s``) of ``clock`` the search stops with a
     SeparationConflict.  ``workers`` > 1 solves the conflict groups in that many worker
-    processes (:mod:`groundctl.plan.groupsolve`; the same plan as with one).
+    processes (:mod:`groundctl.plan.groupsolve`; the same plan as with one), ``ray``:
+    this process and actors on the Ray cluster it is connected to.
     """
     t0 = time.perf_counter()
     budget_s = settings.budget_s if budget_s is None else budget_s
@@ -270,13 +271,13 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
     try:
         try:
             result = _plan(index, name, start, goal, duration, limits, settings, t0,
-                           deadline, clock, budget_s, workers)
+                           deadline, clock, budget_s, workers, ray)
         except PlanningError:
             if settings.tracking_margin <= 0 or clock() >= deadline:
                 raise
             result = _plan(index, name, start, goal, duration, limits,
                            replace(settings, tracking_margin=0.0), t0, deadline, clock,
-                           budget_s, workers)
+                           budget_s, workers, ray)
     except PlanningError:
         if not (usable and lines_at_limit):
             raise
@@ -378,8 +379,9 @@ def _closest_slots(points: FloatArray) -> float:
 def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
           limits: Limits, settings: PlannerSettings, t0: float,
           deadline: float = np.inf, clock: Callable[[], float] = time.perf_counter,
-          budget_s: float = BUDGET_S, workers: int = 1) -> TransitionResult:
-    with GroupSolvers(index, workers) as solvers:
+          budget_s: float = BUDGET_S, workers: int = 1, ray: bool = False
+          ) -> TransitionResult:
+    with GroupSolvers(index, workers, ray=ray) as solvers:
         return _scp(index, name, start, goal, duration, limits, settings, t0, deadline,
                     clock, budget_s, solvers)
 
