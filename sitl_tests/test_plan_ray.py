@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from plan_fixtures import points_show
 
 from groundctl.errors import EXIT_USAGE, PlanningError
 from groundctl.plan.distribute import LocalExecutor, RayExecutor
@@ -22,7 +23,6 @@ from groundctl.plan.groupsolve import GroupSolvers, Solved
 from groundctl.plan.planner import plan_show
 from groundctl.plan.report import report_dict
 from groundctl.show.loader import load_show
-from sitl_tests.plan_fixtures import points_show
 from sitl_tests.test_errors import CROSSING_SHOW
 from sitl_tests.test_plan_groupsolve import LIM as WALL_LIMITS
 from sitl_tests.test_plan_groupsolve import _specs, grid_to_wall
