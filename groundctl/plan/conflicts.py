@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
@@ -90,10 +92,15 @@ def widen(segments: NDArray[np.int64], steps: int, by: int) -> NDArray[np.int64]
 
 
 def groups(n: int, pairs: NDArray[np.int64], extra: IntArray,
-           max_size: int | None = None) -> list[IntArray]:
+           max_size: int | None = None, keep: Sequence[IntArray] = ()) -> list[IntArray]:
     """Connected components (size >= 2, or listed in ``extra``) of the pair graph; a
     component larger than ``max_size`` is cut into pieces of at most that many drones,
-    each a breadth-first stretch of the graph (neighbours stay together)."""
+    each a breadth-first stretch of the graph (neighbours stay together).
+
+    Pieces in ``keep`` (the last cut) that lie inside such a component stay as they
+    are and only its other drones are cut anew: a new link elsewhere in the component
+    would otherwise reshuffle every piece, and each reshuffled piece is a new QP to
+    build and factorise, without its warm start."""
     graph = None
     if len(pairs):
         graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
@@ -111,8 +118,16 @@ def groups(n: int, pairs: NDArray[np.int64], extra: IntArray,
         if max_size is None or len(comp) <= max_size or graph is None:
             out.append(comp)
             continue
+        inside = np.zeros(n, dtype=bool)
+        inside[comp] = True
+        taken = np.zeros(n, dtype=bool)
+        for piece in keep:
+            if len(piece) and inside[piece].all() and not taken[piece].any():
+                out.append(np.asarray(piece, dtype=np.intp))
+                taken[piece] = True
         order = breadth_first_order(graph, int(comp[0]), directed=False,
                                     return_predecessors=False)
+        order = order[~taken[order]]
         for lo in range(0, len(order), max_size):
             out.append(np.sort(order[lo:lo + max_size]).astype(np.intp))
     return out
