@@ -14,6 +14,7 @@ from plan_fixtures import points_show
 
 from groundctl.errors import SeparationConflict
 from groundctl.plan.assign import assign
+from groundctl.plan.conflicts import groups
 from groundctl.plan.feasibility import min_transition_time
 from groundctl.plan.groupsolve import (
     Failed,
@@ -269,3 +270,23 @@ def test_a_budget_that_runs_out_on_a_safe_iterate_keeps_it_as_the_plan() -> None
             assert np.array_equal(tr.pos, full.trajectories.pos)
     assert outcomes[0] == "refused"
     assert "safe, not converged" in outcomes and outcomes[-1] == "converged"
+
+
+def test_a_large_components_cut_keeps_its_pieces_when_a_link_is_added() -> None:
+    # A chain of 12 drones cut into pieces of 4; a new link at one end used to reshuffle
+    # every piece (each a new QP).  The pieces of the last cut that still fit stay.
+    chain = np.array([[i, i + 1] for i in range(11)], dtype=np.int64)
+    first = groups(13, chain, np.empty(0, dtype=np.intp), 4)
+    assert sorted(len(p) for p in first) == [4, 4, 4]
+    grown = np.concatenate([chain, [[0, 12]]])  # at the start of the breadth-first walk
+    fresh = groups(13, grown, np.empty(0, dtype=np.intp), 4)
+    kept = groups(13, grown, np.empty(0, dtype=np.intp), 4, keep=first)
+    as_sets = {frozenset(p.tolist()) for p in kept}
+    assert all(frozenset(p.tolist()) in as_sets for p in first)
+    assert sorted(np.concatenate(kept).tolist()) == list(range(13))
+    # Cut afresh, every piece would have moved.
+    assert not any(frozenset(p.tolist()) in {frozenset(q.tolist()) for q in fresh}
+                   for p in first)
+    # A kept piece that now straddles two components is not kept.
+    split = groups(13, chain[:5], np.empty(0, dtype=np.intp), 4, keep=[np.array([4, 5, 6, 7])])
+    assert all(not {4, 5, 6, 7} <= set(p.tolist()) for p in split)
