@@ -779,8 +779,8 @@ def skyc_cases() -> Iterator[Case]:
     yield _skyc_case("skyc-absolute-name", _doc("{}", "/etc/show.json"))
     yield _skyc_case("skyc-no-show-json", _doc("{}", "other.json"))
     yield _skyc_case("skyc-deep-json", _doc("[" * 200_000 + "]" * 200_000))
-    yield _skyc_case("skyc-1001-drones", _doc('{"version": 1, "swarm": {"drones": ['
-                                              + ", ".join([_skyc_drone()] * 1001) + "]}}"))
+    yield _skyc_case("skyc-10001-drones", _doc('{"version": 1, "swarm": {"drones": ['
+                                               + ", ".join([_skyc_drone()] * 10_001) + "]}}"))
     yield _skyc_case("skyc-nan-point", _doc('{"version": 1, "swarm": {"drones": ['
                                             + _skyc_drone("[[0, [0, 0, 0], []], [3, [NaN, 0,"
                                                           " 5], []]]") + "]}}"))

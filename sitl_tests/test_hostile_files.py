@@ -224,7 +224,7 @@ def test_a_16_mb_file_declaring_8_6_gb_is_refused_without_allocating(tmp_path: P
     assert out.exit_code == EXIT_USAGE, out.stderr
     assert out.lines == [f"groundctl check: error: {path}: not a groundctl plan: 'pos' "
                          f"declares the shape (1000000, 360, 3), not (drones, 52, 3) with 1 "
-                         f"to 1000 drones"]
+                         f"to 10000 drones"]
 
 
 @pytest.mark.parametrize(("content", "message"), [
@@ -359,13 +359,13 @@ def test_a_plans_show_name_cannot_leave_recordings(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(("text", "where", "message"), [
     (show_with(drones="drones = 9223372036854775807"), "[show]",
-     "'drones' must be at most 1000, got 9223372036854775807"),
+     "'drones' must be at most 10000, got 9223372036854775807"),
     (show_with(size="size = 1e308"), "formation 1 'line'",
      "'size' must be at most 10000, got 1e+308"),
     (show_with(transition="transition = 1e9"), "formation 1 'line'",
      "'transition' must be at most 900, got 1e+09"),
     (show_with(formation__count="count = 1000000000"), "formation 1 'line'",
-     "'count' must be at most 5000, got 1000000000"),
+     "'count' must be at most 10000, got 1000000000"),
     (show_with(planner__dt="dt = 1e-9"), "[planner]", "'dt' must be at least 0.01, got 1e-09"),
     (show_with(planner__steps="steps = 1000000000"), "[planner]",
      "'steps' must be at most 2000, got 1000000000"),

@@ -438,3 +438,61 @@ def test_the_mpc_table_is_read_and_checked(tmp_path: Path) -> None:
     assert error(base(mpc={"enabled": "yes"})).message == (
         "'enabled' must be true or false, got string 'yes'")
     assert error(base(mpc={"horizon": 30})).message == "'horizon' must be at most 10, got 30"
+
+
+def _fleet_show(drones: int, slots: int) -> str:
+    return f"""
+[show]
+name = "fleet"
+drones = {drones}
+takeoff_altitude = 3.0
+
+[origin]
+lat = 47.3977
+lon = 8.5456
+alt = 488.0
+
+[limits]
+max_altitude = 400.0
+
+[planner]
+dt = 2.0
+
+[takeoff]
+layout = "grid"
+spacing = 2.2
+
+[[formation]]
+name = "sphere"
+shape = "sphere"
+count = {slots}
+size = 120.0
+center = [0.0, 0.0, 70.0]
+transition = 60.0
+hold = 2.0
+color = "#ffffff"
+
+[landing]
+transition = 100.0
+"""
+
+
+def test_ten_thousand_drones_load_and_one_more_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "fleet.toml"
+    path.write_text(_fleet_show(10_000, 10_000))
+    show = load_show(path)
+    assert show.drones == 10_000 and len(show.formations[0].points) == 10_000
+    path.write_text(_fleet_show(10_001, 10_001))
+    with pytest.raises(ShowFileError, match="'drones' must be at most 10000"):
+        load_show(path)
+
+
+def test_spare_slots_beyond_the_exact_assignments_size_are_refused(tmp_path: Path) -> None:
+    path = tmp_path / "fleet.toml"
+    path.write_text(_fleet_show(2000, 3000))
+    with pytest.raises(ShowFileError, match=r"2000 drones x 3000 slots is 6000000 assignment "
+                                            r"costs, more than 5000000 .* give it exactly "
+                                            r"2000 slots"):
+        load_show(path)
+    path.write_text(_fleet_show(1000, 5000))  # 5,000,000: the largest that is assigned
+    assert len(load_show(path).formations[0].points) == 5000

@@ -56,8 +56,9 @@ FloatArray = NDArray[np.float64]
 
 #: Bumped whenever the file layout changes incompatibly.
 PLAN_FORMAT = 1
-#: Largest plan file read at all (the largest allowed show's arrays are about 60 MB).
-MAX_PLAN_FILE_BYTES = 128 * MiB
+#: Largest plan file read at all (the largest allowed show's arrays are about 170 MB:
+#: 10,000 drones' knots, colour keys and goals).
+MAX_PLAN_FILE_BYTES = 256 * MiB
 #: Most formation windows: every formation and the landing.
 MAX_WINDOWS = MAX_FORMATIONS + 1
 #: Most knots a plan of the largest allowed show has (every transition's steps, a knot

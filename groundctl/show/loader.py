@@ -70,6 +70,7 @@ from groundctl.show.model import (
 from groundctl.show.ranges import (
     DT,
     LIMIT_RANGES,
+    MAX_ASSIGN_CELLS,
     MAX_DRONE_STEPS,
     MAX_DRONES,
     MAX_FORMATIONS,
@@ -515,6 +516,13 @@ def _check_budget(show: Show, path: str) -> None:
             f"the show keeps drones airborne {fmt(airborne)} s (climb, every transition and "
             f"hold, descent) but 'max_flight_time' is {fmt(limit)} s; shorten the show, or "
             f"raise 'max_flight_time' if the batteries last longer"))
+    for f in show.formations:
+        slots = len(f.points)
+        if slots > show.drones and show.drones * slots > MAX_ASSIGN_CELLS:
+            raise ShowFileError(path, f"formation {f.index} '{f.name}'", (
+                f"{show.drones} drones x {slots} slots is {show.drones * slots} "
+                f"assignment costs, more than {MAX_ASSIGN_CELLS} (a formation with "
+                f"spare slots is assigned exactly); give it exactly {show.drones} slots"))
     steps = sum(show.planner.steps_for(f.transition_s) for f in show.formations)
     if show.drones * steps > MAX_DRONE_STEPS:
         raise ShowFileError(path, "[planner]", (

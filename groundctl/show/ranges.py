@@ -9,10 +9,14 @@ them from here.
 
 Why these bounds:
 
-* ``MAX_DRONES`` 1000: the largest fleet the planner is measured at (README,
-  1000 drones in 2-4 s); one MAVLink network addresses 255 vehicles anyway.
-* ``MAX_SLOTS`` 5000 points per formation: the assignment's cost matrix is
-  drones x slots doubles (1000 x 5000: 40 MB).
+* ``MAX_DRONES`` 10,000: the largest fleet the planner is measured at (README,
+  10,000 drones grid -> sphere planned and verified in 37 s).  One MAVLink network
+  addresses 254 vehicles, so the dry-run and a flight take at most that many; larger
+  shows are planned (and split over ground stations) only.
+* ``MAX_SLOTS`` 10,000 points per formation, and ``MAX_ASSIGN_CELLS`` 5,000,000: a
+  formation with more slots than drones is assigned exactly on a dense drones x slots
+  cost matrix (at most 40 MB); one with as many is assigned multiscale above 3000
+  drones, without it.
 * ``MAX_STEPS`` 2000 QP steps per transition and ``MAX_DRONE_STEPS`` 10^6
   drone-steps per show: the verifier samples every knot 12 times for every
   drone (position, velocity, acceleration), about 0.9 GB at the limit.
@@ -28,8 +32,9 @@ from dataclasses import dataclass
 
 from groundctl.files import MiB
 
-MAX_DRONES = 1000
-MAX_SLOTS = 5000
+MAX_DRONES = 10_000
+MAX_SLOTS = 10_000
+MAX_ASSIGN_CELLS = 5_000_000
 MAX_FORMATIONS = 100
 MAX_STEPS = 2000
 MAX_DRONE_STEPS = 1_000_000
