@@ -12,9 +12,9 @@ names the job), never a pool or Ray traceback.
 * :class:`RayExecutor` -- one ``ray.remote`` task per job, ``ray.get`` in order.
   ``ray`` is imported only here, lazily (the optional ``ray`` extra).
 
-``map`` is generic: the SCP can use the same executor for independent conflict
-groups (``executor.map(solve_group, groups, lost=...)``), as the planner does for
-transitions.
+A transition's conflict groups are not jobs of this kind: each keeps a QP between
+SCP iterations, so they go to :mod:`groundctl.plan.groupsolve`, whose workers (local
+processes, or Ray actors on the cluster a :class:`RayExecutor` connected to) keep them.
 """
 
 from __future__ import annotations

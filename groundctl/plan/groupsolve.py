@@ -179,11 +179,10 @@ class GroupSolvers:
         self.workers = workers
         self.ray = ray
         self._specs: dict[int, GroupSpec] = {}
-        self._here: dict[int, GroupQP] = {}
+        self._here = _Keeper(transition)  # this process's own groups
         self._where: dict[int, int] = {}  # group -> slot (-1: here)
         self._slots: list[_Slot | None] = []
-        self._load: list[int] = []
-        self._here_load = 0
+        self._load: dict[int, int] = {-1: 0}  # groups per slot
         self._started = False
 
     # -- the parent's side -------------------------------------------------------------
@@ -194,28 +193,27 @@ class GroupSolvers:
             self._start()
         # This process is a solver too (slot -1): it would only wait for the others.
         live = [-1] + [w for w, c in enumerate(self._slots) if c is not None]
-        w = min(live, key=lambda w: (self._here_load if w < 0 else self._load[w], w))
+        w = min(live, key=lambda w: (self._load[w], w))
         self._where[group] = w
-        if w < 0:
-            self._here[group] = spec.build()
-            self._here_load += 1
-            return
         self._load[w] += 1
-        self._send(w, ("build", group, spec))
+        if w < 0:
+            self._here.build(group, spec)
+        else:
+            self._send(w, ("build", group, spec))
 
     def forget(self, groups: Sequence[int]) -> None:
         """Drop QPs that are no longer needed (their groups merged or were rebuilt)."""
         by_slot: dict[int, list[int]] = {}
         for g in groups:
             self._specs.pop(g, None)
-            if self._here.pop(g, None) is not None:
-                self._here_load -= 1
-            w = self._where.pop(g, -1)
-            if w >= 0:
-                self._load[w] -= 1
-                by_slot.setdefault(w, []).append(g)
+            w = self._where.pop(g)
+            self._load[w] -= 1
+            by_slot.setdefault(w, []).append(g)
         for w, gs in by_slot.items():
-            self._send(w, ("forget", gs))
+            if w < 0:
+                self._here.forget(gs)
+            else:
+                self._send(w, ("forget", gs))
 
     def solve(self, jobs: Sequence[SolveJob]) -> list[Outcome]:
         """Solve a batch of groups that do not see each other; outcomes in job order."""
@@ -229,23 +227,21 @@ class GroupSolvers:
         for w, qs in sent.items():
             self._send(w, ("solve", [jobs[q] for q in qs]))
         # Our own share while the workers solve theirs (and what a dead one left).
-        for q, job in enumerate(jobs):
-            if self._where[job.group] == -1:
-                out[q] = _solve(self._here[job.group], job, self.transition, since)
+        self._solve_here(jobs, [q for q, job in enumerate(jobs)
+                                if self._where[job.group] == -1], out, since)
         for w, qs in sent.items():
             todo = [q for q in qs if out[q] is None]  # its worker died on the send: done
             if not todo:
                 continue
             slot = self._slots[w]
-            reply: list[Outcome] | Exception | None = None
-            if slot is not None:
-                try:
-                    reply = slot.receive()
-                except EOFError:
-                    self._take_back(w)
-            if reply is None:  # its worker is gone: here
-                reply = [_solve(self._here[jobs[q].group], jobs[q], self.transition, since)
-                         for q in todo]
+            try:
+                if slot is None:
+                    raise EOFError
+                reply = slot.receive()
+            except EOFError:  # its worker is gone: here
+                self._take_back(w)
+                self._solve_here(jobs, todo, out, since)
+                continue
             if isinstance(reply, Exception):
                 raise reply
             for q, outcome in zip(todo, reply, strict=True):
@@ -255,12 +251,20 @@ class GroupSolvers:
             raise RuntimeError("a group of the batch was not solved")
         return done
 
+    def _solve_here(self, jobs: Sequence[SolveJob], which: Sequence[int],
+                    out: list[Outcome | None], since: float) -> None:
+        reply = self._here.solve([jobs[q] for q in which], since)
+        if isinstance(reply, Exception):
+            raise reply
+        for q, outcome in zip(which, reply, strict=True):
+            out[q] = outcome
+
     def close(self) -> None:
         """Stop the workers (each leaves when told; one that does not is killed)."""
         for slot in self._slots:
             if slot is not None:
                 slot.close()
-        self._slots, self._load = [], []
+        self._slots = []
 
     def __enter__(self) -> GroupSolvers:
         return self
@@ -273,8 +277,8 @@ class GroupSolvers:
         for _ in range(self.workers - 1):
             slot: _Slot = (_RaySlot(self.transition) if self.ray
                            else _ProcessSlot(self.transition))
+            self._load[len(self._slots)] = 0
             self._slots.append(slot)
-            self._load.append(0)
 
     def _send(self, w: int, message: tuple[object, ...]) -> None:
         slot = self._slots[w]
@@ -292,9 +296,9 @@ class GroupSolvers:
                     "process", slot.kind, slot.why(), len(mine))
         slot.close()
         for g in mine:
-            self._here[g] = self._specs[g].build()
+            self._here.build(g, self._specs[g])
             self._where[g] = -1
-            self._here_load += 1
+        self._load[-1] += self._load[w]
         self._load[w] = 0
 
 
@@ -315,9 +319,11 @@ class _Keeper:
         for g in groups:
             self.qps.pop(g, None)
 
-    def solve(self, jobs: Sequence[SolveJob]) -> list[Outcome] | Exception:
-        """The outcomes, or the exception a bug raised (the parent raises it)."""
-        since = time.perf_counter()
+    def solve(self, jobs: Sequence[SolveJob], since: float | None = None
+              ) -> list[Outcome] | Exception:
+        """The outcomes, or the exception a bug raised (the parent raises it).  Time
+        limits count from ``since`` (time.perf_counter; default: now)."""
+        since = time.perf_counter() if since is None else since
         try:
             return [_solve(_built(self.qps[job.group]), job, self.transition, since)
                     for job in jobs]

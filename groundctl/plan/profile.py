@@ -38,24 +38,33 @@ def effort_hessian(steps: int, dt: float) -> NDArray[np.float64]:
     return 2.0 * (dt * np.eye(steps) + (JERK_WEIGHT / dt) * diff.T @ diff)
 
 
-@lru_cache(maxsize=64)
-def rest_to_rest(steps: int, dt: float) -> Profile:
-    """Minimum-effort profile: s0 = 0, v0 = 0, sN = 1, vN = 0, acceleration piecewise constant."""
-    if steps < 2:
-        raise ValueError("`steps` must be at least 2")
+def _ends(steps: int, dt: float) -> NDArray[np.float64]:
+    """(2, N): the final position and velocity of a rest-to-rest profile as linear
+    functions of its accelerations."""
     k = np.arange(steps)
-    # Final velocity and position as linear functions of the accelerations.
-    c_v = np.full(steps, dt)
-    c_s = dt * dt * (0.5 + (steps - 1 - k))
-    c = np.vstack([c_s, c_v])
-    hess = effort_hessian(steps, dt)
-    hinv_ct = np.linalg.solve(hess, c.T)
-    a = hinv_ct @ np.linalg.solve(c @ hinv_ct, np.array([1.0, 0.0]))
+    return np.vstack([dt * dt * (0.5 + (steps - 1 - k)), np.full(steps, dt)])
+
+
+def _integrate(a: NDArray[np.float64], dt: float) -> Profile:
+    """The profile of accelerations ``a`` from rest at 0, its end set exactly to rest at 1
+    (the caller has checked it gets there)."""
     v = np.concatenate([[0.0], np.cumsum(a * dt)])
     s = np.concatenate([[0.0], np.cumsum(v[:-1] * dt + 0.5 * a * dt * dt)])
     v[-1] = 0.0  # exact zero, not 1e-17
     s[-1] = 1.0
     return Profile(s=s, ds=v, dds=a)
+
+
+@lru_cache(maxsize=64)
+def rest_to_rest(steps: int, dt: float) -> Profile:
+    """Minimum-effort profile: s0 = 0, v0 = 0, sN = 1, vN = 0, acceleration piecewise constant."""
+    if steps < 2:
+        raise ValueError("`steps` must be at least 2")
+    c = _ends(steps, dt)
+    hess = effort_hessian(steps, dt)
+    hinv_ct = np.linalg.solve(hess, c.T)
+    a = hinv_ct @ np.linalg.solve(c @ hinv_ct, np.array([1.0, 0.0]))
+    return _integrate(np.asarray(a, dtype=np.float64), dt)
 
 
 #: Caps of :func:`capped_profile` are rounded down onto a geometric grid of this ratio,
@@ -87,12 +96,9 @@ def _capped(steps: int, dt: float, ds_max: float, dds_max: float) -> Profile | N
     import osqp
     import scipy.sparse as sp
 
-    k = np.arange(steps)
-    # v_k = dt sum_{i<k} a_i (k = 1..N-1, interior), v_N = 0, s_N = 1.
+    # s_N = 1, v_N = 0, then v_k = dt sum_{i<k} a_i (k = 1..N-1) and a itself, boxed.
     tril = np.tril(np.ones((steps - 1, steps)) * dt, 0)
-    c_v = np.full((1, steps), dt)
-    c_s = (dt * dt * (0.5 + (steps - 1 - k)))[None, :]
-    a_mat = sp.csc_matrix(np.vstack([c_s, c_v, tril, np.eye(steps)]))
+    a_mat = sp.csc_matrix(np.vstack([_ends(steps, dt), tril, np.eye(steps)]))
     # A little inside the caps: what ADMM leaves over stays within them.
     v_cap, a_cap = ds_max * (1 - 1e-3), dds_max * (1 - 1e-3)
     lo = np.concatenate([[1.0, 0.0], np.full(steps - 1, -v_cap), np.full(steps, -a_cap)])
@@ -105,11 +111,9 @@ def _capped(steps: int, dt: float, ds_max: float, dds_max: float) -> Profile | N
     if res.info.status not in ("solved", "solved inaccurate"):
         return None
     a = np.asarray(res.x, dtype=float)
-    v = np.concatenate([[0.0], np.cumsum(a * dt)])
-    s = np.concatenate([[0.0], np.cumsum(v[:-1] * dt + 0.5 * a * dt * dt)])
-    if (abs(s[-1] - 1.0) > 1e-6 or abs(v[-1]) > 1e-6 or np.abs(v).max() > ds_max
+    end_s, end_v = _ends(steps, dt) @ a
+    v = np.cumsum(a * dt)
+    if (abs(end_s - 1.0) > 1e-6 or abs(end_v) > 1e-6 or np.abs(v).max() > ds_max
             or np.abs(a).max() > dds_max):
         return None
-    v[-1] = 0.0
-    s[-1] = 1.0
-    return Profile(s=s, ds=v, dds=a)
+    return _integrate(a, dt)

@@ -258,7 +258,7 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
     budget_s = settings.budget_s if budget_s is None else budget_s
     deadline = clock() + budget_s
     guess = _straight_lines(index, name, start, goal, duration, limits, settings)
-    steps, P, V, A = guess.steps, guess.P, guess.V, guess.A
+    steps, P, V, A = guess.steps, guess.ref, guess.V, guess.A
     lines = check_straight_lines(start, goal, limits.min_separation, settings.tracking_margin)
     # The floor (plan.straight): lines that keep every pair at its target need nothing
     # more; lines that keep the limit are what is flown if the optimiser finds nothing.
@@ -270,12 +270,12 @@ def plan_quad_transition(index: int, name: str, start: FloatArray, goal: FloatAr
         return _straight_result(index, name, start, goal, duration, steps, P, V, lines, t0)
     try:
         try:
-            result = _plan(index, name, start, goal, duration, limits, settings, t0,
+            result = _plan(index, name, start, goal, guess, duration, limits, settings, t0,
                            deadline, clock, budget_s, workers, ray)
         except PlanningError:
             if settings.tracking_margin <= 0 or clock() >= deadline:
                 raise
-            result = _plan(index, name, start, goal, duration, limits,
+            result = _plan(index, name, start, goal, guess, duration, limits,
                            replace(settings, tracking_margin=0.0), t0, deadline, clock,
                            budget_s, workers, ray)
     except PlanningError:
@@ -303,8 +303,8 @@ class _Lines:
     steps: int
     dt: float
     ref: FloatArray
-    """(n, N+1, 3) reference positions (the guess's)."""
-    P: FloatArray
+    """(n, N+1, 3) reference positions, also the guess's positions (read only: the SCP
+    works on a copy)."""
     V: FloatArray
     A: FloatArray
     synchronised: bool
@@ -349,7 +349,7 @@ def _straight_lines(index: int, name: str, start: FloatArray, goal: FloatArray,
     ref = start[:, None, :] + s[:, :, None] * delta[:, None, :]
     V = ds[:, :, None] * delta[:, None, :]
     A = dds[:, :, None] * delta[:, None, :]
-    return _Lines(steps, dt, ref, ref.copy(), V, A, synchronised=len(fast) == 0)
+    return _Lines(steps, dt, ref, V, A, synchronised=len(fast) == 0)
 
 
 def _conflict(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
@@ -376,23 +376,24 @@ def _closest_slots(points: FloatArray) -> float:
     return float(d[:, 1].min())
 
 
-def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
-          limits: Limits, settings: PlannerSettings, t0: float,
+def _plan(index: int, name: str, start: FloatArray, goal: FloatArray, guess: _Lines,
+          duration: float, limits: Limits, settings: PlannerSettings, t0: float,
           deadline: float = np.inf, clock: Callable[[], float] = time.perf_counter,
           budget_s: float = BUDGET_S, workers: int = 1, ray: bool = False
           ) -> TransitionResult:
     with GroupSolvers(index, workers, ray=ray) as solvers:
-        return _scp(index, name, start, goal, duration, limits, settings, t0, deadline,
-                    clock, budget_s, solvers)
+        return _scp(index, name, start, goal, guess, duration, limits, settings, t0,
+                    deadline, clock, budget_s, solvers)
 
 
-def _scp(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
-         limits: Limits, settings: PlannerSettings, t0: float, deadline: float,
-         clock: Callable[[], float], budget_s: float, solvers: GroupSolvers
-         ) -> TransitionResult:
+def _scp(index: int, name: str, start: FloatArray, goal: FloatArray, guess: _Lines,
+         duration: float, limits: Limits, settings: PlannerSettings, t0: float,
+         deadline: float, clock: Callable[[], float], budget_s: float,
+         solvers: GroupSolvers) -> TransitionResult:
+    """The SCP from ``guess`` (left as it is: the iterate is a copy)."""
     n = start.shape[0]
-    guess = _straight_lines(index, name, start, goal, duration, limits, settings)
-    steps, dt, ref, P, V, A = guess.steps, guess.dt, guess.ref, guess.P, guess.V, guess.A
+    steps, dt, ref = guess.steps, guess.dt, guess.ref
+    P, V, A = ref.copy(), guess.V.copy(), guess.A.copy()
     delta = goal - start
     d_sep = chord_separation(limits, dt)  # the widest bulge: for the searches' radii
     d_row = limits.min_separation + SEPARATION_BUFFER  # what the rows ask, bulge apart
@@ -466,8 +467,9 @@ def _scp(index: int, name: str, start: FloatArray, goal: FloatArray, duration: f
             jobs = []
             for b in batch:
                 key, state = todo[b]
+                members = np.asarray(key, dtype=np.intp)
                 ks = state.spec.obstacles.k
-                jobs.append(SolveJob(state.gid, P[list(key)], V[list(key)], A[list(key)],
+                jobs.append(SolveJob(state.gid, P[members], V[members], A[members],
                                      state.trust,
                                      np.stack([P[state.obs_other, ks],
                                                P[state.obs_other, ks + 1]], axis=1),
@@ -541,7 +543,8 @@ def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, durat
     t0 = time.perf_counter()
     g = start.shape[0]
     guess = _straight_lines(index, name, start, goal, duration, limits, settings)
-    steps, dt, ref, P, V, A = guess.steps, guess.dt, guess.ref, guess.P, guess.V, guess.A
+    steps, dt, ref, V, A = guess.steps, guess.dt, guess.ref, guess.V, guess.A
+    P = ref.copy()
     delta = goal - start
     times = np.linspace(0.0, duration, steps + 1)
     others = np.asarray(others_at(times), dtype=float).reshape(-1, steps + 1, 3)
