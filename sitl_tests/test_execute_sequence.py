@@ -658,13 +658,58 @@ def test_a_refused_repeat_of_an_accepted_takeoff_is_not_a_failure() -> None:
     assert seq.vehicles[1].phase in (VehiclePhase.READY, VehiclePhase.SHOW)
 
 
+def test_a_refused_takeoff_is_judged_by_the_climb_once_it_could_have_lifted_off() -> None:
+    # Unsigned, anyone can send a refusal (a forged COMMAND_ACK from the vehicle's own
+    # address), and an autopilot refuses a repeat of a takeoff it is spooling up for
+    # (2.6 s on ArduCopter): neither may ground a vehicle that is taking off.
+    states = _fleet(ARDU, n=1)
+    seq = ShowSequence(make_plan(), {1: 0}, {1: ARDU}, SequenceConfig(max_attempts=3))
+    t = _armed_ardupilot(seq, states, 0.0)
+    set_altitude(states[1], 0.0)
+    seq.update(t + 0.1, states)
+    for k in range(3):  # a refusal every tick, never the vehicle's word: no resend
+        assert seq.command_failed(Takeoff(1, 3.0), "MAV_RESULT_FAILED", t + 0.2 + k) == []
+    assert seq.update(t + 3.0, states) == []
+    set_altitude(states[1], 0.4)  # lifting off: 0.4 m above where it was sent its takeoff
+    assert seq.update(t + 7.0, states) == [Notice(
+        1, "vehicle 1 climbs although its takeoff was refused (MAV_RESULT_FAILED): its "
+           "takeoff goes on")]
+    assert seq.vehicles[1].attempts == 1 and seq.vehicles[1].reason is None
+    set_altitude(states[1], 3.0)
+    seq.update(t + 8.0, states)
+    assert seq.vehicles[1].phase in (VehiclePhase.READY, VehiclePhase.SHOW)
+
+
+def test_a_takeoff_refused_and_never_climbing_is_resent_then_given_up() -> None:
+    states = _fleet(ARDU, n=1)
+    seq = ShowSequence(make_plan(), {1: 0}, {1: ARDU},
+                       SequenceConfig(max_attempts=3, takeoff_retry_after_s=4.0))
+    now = _armed_ardupilot(seq, states, 0.0)
+    set_altitude(states[1], 0.05)
+    for attempt in (1, 2):
+        assert seq.command_failed(Takeoff(1, 3.0), "MAV_RESULT_DENIED", now + 0.1) == []
+        assert seq.update(now + 4.0, states) == []
+        assert seq.update(now + 4.1, states) == [Takeoff(1, 3.0)]
+        assert seq.vehicles[1].attempts == attempt + 1
+        now += 4.1
+    assert seq.command_failed(Takeoff(1, 3.0), "MAV_RESULT_DENIED", now + 0.1) == []
+    assert seq.vehicles[1].phase is VehiclePhase.TAKEOFF
+    actions = seq.update(now + 4.1, states)
+    assert actions[:2] == [Notice(1, "vehicle 1: takeoff failed 3 times: MAV_RESULT_DENIED"),
+                           Land(1)]
+    assert seq.vehicles[1].reason == "takeoff failed 3 times: MAV_RESULT_DENIED"
+
+
 def test_a_takeoff_given_up_near_a_landing_spot_aborts_the_show() -> None:
     # Vehicle 2 lands back on its own takeoff spot, where track 0 is planned to land.
     plan = _landing_swapped_plan()
     states = _fleet(ARDU, n=2)
     seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU}, SequenceConfig(max_attempts=1))
     _armed_ardupilot(seq, states, 0.0)
-    actions = seq.command_failed(Takeoff(2, 3.0), "MAV_RESULT_FAILED", 0.3)
+    assert seq.command_failed(Takeoff(2, 3.0), "MAV_RESULT_FAILED", 0.3) == []
+    set_altitude(states[1], 0.3)  # vehicle 1 is lifting off; vehicle 2 stays down
+    assert seq.update(4.0, states) == []  # judged only once it could have lifted off
+    actions = seq.update(4.3, states)
     assert actions[:2] == [Notice(2, "vehicle 2: takeoff failed 1 times: MAV_RESULT_FAILED"),
                            Land(2)]
     assert any(isinstance(a, Notice) and "aborting the show" in a.text for a in actions)

@@ -126,6 +126,23 @@ def test_an_arming_refusal_is_retried_with_its_reason_shown(flavour: Flavour) ->
     assert v2["last_refusal"] == "PreArm: Gyros inconsistent"
 
 
+def test_a_takeoff_whose_ack_is_lost_and_whose_repeat_is_refused_goes_on(
+        tmp_path: Path) -> None:
+    """Vehicle 2's ACCEPTED for NAV_TAKEOFF is lost; the link's resend a second later is
+    refused (ArduCopter refuses a takeoff while it spools up for one, 2.6 s): the
+    refusal is not the vehicle's last word, its climb is, and it flies the show."""
+    async def lose(runner: ShowRunner, sim: SimProcess) -> None:
+        sim.call("lose_acks", mavlink.MAV_CMD_NAV_TAKEOFF, 2, 1)
+
+    result = dry_run(tmp_path, during=lose)
+    _assert_flown_safely(result.report)
+    v2 = vehicle(result.report, 2)
+    assert v2["commands_refused"] >= 1 and v2["reason"] is None
+    texts = [e["text"] for e in read_events(tmp_path / "events.jsonl")
+             if e["event"] == "sequence"]
+    assert any(t.startswith("vehicle 2 climbs although its takeoff was refused") for t in texts)
+
+
 @pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
 def test_ten_percent_loss_and_100_ms_latency_are_still_flown_safely(flavour: Flavour) -> None:
     result = dry_run(flavour=flavour, loss=0.1, latency_ms=100.0, seed=7)

@@ -45,7 +45,11 @@ mode) -> LANDED (disarmed).  ArduCopter's guided takeoff needs GUIDED before
 arming, which is why the order differs.  Every step waits for its effect in
 telemetry (mode, armed, altitude), not just for the command's ACK; a step is
 re-sent after a refusal or ``step_timeout_s`` without effect, up to
-``max_attempts`` times, keeping the last reason.
+``max_attempts`` times, keeping the last reason.  A refused takeoff is judged by
+the vehicle's climb, not by the ACK: without signing anyone can send a refusal,
+and an autopilot refuses a repeat of a takeoff it is already spooling up for, so
+it is re-sent (or given up) only ``takeoff_retry_after_s`` later -- longer than
+any spool-up -- and not at all if the vehicle climbs meanwhile.
 
 A vehicle whose link is lost is marked LOST and reported; the show goes on
 for the others.  It is still streamed what it would have flown (its plan,
@@ -203,6 +207,9 @@ class ShowPhase(enum.StrEnum):
 
 #: Above this height above home a vehicle is taking off (or flying), m.
 AIRBORNE_M = 0.5
+#: Risen this far since its takeoff was sent, a vehicle is climbing (whatever its height
+#: above home), m: well above an EKF's altitude noise on the ground.
+CLIMB_SEEN_M = 0.2
 
 #: Phases a vehicle never leaves: it is down (seen disarmed) or given up.  LOST is not
 #: one of them: a silent vehicle may still be airborne.
@@ -278,6 +285,12 @@ class SequenceConfig:
     """Times a step (mode, arm, takeoff, land) is tried before giving up."""
     retry_after_s: float = 1.0
     """Pause before re-sending a refused command, s."""
+    takeoff_retry_after_s: float = 4.0
+    """Pause before a refused takeoff is re-sent or given up, s: longer than an
+    autopilot's spool-up before lift-off (2.6 s measured on ArduCopter SITL), so a
+    vehicle that took off after all -- the refusal forged, or the answer to a repeat of
+    an accepted takeoff whose ACK was lost -- is seen climbing first (then it is not
+    re-sent: the climb is what counts)."""
     step_timeout_s: float = 5.0
     """A mode or arm step with no effect in telemetry after this is re-sent, s."""
     takeoff_timeout_s: float = 60.0
@@ -346,6 +359,8 @@ class VehicleRun:
     """While LOST: the phase it was lost in (what it is still streamed as)."""
     altitude: float | None = None
     """Last altitude above home seen in telemetry, m."""
+    takeoff_from: float | None = None
+    """Its altitude above home when its takeoff was first sent, m (None: unknown)."""
     leave_at: float | None = None
     """Land-one mid-show: the show time it is to leave at (its way out being planned)."""
     leave: Leave | None = None
@@ -734,9 +749,14 @@ class ShowSequence:
         v = self.vehicles.get(command.sysid)
         if v is None or v.pending != command:
             return []  # a stale answer: the vehicle has moved on
-        if isinstance(command, Takeoff) and (v.altitude or 0.0) > AIRBORNE_M:
-            # Climbing already: the first NAV_TAKEOFF was accepted but its ACK lost,
-            # and the autopilot refuses a repeat in flight.  Its effect is what counts.
+        if isinstance(command, Takeoff):
+            if self._climbing(v):
+                # Climbing already: the first NAV_TAKEOFF was accepted but its ACK lost,
+                # and the autopilot refuses a repeat in flight.  Its effect is what counts.
+                return []
+            # Judged once the vehicle has had the time to lift off (_retake_off).
+            v.reason = reason
+            v.retry_at = now + self.config.takeoff_retry_after_s
             return []
         v.reason = reason
         if v.attempts >= self.config.max_attempts:
@@ -1352,6 +1372,31 @@ class ShowSequence:
             actions += self._strand(v, off, now, "taken back")
         return [*actions, self._send(v, SetMode(v.sysid, flight), now)]
 
+    def _climbing(self, v: VehicleRun) -> bool:
+        """Whether its telemetry says it is taking off (or flying)."""
+        alt = v.altitude
+        if alt is None:
+            return False
+        return alt > AIRBORNE_M or (v.takeoff_from is not None
+                                    and alt - v.takeoff_from >= CLIMB_SEEN_M)
+
+    def _retake_off(self, v: VehicleRun, cmd: Takeoff, now: float) -> list[Action]:
+        """``takeoff_retry_after_s`` after a refused takeoff: climbing, the refusal was
+        not the vehicle's last word (a forged ACK, or its answer to a repeat of a
+        takeoff it had accepted) and its takeoff goes on; still on the ground, it is
+        re-sent, or given up after ``max_attempts``."""
+        v.retry_at = None
+        if self._climbing(v):
+            why, v.reason = v.reason, None
+            return [Notice(v.sysid, f"vehicle {v.sysid} climbs although its takeoff was "
+                                    f"refused ({why}): its takeoff goes on",
+                           "takeoff_refusal_overruled",
+                           "climbing although the takeoff was refused: it goes on")]
+        if v.attempts >= self.config.max_attempts:
+            return self._give_up(v, f"{_describe(cmd)} failed {v.attempts} times: "
+                                    f"{v.reason}", now)
+        return [self._send(v, cmd, now)]
+
     def _altitude(self, state: VehicleState) -> float | None:
         if state.global_position is not None:
             return state.global_position.relative_alt_m
@@ -1402,13 +1447,15 @@ class ShowSequence:
                 return self._battery_landing(v, state, now)
         cmd = v.pending
         if v.retry_at is not None and now >= v.retry_at and cmd is not None:
+            if isinstance(cmd, Takeoff):
+                return self._retake_off(v, cmd, now)
             return [self._send(v, cmd, now)]
         if isinstance(cmd, SetMode) and cmd.mode == "GUIDED":
             if state.mode == "GUIDED":
                 return [self._send(v, Arm(v.sysid), now)]
         elif isinstance(cmd, Arm):
             if state.armed:
-                v.phase = VehiclePhase.TAKEOFF
+                v.phase, v.takeoff_from = VehiclePhase.TAKEOFF, v.altitude
                 return [self._send(v, Takeoff(v.sysid, self.plan.takeoff_altitude), now)]
         elif isinstance(cmd, Takeoff):
             alt = v.altitude

@@ -234,6 +234,14 @@ class SimFleet:
             for i in self._indices(sysid):
                 self.vehicles[int(i)].arm_refusals.extend([reason] * times)
 
+    def lose_acks(self, command: int, sysid: int | None = None, times: int = 1) -> None:
+        """The next ``times`` COMMAND_ACKs for ``command`` are lost on the way: the
+        command is carried out (or refused), its answer never arrives."""
+        with self._lock:
+            for i in self._indices(sysid):
+                lost = self.vehicles[int(i)].lost_acks
+                lost[command] = lost.get(command, 0) + times
+
     def motor_failure(self, sysid: int | None = None, at: float | None = None) -> None:
         """Thrust lost: the vehicle falls (and is disarmed by its crash check on impact)."""
         self.inject(FaultEvent(FaultKind.MOTOR_FAILURE, self._at(at), sysid))

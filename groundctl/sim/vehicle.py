@@ -177,6 +177,9 @@ class Vehicle:
         self.setpoints_dropped = 0
         self.arm_refusals: list[str] = []
         """Reasons (STATUSTEXT) to refuse the next arm commands with, one each (a fault)."""
+        self.lost_acks: dict[int, int] = {}
+        """MAV_CMD -> how many of its next COMMAND_ACKs are lost on the way (a fault: the
+        command is carried out, its answer never arrives)."""
         self.last_gcs_heartbeat: float | None = None
         self.last_setpoint: float | None = None
         self.setpoint_kind = "none"  # "pos", "posvel", "vel", "acc"
@@ -342,6 +345,9 @@ class Vehicle:
 
     def ack(self, msg: Msg, result: int) -> None:
         """Queue a COMMAND_ACK for ``msg`` addressed to its sender."""
+        if self.lost_acks.get(msg.command, 0) > 0:
+            self.lost_acks[msg.command] -= 1
+            return
         self._out.append(mavlink.MAVLink_command_ack_message(
             msg.command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()))
 
