@@ -35,6 +35,21 @@ def test_each_sample_is_carried_to_the_tick_with_its_own_velocity() -> None:
     assert sep.pair == (1, 2) and sep.distance_m == pytest.approx(2.4, abs=2e-3)
 
 
+def test_a_sample_dated_after_it_arrived_is_carried_from_its_arrival() -> None:
+    # A TIMESYNC offset estimated on a busy machine (every round trip held up on one leg)
+    # put the sample 0.3 s in the future: taken at its word it would not be carried at
+    # all; it cannot be younger than its arrival (0.1 s before the tick).
+    a = make_vehicle(1, now=10.0)
+    _with_sample(a, (0.0, 0.0, -5.0), (0.0, 2.0, 0.0), sample_at=10.3, offset_s=50.0)
+    a.local_received_at = 9.9
+    ids, pos = telemetry_positions(make_plan(), {1: a}, now=10.0)
+    assert ids == [1]
+    np.testing.assert_allclose(pos, [[0.2, 0.0, 5.0]], atol=2e-3)
+    a.local_received_at = 10.5  # arrived after its dating: the dating stands
+    np.testing.assert_allclose(telemetry_positions(make_plan(), {1: a}, now=10.5)[1],
+                               [[0.4, 0.0, 5.0]], atol=2e-3)
+
+
 def test_stale_and_lost_vehicles_are_left_out() -> None:
     a = make_vehicle(1, now=10.0)
     b = make_vehicle(2, now=10.0)

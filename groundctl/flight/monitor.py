@@ -152,7 +152,14 @@ def telemetry_positions(plan: Plan, states: Mapping[int, VehicleState],
         age = 0.0
         offset = s.clock_offset_s
         if s.local_time_boot_ms is not None and offset is not None:
-            age = now - (s.local_time_boot_ms / 1000.0 - offset)
+            sampled = s.local_time_boot_ms / 1000.0 - offset
+            if s.local_received_at is not None:
+                # Never after it arrived: a TIMESYNC offset estimated on a busy machine
+                # (every round trip delayed one way) can date it up to tenths of a second
+                # in the future, and a sample taken as fresher than it is goes
+                # uncarried.
+                sampled = min(sampled, s.local_received_at)
+            age = now - sampled
         elif s.last_heard is not None:
             age = now - s.last_heard
         if age > MAX_SAMPLE_AGE_S:

@@ -128,6 +128,8 @@ class VehicleState:
     """LOCAL_POSITION_NED vx, vy, vz in m/s."""
     local_time_boot_ms: int | None = None
     """time_boot_ms of the last LOCAL_POSITION_NED."""
+    local_received_at: float | None = None
+    """Our time the last LOCAL_POSITION_NED arrived (the kernel's stamp, on our clock)."""
     stream_gaps: int = 0
     """Silences in its own position stream: consecutive LOCAL_POSITION_NED further apart
     than STREAM_GAP_S on the *vehicle's* clock.  Our own stalls never count here (their
@@ -508,6 +510,7 @@ def _local_position(state: VehicleState, msg: Any, now: float, changes: list[Sta
         state.position_ned = s.pos
         state.velocity_ned = s.vel
         state.local_time_boot_ms = ms
+        state.local_received_at = s.at
     if believed and trust.origin is not None:
         _settle_origin(state, changes)
 
