@@ -70,8 +70,14 @@ def test_a_weak_vehicle_is_seen_by_its_throttle_and_flown_safely(tmp_path: Path)
     mpc = result.report["mpc"]
     assert mpc["weak"] == {"1": pytest.approx(0.6, abs=0.03)}
     started = _events(tmp_path, "mpc_started")
-    assert started and all(e["system_id"] == 1 for e in started)
+    assert started and started[0]["system_id"] == 1, started
     assert "asks more than it can fly" in started[0]["why"]
+    # Anyone else put under MPC is there to keep clear of the weak one (its re-timed
+    # trajectory predicted within the limit of a neighbour's path: both are replanned,
+    # seen in CI on a busy machine), never for a deviation or a demand of its own.
+    others = [e for e in started if e["system_id"] != 1]
+    assert all(e["why"].startswith("predicted within") and e["why"].endswith("of vehicle 1")
+               for e in others), others
 
 
 def test_a_land_all_with_a_weak_vehicle_returns_within_what_the_weak_one_can_fly(
