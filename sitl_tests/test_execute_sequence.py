@@ -680,6 +680,20 @@ def test_a_refused_takeoff_is_judged_by_the_climb_once_it_could_have_lifted_off(
     assert seq.vehicles[1].phase in (VehiclePhase.READY, VehiclePhase.SHOW)
 
 
+def test_a_takeoff_up_before_its_refusal_is_judged_drops_the_refusal() -> None:
+    states = _fleet(ARDU, n=1)
+    seq = ShowSequence(make_plan(), {1: 0}, {1: ARDU}, SequenceConfig(takeoff_retry_after_s=4.0))
+    t = _armed_ardupilot(seq, states, 0.0)
+    assert seq.command_failed(Takeoff(1, 3.0), "MAV_RESULT_FAILED", t + 0.1) == []
+    set_altitude(states[1], 3.0)  # a quick climb: up before the verdict at t + 4.1
+    assert seq.update(t + 3.5, states)[0] == Notice(
+        1, "vehicle 1 climbs although its takeoff was refused (MAV_RESULT_FAILED): its "
+           "takeoff goes on")
+    v = seq.vehicles[1]
+    assert v.phase in (VehiclePhase.READY, VehiclePhase.SHOW)
+    assert v.reason is None and v.retry_at is None
+
+
 def test_a_takeoff_refused_and_never_climbing_is_resent_then_given_up() -> None:
     states = _fleet(ARDU, n=1)
     seq = ShowSequence(make_plan(), {1: 0}, {1: ARDU},

@@ -1385,17 +1385,22 @@ class ShowSequence:
         not the vehicle's last word (a forged ACK, or its answer to a repeat of a
         takeoff it had accepted) and its takeoff goes on; still on the ground, it is
         re-sent, or given up after ``max_attempts``."""
-        v.retry_at = None
         if self._climbing(v):
-            why, v.reason = v.reason, None
-            return [Notice(v.sysid, f"vehicle {v.sysid} climbs although its takeoff was "
-                                    f"refused ({why}): its takeoff goes on",
-                           "takeoff_refusal_overruled",
-                           "climbing although the takeoff was refused: it goes on")]
+            return self._refusal_overruled(v)
+        v.retry_at = None
         if v.attempts >= self.config.max_attempts:
             return self._give_up(v, f"{_describe(cmd)} failed {v.attempts} times: "
                                     f"{v.reason}", now)
         return [self._send(v, cmd, now)]
+
+    @staticmethod
+    def _refusal_overruled(v: VehicleRun) -> list[Action]:
+        """Its takeoff was refused, but it climbs: the refusal is dropped, not retried."""
+        why, v.reason, v.retry_at = v.reason, None, None
+        return [Notice(v.sysid, f"vehicle {v.sysid} climbs although its takeoff was "
+                                f"refused ({why}): its takeoff goes on",
+                       "takeoff_refusal_overruled",
+                       "climbing although the takeoff was refused: it goes on")]
 
     def _altitude(self, state: VehicleState) -> float | None:
         if state.global_position is not None:
@@ -1460,12 +1465,14 @@ class ShowSequence:
         elif isinstance(cmd, Takeoff):
             alt = v.altitude
             if alt is not None and abs(alt - cmd.alt_m) <= cfg.takeoff_tolerance_m:
+                # Up before a refusal's verdict was due: the climb overrules it too.
+                notices = self._refusal_overruled(v) if v.retry_at is not None else []
                 v.stream_since = now
                 v.pending = None
                 if v.flavour is Flavour.ARDUPILOT:
                     v.phase = VehiclePhase.READY  # already in GUIDED since before arming
                     v.ready_at = now
-                return []
+                return notices
             if now - v.sent_at >= cfg.takeoff_timeout_s:
                 return self._give_up(v, f"takeoff did not reach {cmd.alt_m:.1f} m within "
                                         f"{cfg.takeoff_timeout_s:.0f} s", now)

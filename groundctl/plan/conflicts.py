@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components
 from scipy.spatial import cKDTree
@@ -92,7 +92,7 @@ def widen(segments: NDArray[np.int64], steps: int, by: int) -> NDArray[np.int64]
 
 
 def groups(n: int, pairs: NDArray[np.int64], extra: IntArray,
-           max_size: int | None = None, keep: Sequence[IntArray] = ()) -> list[IntArray]:
+           max_size: int | None = None, keep: Iterable[ArrayLike] = ()) -> list[IntArray]:
     """Connected components (size >= 2, or listed in ``extra``) of the pair graph; a
     component larger than ``max_size`` is cut into pieces of at most that many drones,
     each a breadth-first stretch of the graph (neighbours stay together).
@@ -112,19 +112,22 @@ def groups(n: int, pairs: NDArray[np.int64], extra: IntArray,
         members[pairs[:, 0]] = True
         members[pairs[:, 1]] = True
     members[extra] = True
+    # The kept pieces (disjoint: they were one cut) by the component they lie inside.
+    kept: dict[int, list[IntArray]] = {}
+    for piece in keep:
+        piece = np.asarray(piece, dtype=np.intp)
+        if len(piece) and members[piece].all() and (label[piece] == label[piece[0]]).all():
+            kept.setdefault(int(label[piece[0]]), []).append(piece)
+    taken = np.zeros(n, dtype=bool)
     out = []
     for lab in np.unique(label[members]):
         comp = np.flatnonzero((label == lab) & members)
         if max_size is None or len(comp) <= max_size or graph is None:
             out.append(comp)
             continue
-        inside = np.zeros(n, dtype=bool)
-        inside[comp] = True
-        taken = np.zeros(n, dtype=bool)
-        for piece in keep:
-            if len(piece) and inside[piece].all() and not taken[piece].any():
-                out.append(np.asarray(piece, dtype=np.intp))
-                taken[piece] = True
+        for piece in kept.get(int(lab), ()):
+            out.append(piece)
+            taken[piece] = True
         order = breadth_first_order(graph, int(comp[0]), directed=False,
                                     return_predecessors=False)
         order = order[~taken[order]]

@@ -420,8 +420,7 @@ def _scp(index: int, name: str, start: FloatArray, goal: FloatArray, guess: _Lin
                      + LINK_MARGIN]
         links = unique_segments(np.concatenate([links, tight]), n, steps)
         violators_all = np.union1d(violators_all, _limit_violators(V, A, limits))
-        grouped = groups(n, links[:, :2], violators_all, MAX_GROUP,
-                         keep=[np.asarray(key, dtype=np.intp) for key in states])
+        grouped = groups(n, links[:, :2], violators_all, MAX_GROUP, keep=states)
         # Which group each drone was in, so a grown or merged group inherits the
         # smallest trust region of its parts: resetting it would let a group that
         # keeps picking up neighbours cycle for ever.
