@@ -28,7 +28,7 @@ def test_dry_run_on_a_terminal_opens_the_console_and_exits_on_its_own(tmp_path: 
     no key pressed), the console closes and the report follows, exit 0."""
     master, slave = pty.openpty()
     proc = subprocess.Popen(
-        [*GROUNDCTL, "dry-run", str(QUICK), "--speed", "4", "--ready-delay", "2", "--go",
+        [*GROUNDCTL, "dry-run", str(QUICK), "--speed", "8", "--ready-delay", "2", "--go",
          "--record", str(tmp_path / "rec")],
         stdin=slave, stdout=slave, stderr=slave, env=ENV, cwd=REPO, start_new_session=True)
     os.close(slave)

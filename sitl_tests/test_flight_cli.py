@@ -67,16 +67,16 @@ def _free_udp_port() -> int:
 
 
 def test_dry_run_json_report_and_recordings(tmp_path: Path) -> None:
-    out = _run("dry-run", str(QUICK_SHOW), "--speed", "4", "--ready-delay", "2", "--json",
+    out = _run("dry-run", str(QUICK_SHOW), "--speed", "8", "--ready-delay", "2", "--json",
                "--record", str(tmp_path), "--seed", "3")
     assert out.returncode == EXIT_OK, out.stderr
     report = json.loads(out.stdout)
     for key in ("safe", "vehicles", "min_separation_m", "max_tracking_error_m", "landed"):
         assert key in report
     assert report["safe"] and report["landed"] and len(report["vehicles"]) == 9
-    assert report["autopilot"] == "ardupilot" and report["speed"] == 4.0
+    assert report["autopilot"] == "ardupilot" and report["speed"] == 8.0
     pacing = report["pacing"]  # paced by default: the pace kept and who held the clock
-    assert pacing["paced"] and 0 < pacing["effective_speed"] <= 4.0
+    assert pacing["paced"] and 0 < pacing["effective_speed"] <= 8.0
     assert set(pacing) >= {"held_by_simulator_s", "held_by_ground_station_s", "left_behind"}
     assert json.loads((tmp_path / "report.json").read_text())["safe"]
     assert (tmp_path / "flight.tlog").stat().st_size > 10_000

@@ -13,7 +13,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from flight_fixtures import dry_run, quick_plan, show_time, until, vehicle
+from flight_fixtures import dry_run, flavours, quick_plan, show_time, until, vehicle
 
 from groundctl.execute.sequence import VehiclePhase
 from groundctl.flight.runner import ShowRunner
@@ -44,7 +44,7 @@ def test_a_vehicle_silent_while_landing_is_counted_landed(tmp_path: Path) -> Non
     assert report["safe"], report["unsafe_reasons"]
 
 
-@pytest.mark.parametrize("flavour", [Flavour.ARDUPILOT, Flavour.PX4], ids=str)
+@pytest.mark.parametrize("flavour", flavours(Flavour.ARDUPILOT))
 def test_a_vehicle_silent_across_the_end_of_the_show_lands_when_heard_again(
         flavour: Flavour, tmp_path: Path) -> None:
     """Silent from 2 s before the end for 8 s: its LAND is sent into the silence (or it

@@ -1,4 +1,4 @@
-"""End to end: MPC replanning against the simulator over real UDP (quick show, x4).
+"""End to end: MPC replanning against the simulator over real UDP (quick show, x8).
 
 A vehicle pushed off its path mid-show (the simulator carries it 3 m up over a
 second, as a gust would) is replanned with MPC back onto its path, clear of its
@@ -11,15 +11,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from flight_fixtures import dry_run, show_time, until, vehicle
+from flight_fixtures import dry_run, flavours, show_time, until, vehicle
 
 from groundctl.flight.dryrun import Push
 from groundctl.flight.runner import RunnerConfig, ShowRunner
 from groundctl.link.flavours import Flavour
 from groundctl.record.events import read_events
 from groundctl.sim.process import SimProcess
-
-FLAVOURS = [Flavour.ARDUPILOT, Flavour.PX4]
 
 
 def _events(record: Path, name: str) -> list[dict]:
@@ -35,7 +33,7 @@ def _safe(report: dict) -> None:
     assert report["simulator"]["crashed"] == []
 
 
-@pytest.mark.parametrize("flavour", FLAVOURS, ids=str)
+@pytest.mark.parametrize("flavour", flavours(Flavour.ARDUPILOT))
 def test_a_push_mid_show_is_corrected_by_mpc_and_the_vehicle_stays_in_the_show(
         flavour: Flavour, tmp_path: Path) -> None:
     result = dry_run(tmp_path, flavour=flavour, pushes=(Push(5, 12.0, (0.0, 0.0, 3.0)),))

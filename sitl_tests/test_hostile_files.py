@@ -8,11 +8,10 @@ takes seconds.
 from __future__ import annotations
 
 import os
-import time
 import tomllib
 import zipfile
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pytest
@@ -48,7 +47,7 @@ from groundctl.errors import (
 from groundctl.plan.plan import Plan
 from groundctl.record.recording import Recording, default_directory, safe_name
 from groundctl.show.loader import load_show, parse_show
-from groundctl.show.takeoff import random_layout
+from groundctl.show.takeoff import _TRIES_PER_DRONE, random_layout
 
 CASES = corpus()
 
@@ -313,10 +312,10 @@ def test_special_point_files_are_refused_at_once(kind: str, tmp_path: Path) -> N
     else:
         (tmp_path / name).write_text("x,y,z\n" + "0,0,0\n" * 200_000)
     show = write_show(tmp_path, points_file_show(name)(tmp_path))
-    t0 = time.monotonic()
+    # Refused before it is opened or read: opening the FIFO would block, reading
+    # /dev/zero would not end (pytest's timeout would say so).
     with pytest.raises(ShowFileError) as info:
         load_show(show)
-    assert time.monotonic() - t0 < 2
     expect = {"fifo": "not a regular file (a FIFO)",
               "dev-zero": "outside the show file's directory",
               "symlink-out": "outside the show file's directory",
@@ -391,10 +390,9 @@ def test_a_plans_show_name_cannot_leave_recordings(tmp_path: Path) -> None:
 def test_out_of_range_numbers_are_one_show_file_error(text: str, where: str, message: str,
                                                       tmp_path: Path) -> None:
     show = write_show(tmp_path, text)
-    t0 = time.monotonic()
     with pytest.raises(ShowFileError) as info:
         load_show(show)
-    assert time.monotonic() - t0 < 1.0  # before any work
+    # The range checks' own messages: refused before any work (no layout, no formation).
     assert (info.value.path, info.value.where, info.value.message) == (str(show), where, message)
 
 
@@ -447,11 +445,28 @@ def test_the_faster_random_layout_places_the_same_drones(
         assert (new is None and old is None) or np.array_equal(new, old)
 
 
-def test_a_crowded_but_possible_random_layout_gives_up_in_time() -> None:
+class _CountingRng:
+    """A real generator that counts the candidate points drawn from it."""
+
+    def __init__(self, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+        self.points = 0
+
+    def uniform(self, low: float, high: float, size: tuple[int, int] | int) -> np.ndarray:
+        out = self.rng.uniform(low, high, size=size)
+        self.points += out.shape[0]
+        return out
+
+
+def test_a_crowded_but_possible_random_layout_gives_up_after_a_bounded_number_of_tries(
+        ) -> None:
     # 1000 drones in 45 m x 45 m at 1.5 m: within the packing bound, beyond dart throwing.
-    t0 = time.monotonic()
-    assert random_layout(1000, (45.0, 45.0), (0.0, 0.0), 1.5, np.random.default_rng(0)) is None
-    assert time.monotonic() - t0 < 5
+    # The work is bounded, not the wall time (a busy machine stretches that): at most
+    # _TRIES_PER_DRONE candidates per drone are drawn before it gives up.  How long that
+    # takes is benchmarks/bench_layout.py's figure.
+    rng = _CountingRng(0)
+    assert random_layout(1000, (45.0, 45.0), (0.0, 0.0), 1.5, cast(Any, rng)) is None
+    assert 0 < rng.points <= _TRIES_PER_DRONE * 1000
 
 
 def test_the_flying_commands_load_a_plan_file_through_its_show(tmp_path: Path) -> None:

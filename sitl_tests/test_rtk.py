@@ -309,7 +309,7 @@ def test_an_ntrip_client_tells_a_network_caster_where_it_is() -> None:
 # -- end to end -------------------------------------------------------------------------
 def _dry_run(*extra: str, record: Path | None = None) -> subprocess.CompletedProcess[str]:
     rec = ["--no-record"] if record is None else ["--record", str(record)]
-    return subprocess.run([*GROUNDCTL, "dry-run", str(QUICK_SHOW), "--speed", "4",
+    return subprocess.run([*GROUNDCTL, "dry-run", str(QUICK_SHOW), "--speed", "8",
                            "--ready-delay", "2", "--json", "--no-console", *rec,
                            *extra], capture_output=True, text=True, cwd=REPO, timeout=300,
                           check=False)

@@ -292,7 +292,7 @@ def test_dry_run_refuses_a_conflicting_show_without_repair(tmp_path: Path) -> No
 @pytest.mark.slow
 def test_dry_run_flies_an_imported_show_against_the_simulator(tmp_path: Path) -> None:
     path = write_skyc(tmp_path / "calm.skyc", show_doc(calm_drones()))
-    out = _run("dry-run", str(path), "--speed", "4", "--ready-delay", "2", "--json",
+    out = _run("dry-run", str(path), "--speed", "8", "--ready-delay", "2", "--json",
                "--no-record", "--no-console", "--origin", "47.3977,8.5456,488", timeout=240)
     assert out.returncode == EXIT_OK, out.stderr
     report = json.loads(out.stdout)
@@ -304,7 +304,7 @@ def test_dry_run_flies_an_imported_show_against_the_simulator(tmp_path: Path) ->
 @pytest.mark.slow
 def test_dry_run_flies_a_repaired_show(tmp_path: Path) -> None:
     path = write_skyc(tmp_path / "cross.skyc", show_doc(crossing_drones()))
-    out = _run("dry-run", str(path), "--repair", "--speed", "4", "--ready-delay", "2",
+    out = _run("dry-run", str(path), "--repair", "--speed", "8", "--ready-delay", "2",
                "--json", "--no-record", "--no-console", timeout=240)
     assert out.returncode == EXIT_OK, out.stderr
     report = json.loads(out.stdout)

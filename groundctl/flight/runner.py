@@ -718,8 +718,13 @@ class ShowRunner:
                 a, b = wanted.get(pair[0]), wanted.get(pair[1])
                 if a is not None and b is not None:
                     planned = float(np.linalg.norm(a - b))
-        # The link judges a fleet-wide silence over the drones in the air only.
-        self.link.silence_ids = set(streamed) if flying else None
+        # The link judges a fleet-wide silence over the drones in the air only, and not
+        # over those already marked lost: their silence is their own, judged one by one
+        # (one drone lost for good, still streamed after the others landed, read as the
+        # whole fleet silent and held the flight for the ground station's "trouble").
+        self.link.silence_ids = {s for s in streamed
+                                 if not (s in self.link.vehicles
+                                         and self.link.vehicles[s].lost)} if flying else None
         facts = TickFacts(
             now=now, lag_s=lag, period_s=period, last_sent_show_time=self._last_show_time,
             fleet_silent=self.link.fleet_silent, errors_m=errors, closest_m=closest,
