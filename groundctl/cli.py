@@ -8,8 +8,10 @@ its exit code; Ctrl-C exits with EXIT_ABORTED after the command's own cleanup
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
+import os
 import sys
 from collections.abc import Sequence
 
@@ -57,11 +59,34 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.func(args))
     except GroundctlError as exc:
-        print(f"groundctl {args.command}: error: {one_line(str(exc))}", file=sys.stderr)
+        _error_line(f"groundctl {args.command}: error: {one_line(str(exc))}")
         return exc.exit_code
     except KeyboardInterrupt:
-        print(f"groundctl {args.command}: interrupted", file=sys.stderr)
+        _error_line(f"groundctl {args.command}: interrupted")
         return EXIT_ABORTED
+    finally:
+        _flush_or_detach()
+
+
+def _error_line(text: str) -> None:
+    """The one line on stderr; a terminal that is gone (the operator's closed, a
+    dropped SSH connection) changes no exit code."""
+    with contextlib.suppress(OSError, ValueError):
+        print(text, file=sys.stderr, flush=True)
+
+
+def _flush_or_detach() -> None:
+    """Flush stdout and stderr; one whose terminal is gone is pointed at /dev/null, so
+    that the interpreter's own flush at exit cannot fail and turn the exit code into
+    120."""
+    for fd, stream in ((1, sys.stdout), (2, sys.stderr)):
+        try:
+            stream.flush()
+        except (OSError, ValueError, AttributeError):
+            with contextlib.suppress(OSError):
+                null = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(null, fd)
+                os.close(null)
 
 
 if __name__ == "__main__":

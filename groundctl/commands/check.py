@@ -41,13 +41,15 @@ def run(args: argparse.Namespace) -> int:
     try:
         source = plan_source(loaded, args.plan, args.plan_show, args.accept_plan_limits,
                              args.points_dir)
-    except UntrustedPlan:
+    except UntrustedPlan as exc:
         # Unsafe even by the limits it carries is unsafe whatever its show says; "safe"
         # needs the show.
         ver = verify(loaded)
         if ver.safe:
             raise
-        plan, limits_from = loaded, "the plan file itself (no show to check it against)"
+        why = (f"not tied to the show given: {exc.message}" if args.plan_show
+               else "no show to check it against")
+        plan, limits_from = loaded, f"the plan file itself ({why})"
     else:
         plan, limits_from = source.plan, source.limits_from
         ver = verify(plan)

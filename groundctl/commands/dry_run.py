@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     if console:
         from groundctl.console.session import ConsoleSession
         options = replace(options, runner=console_config(options.runner))
-        session = ConsoleSession(interrupts.stop, show=plan.show_name,
+        session = ConsoleSession(interrupts.stop, hangup=interrupts.hangup, show=plan.show_name,
                                  duration_s=plan.duration,
                                  separation_limit_m=plan.limits.min_separation,
                                  go_gate=not args.go)

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -100,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     if console:
         from groundctl.console.session import ConsoleSession
         config = console_config(config)
-        session = ConsoleSession(interrupts.stop, show=plan.show_name,
+        session = ConsoleSession(interrupts.stop, hangup=interrupts.hangup, show=plan.show_name,
                                  duration_s=plan.duration,
                                  separation_limit_m=plan.limits.min_separation,
                                  go_gate=not args.go)
@@ -162,8 +161,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 async def _status(runner: ShowRunner, quiet: bool) -> None:
-    """A plain status line on stderr every second (until the console exists)."""
+    """A plain status line on stderr every second (until the console exists); never
+    waited for (a terminal that stops reading drops lines, not ticks)."""
+    from groundctl.console.terminal import stderr_lines
+
     while not quiet:
         await asyncio.sleep(1.0)
-        print(f"{time.strftime('%H:%M:%S')} {runner.status_line()}", file=sys.stderr,
-              flush=True)
+        stderr_lines().line(f"{time.strftime('%H:%M:%S')} {runner.status_line()}")

@@ -173,9 +173,13 @@ def add_plan_options(p: argparse.ArgumentParser) -> None:
 
 
 def say(quiet: bool) -> Callable[[str], None]:
+    """The plain mode's ``notify``: a line on stderr that never makes the caller wait
+    (:class:`~groundctl.console.terminal.LineWriter`)."""
+    from groundctl.console.terminal import stderr_lines
+
     def notify(text: str) -> None:
         if not quiet:
-            print(text, file=sys.stderr, flush=True)
+            stderr_lines().line(text)
     return notify
 
 
@@ -202,6 +206,7 @@ class Interrupts:
         self.aborted = False
         self._task: asyncio.Task[Any] | None = None
         self._installed: list[signal.Signals] = []
+        self._hung_up = False
 
     def attach(self, runner: ShowRunner) -> None:
         self.runner = runner
@@ -214,8 +219,9 @@ class Interrupts:
             if sig is None:
                 continue  # SIGHUP does not exist on Windows
             # Not the main thread, or a platform without loop signals: it then simply stops.
+            handler = self.hangup if name == "SIGHUP" else self._on_signal
             with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
-                loop.add_signal_handler(sig, self._on_signal, label)
+                loop.add_signal_handler(sig, handler, label)
                 self._installed.append(sig)
 
     def uninstall(self) -> None:
@@ -229,6 +235,14 @@ class Interrupts:
         """The operator asked to stop (the console's quit): exactly as a signal."""
         self._on_signal(label)
 
+    def hangup(self, label: str) -> None:
+        """The operator's terminal is gone: SIGHUP, or the console found it gone (a
+        failed write or read).  Both come for one closed terminal: it counts once."""
+        if self._hung_up:
+            return
+        self._hung_up = True
+        self._on_signal(label)
+
     def _on_signal(self, label: str) -> None:
         self.presses += 1
         self.aborted = True
@@ -238,15 +252,18 @@ class Interrupts:
             self._say(f"{label}: landing every vehicle (again to abandon the flight)")
             self.runner.land_all()
             return
-        self._say(f"{label}: abandoning the flight; vehicles' failsafes are in charge")
+        if self.runner is not None and self.runner.sequence is None:
+            self._say(f"{label}: no go; stopping before any vehicle was armed")
+        else:
+            self._say(f"{label}: abandoning the flight; vehicles' failsafes are in charge")
         if self._task is not None:
             self._task.cancel()
 
     @staticmethod
     def _say(text: str) -> None:
-        # After SIGHUP the terminal may be gone: a failed write must not stop the landing.
-        with contextlib.suppress(OSError, ValueError):
-            print(f"\n{text}", file=sys.stderr, flush=True)
+        # After SIGHUP the terminal may be gone, or stuck: never waited for.
+        from groundctl.console.terminal import stderr_lines
+        stderr_lines().line(f"\n{text}")
 
 
 OPERATOR_HELP = ("commands: hold | resume | land (all) | land SYSID (to its landing spot) | "
@@ -383,14 +400,23 @@ async def read_operator_commands(runner: ShowRunner, notify: Callable[[str], Non
 
 
 def finish(report: dict[str, Any], args: argparse.Namespace, aborted: bool) -> int:
-    """Print the report; the exit code says whether the flight was safe."""
-    if args.json:
-        json.dump(report, sys.stdout)
-        sys.stdout.write("\n")
-    else:
-        print(render_report(report))
-    if report.get("record_dir") and not args.quiet:
-        print(f"recordings in {report['record_dir']}", file=sys.stderr)
+    """Print the report; the exit code says whether the flight was safe.
+
+    The flight is over: the lines still queued for the terminal are given a moment,
+    and a terminal that is gone (the report is in the recording) changes no exit code.
+    """
+    from groundctl.console.terminal import stderr_lines
+
+    stderr_lines().wait_written()
+    with contextlib.suppress(OSError, ValueError):
+        if args.json:
+            json.dump(report, sys.stdout)
+            sys.stdout.write("\n")
+        else:
+            print(render_report(report))
+        if report.get("record_dir") and not args.quiet:
+            print(f"recordings in {report['record_dir']}", file=sys.stderr)
+        sys.stdout.flush()
     if aborted:  # the operator stopped the show (Ctrl-C): not the show that was planned
         return EXIT_ABORTED
     return EXIT_OK if report.get("safe") else EXIT_UNSAFE

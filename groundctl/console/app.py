@@ -7,6 +7,13 @@ changed; keys and the command line go to the
 event loop as the runner: a refresh is a few milliseconds of work between two
 ticks, and the fleet table is updated cell by cell (only the cells whose text
 changed), never rebuilt.
+
+The terminal can never make that loop wait (:mod:`groundctl.console.terminal`
+argues the design): :class:`ConsoleDriver` is Textual's Linux driver with its
+writer replaced by a :class:`~groundctl.console.terminal.TerminalWriter` (frames
+a terminal does not take are dropped, and the whole screen is repainted once it
+reads again), and a terminal that goes away (a failed write or read, a hangup)
+is reported through :attr:`ConsoleApp.on_terminal_lost` instead of panicking.
 """
 
 from __future__ import annotations
@@ -22,6 +29,8 @@ from rich.text import Text
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical
+from textual.driver import Driver
+from textual.drivers import linux_driver
 from textual.widget import Widget
 from textual.widgets import ContentSwitcher, DataTable, Input, RichLog, Static
 from textual.widgets.data_table import CellDoesNotExist
@@ -39,6 +48,7 @@ from groundctl.console.model import (
     VehicleRow,
 )
 from groundctl.console.table import FleetTable
+from groundctl.console.terminal import TerminalWriter
 
 #: Refreshes per second at most: an operator reads no faster, and every refresh is
 #: time the control loop's interpreter is not ticking.
@@ -55,6 +65,56 @@ KEYS = Text.assemble(*(x for key, what in (
     ("d", "land here"), ("k", "kill sel."), ("x", "exclude"), ("g", "go"), ("q", "quit"),
     ("p", "problems"), ("s", "sort"), ("f", "log sel."), ("v", "view"), (":", "command"),
     ("esc", "cancel")) for x in ((f" {key} ", "bold reverse"), (f" {what} ", ""))))
+
+
+class ConsoleDriver(linux_driver.LinuxDriver):
+    """Textual's Linux driver whose terminal can never block the event loop.
+
+    Its writer is a :class:`TerminalWriter` (non-blocking, frames dropped when the
+    terminal is not reading, a hangup noticed), and a failed read of the terminal
+    (EIO once it hung up) is a lost terminal, not a panic.
+    """
+
+    def start_application_mode(self) -> None:
+        app = self._app
+        loop = asyncio.get_running_loop()
+
+        def writer(file: Any) -> TerminalWriter:
+            return TerminalWriter(file, loop=loop, on_lost=_lost_on(app),
+                                  on_caught_up=_caught_up_on(app), name="console-writer")
+
+        # Textual 8 builds its WriterThread inside this method and offers no hook: the
+        # module's name points at ours for the call, on the loop's thread.
+        original = linux_driver.WriterThread
+        linux_driver.WriterThread = writer  # type: ignore[misc,assignment]
+        try:
+            super().start_application_mode()
+        finally:
+            linux_driver.WriterThread = original  # type: ignore[misc]
+
+    def run_input_thread(self) -> None:
+        try:
+            super().run_input_thread()
+        except OSError as exc:  # EIO once the terminal hung up: the app must not panic
+            loop = self._app._loop
+            if loop is not None:
+                with contextlib.suppress(RuntimeError):
+                    loop.call_soon_threadsafe(_lost_on(self._app),
+                                              f"reading it failed ({exc.strerror or exc})")
+
+
+def _lost_on(app: App[Any]) -> Any:
+    def lost(why: str) -> None:
+        if isinstance(app, ConsoleApp):
+            app.terminal_lost(why)
+    return lost
+
+
+def _caught_up_on(app: App[Any]) -> Any:
+    def caught_up(dropped: int) -> None:
+        if isinstance(app, ConsoleApp):
+            app.terminal_caught_up(dropped)
+    return caught_up
 
 
 def progress_bar(fraction: float, width: int = 30) -> str:
@@ -163,6 +223,38 @@ class ConsoleApp(App[None]):
         self._shown: dict[str, Any] = {}
         self._last_refresh = -1e9
         self._tick_queued = False
+        self.on_terminal_lost: Any = None
+        """Called once (on the loop) with why, when the terminal is gone."""
+        self.terminal_gone: str | None = None
+        """Why the terminal is gone (None while it is there)."""
+        self.frames_dropped = 0
+        """Frames the terminal did not take while it was not reading."""
+
+    def get_driver_class(self) -> type[Driver]:
+        driver = super().get_driver_class()
+        return ConsoleDriver if driver is linux_driver.LinuxDriver else driver
+
+    # -- the terminal -----------------------------------------------------------------
+    def terminal_lost(self, why: str) -> None:
+        """The terminal is gone: stop drawing and reading, say so once."""
+        if self.terminal_gone is not None:
+            return
+        self.terminal_gone = why
+        self._mounted = False  # no more refreshes
+        with contextlib.suppress(Exception):
+            if self._driver is not None:
+                self._driver.disable_input()
+        if self.on_terminal_lost is not None:
+            self.on_terminal_lost(why)
+        self.exit()
+
+    def terminal_caught_up(self, dropped: int) -> None:
+        """The terminal reads again after ``dropped`` frames were skipped: repaint all."""
+        self.frames_dropped += dropped
+        self.feed.console(f"console: the terminal was not reading; {dropped} screen "
+                          "update(s) skipped, redrawn")
+        with contextlib.suppress(Exception):
+            self.screen.refresh()
 
     # -- layout -----------------------------------------------------------------------
     def compose(self) -> ComposeResult:

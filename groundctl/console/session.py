@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import sys
 from collections.abc import Awaitable, Callable
 from typing import TypeVar
 
@@ -21,6 +20,7 @@ from groundctl.console.app import ConsoleApp
 from groundctl.console.commands import Controller, GoGate
 from groundctl.console.feed import EventFeed
 from groundctl.console.model import ConsoleModel
+from groundctl.console.terminal import stderr_lines
 from groundctl.flight.runner import ShowRunner
 
 T = TypeVar("T")
@@ -35,23 +35,41 @@ class ConsoleSession:
 
     def __init__(self, stop: Callable[[str], None], *, show: str = "",
                  duration_s: float = 0.0, separation_limit_m: float = 0.0,
-                 go_gate: bool = True, linger_s: float = 2.0) -> None:
+                 go_gate: bool = True, linger_s: float = 2.0,
+                 hangup: Callable[[str], None] | None = None) -> None:
         self.feed = EventFeed()
         self.model = ConsoleModel(show, duration_s, separation_limit_m)
         self.gate = GoGate() if go_gate else None
         self.controller = Controller(self.feed, stop, self.gate)
         self.app = ConsoleApp(self.model, self.controller, self.feed, linger_s=linger_s)
+        self.app.on_terminal_lost = self._terminal_lost
+        self._hangup = hangup or stop
         self.alive = True
         """False once the app has ended: lines go to stderr again."""
+        self.terminal_lost: str | None = None
+        """Why the operator's terminal is gone (None while it is there)."""
         _start_resource_tracker()
 
     def notify(self, text: str) -> None:
-        """The runner's ``notify``: the log pane while the console is up."""
+        """The runner's ``notify``: the log pane while the console is up; stderr after
+        it closed, never waited for; nowhere once the terminal is gone (every line the
+        runner says is in the recording's events.jsonl too)."""
         if self.alive:
             self.feed.notice(text)
             return
-        with contextlib.suppress(OSError, ValueError):
-            print(text, file=sys.stderr, flush=True)
+        if self.terminal_lost is None:
+            stderr_lines().line(text)
+
+    def _terminal_lost(self, why: str) -> None:
+        """The terminal went away under the console: as SIGHUP (it may come too, and
+        counts once) -- a no-go before the show, a landing along a planned return in it."""
+        self.terminal_lost = why
+        self.alive = False
+        inner = self.feed.inner
+        if inner is not None:
+            with contextlib.suppress(Exception):
+                inner.emit("terminal_lost", text=f"the operator's terminal is gone: {why}")
+        self._hangup(f"terminal closed ({why})")
 
     def attach(self, runner: ShowRunner) -> None:
         """Wire the console to ``runner`` (before it runs)."""

@@ -964,8 +964,33 @@ class ShowRunner:
             if seq.started_at is not None and not seq.ended else []
         rate = req.clock.at(now).rate if req.clock is not None and not req.ended else 0.0
         self.monitor.observe(now, req.show_time, in_show, self.link.vehicles, rate)
+        self._commanded_at_closest(seq, req, now)
         self._replan_tick(seq, req, now)
         self._lead_tick(seq, req, now, in_show)
+
+    def _commanded_at_closest(self, seq: ShowSequence, req: StreamRequest, now: float) -> None:
+        """A new closest approach this tick: how far apart their paths put the pair (the
+        report tells a pair pushed together from one flown so)."""
+        assert self.monitor is not None
+        sep = self.monitor.separation
+        last = self.monitor.last_positions
+        if sep.at_s != now or sep.pair is None or last is None:
+            return
+        here = dict(zip(last[1], last[2], strict=True))
+        streamed = [s for s in sep.pair if s in req.paths]
+        wanted = seq.commanded_all(replace(req, sysids=frozenset(streamed),
+                                           paths={s: req.paths[s] for s in streamed}), now)
+        for s in sep.pair:
+            v = seq.vehicles.get(s)
+            if s not in wanted and v is not None and v.phase is VehiclePhase.LANDING \
+                    and v.hold_point is not None and s in here:
+                # Sent straight down from where it held (the last resort, land-here):
+                # told to stay over that point.
+                wanted[s] = np.array([v.hold_point[0], v.hold_point[1], here[s][2]])
+        a, b = sep.pair
+        if a in wanted and b in wanted:
+            self.monitor.separation = replace(
+                sep, commanded_m=float(np.linalg.norm(wanted[a] - wanted[b])))
 
     def _replan_tick(self, seq: ShowSequence, req: StreamRequest, now: float) -> None:
         """MPC: who is replanned this tick, and their next batch (see flight.replanning)."""
@@ -1254,7 +1279,8 @@ class ShowRunner:
 
         Cancelling the task that runs this means the operator abandoned the
         flight (a second Ctrl-C): that becomes a FlightError, so the caller
-        still reports and records instead of unwinding past its ``finally``.
+        still reports and records instead of unwinding past its ``finally``;
+        before the show (nothing armed yet) it is a :class:`NoGo` (exit 5).
         """
         try:
             self._start_workers()  # they load while the link comes up
@@ -1267,6 +1293,8 @@ class ShowRunner:
             task = asyncio.current_task()
             if task is not None:
                 task.uncancel()
+            if self.sequence is None:  # stopped in pre-flight (Ctrl-C, a closed terminal)
+                raise NoGo("stopped before the show: nothing was armed") from None
             raise FlightError("flight abandoned by the operator") from None
         finally:
             await self._drain()

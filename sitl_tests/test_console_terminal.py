@@ -1,0 +1,205 @@
+"""The console never stalls the flight (issue 27): `groundctl dry-run` on a real
+pseudo-terminal that stops reading, closes, or whose process is killed.
+
+Each test runs the CLI as an operator does: the pty is the process's controlling
+terminal (so closing it sends SIGHUP as a closed terminal window or a dropped SSH
+connection does) and its stdin, stdout and stderr.  What is checked is the exit
+code, the recording (report.json, events.jsonl) and the processes left.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import pty
+import select
+import signal
+import struct
+import subprocess
+import sys
+import termios
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from flight_fixtures import QUICK_SHOW, REPO
+
+from groundctl.console.terminal import TerminalWriter
+from groundctl.errors import EXIT_ABORTED, EXIT_OK
+from groundctl.record.events import read_events
+
+pytestmark = pytest.mark.slow
+
+GROUNDCTL = [sys.executable, "-m", "groundctl"]
+ENV = {**os.environ, "PYTHONPATH": str(REPO), "TERM": "xterm-256color"}
+
+
+def _controlling_tty() -> None:  # in the child, after setsid: the pty becomes its terminal
+    fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+
+
+class Terminal:
+    """A dry-run of the quick show on a pty of 160 x 48, read by this test."""
+
+    def __init__(self, record: Path, *extra: str) -> None:
+        self.master, slave = pty.openpty()
+        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 48, 160, 0, 0))
+        self.proc = subprocess.Popen(
+            [*GROUNDCTL, "dry-run", str(QUICK_SHOW), "--speed", "4", "--ready-delay", "2",
+             "--record", str(record), *extra],
+            stdin=slave, stdout=slave, stderr=slave, env=ENV, cwd=REPO,
+            start_new_session=True, preexec_fn=_controlling_tty)
+        os.close(slave)
+        self.out = b""
+        self.open = True
+
+    def read_for(self, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while self.open and time.monotonic() < end:
+            ready, _, _ = select.select([self.master], [], [], 0.1)
+            if not ready:
+                if self.proc.poll() is not None:
+                    return
+                continue
+            try:
+                data = os.read(self.master, 65536)
+            except OSError:  # the child closed its end
+                return
+            if not data:
+                return
+            self.out += data
+
+    def wait_for(self, text: str, timeout: float = 120.0) -> None:
+        """Read until ``text`` was drawn (a liveness deadline, not a speed bound)."""
+        end = time.monotonic() + timeout
+        while text.encode() not in self.out:
+            assert time.monotonic() < end and self.proc.poll() is None, \
+                (text, self.proc.poll(), self.out[-2000:].decode(errors="replace"))
+            self.read_for(0.2)
+
+    def close(self) -> None:
+        """The terminal goes away: the window closed, the SSH connection dropped."""
+        if self.open:
+            os.close(self.master)
+            self.open = False
+
+    def finish(self, timeout: float = 180.0) -> int:
+        try:
+            if self.open:
+                end = time.monotonic() + timeout
+                while self.proc.poll() is None and time.monotonic() < end:
+                    self.read_for(0.5)
+            return self.proc.wait(timeout=timeout)
+        finally:
+            if self.proc.poll() is None:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+            self.close()
+
+
+def _report(record: Path) -> dict[str, Any]:
+    return json.loads((record / "report.json").read_text())
+
+
+def test_a_terminal_that_stops_reading_slows_only_the_picture(tmp_path: Path) -> None:
+    # The operator's terminal takes no output for 10 s mid-show (paused, a stuck SSH
+    # connection): the flight goes on at its rate and the console catches up.
+    record = tmp_path / "rec"
+    term = Terminal(record, "--go")
+    term.wait_for("SHOW")
+    time.sleep(10.0)  # nothing read: the pty's buffer fills, then the console's writer's
+    drawn_before = len(term.out)
+    rc = term.finish()
+    assert rc == EXIT_OK, term.out[-3000:].decode(errors="replace")
+    assert len(term.out) > drawn_before  # it drew again once read
+    report = _report(record)
+    assert report["safe"] and report["landed"]
+    # The loop never waited on the terminal: no tick later than the paced clock's slack
+    # (a blocked write would have held the loop, and the clock with it, for the whole
+    # 10 s), and the guard never held the show for the ground station's own trouble.
+    late = report["setpoint_lateness_ms"]
+    assert late["max"] <= 50.0 + 1e-6 and late["overruns"] == 0, late
+    events = [e["event"] for e in read_events(record / "events.jsonl")]
+    assert "show_held" not in events and "terminal_lost" not in events
+
+
+def test_a_terminal_closed_mid_show_lands_everyone_and_exits_5(tmp_path: Path) -> None:
+    record = tmp_path / "rec"
+    term = Terminal(record, "--go")
+    term.wait_for("SHOW")
+    term.read_for(2.0)
+    term.close()
+    assert term.finish() == EXIT_ABORTED
+    report = _report(record)
+    assert [v["phase"] for v in report["vehicles"]] == ["landed"] * 9
+    assert report["min_separation_m"] >= report["separation_limit_m"]
+    events = read_events(record / "events.jsonl")
+    # The console found the terminal gone and SIGHUP came too: one stop, not two (a
+    # second would abandon the fleet to its failsafes).
+    stops = [e for e in events if e["event"] == "signal"]
+    assert len(stops) == 1 and stops[0]["count"] == 1, stops
+    assert [e["command"] for e in events if e["event"] == "operator"] == ["land all"]
+    assert events[-1]["event"] == "report"
+
+
+def test_a_terminal_closed_at_the_go_question_is_a_no_go(tmp_path: Path) -> None:
+    record = tmp_path / "rec"
+    term = Terminal(record)  # no --go: the console asks the operator
+    term.wait_for("PRE-FLIGHT")
+    term.read_for(3.0)
+    term.close()
+    assert term.finish(timeout=60.0) == EXIT_ABORTED
+    events = read_events(record / "events.jsonl")
+    kinds = [e["event"] for e in events]
+    assert "sequence_started" not in kinds and "armed" not in kinds
+    assert [e["count"] for e in events if e["event"] == "signal"] == [1]
+    assert _report(record)["unsafe_reasons"][0] == "stopped before the show: nothing was armed"
+
+
+def _alive_in_session(sid: int) -> list[str]:
+    out = subprocess.run(["ps", "-e", "-o", "pid=,sid=,stat=,args="], capture_output=True,
+                         text=True, check=True).stdout
+    rows = [line.split(None, 3) for line in out.splitlines()]
+    # Zombies have exited: only their reaping is left (to init).
+    return [" ".join(r) for r in rows if int(r[1]) == sid and not r[2].startswith("Z")]
+
+
+def test_no_process_outlives_a_killed_ground_station(tmp_path: Path) -> None:
+    term = Terminal(tmp_path / "rec", "--go")
+    try:
+        term.wait_for("SHOW")
+        sid = os.getsid(term.proc.pid)
+        assert len(_alive_in_session(sid)) >= 3  # the fork server, the simulator, workers
+        os.kill(term.proc.pid, signal.SIGKILL)
+        term.proc.wait(timeout=30)
+        deadline = time.monotonic() + 30.0  # they leave within a second or two
+        while (left := _alive_in_session(sid)) and time.monotonic() < deadline:
+            term.read_for(0.2)
+        assert not left, left
+    finally:
+        term.finish(timeout=5.0)
+
+
+def test_the_writer_never_blocks_and_says_when_the_terminal_is_gone() -> None:
+    # A pty nobody reads: writes queue up to the limit, then are dropped and counted;
+    # closing the other end is a lost terminal, said once.
+    master, slave = pty.openpty()
+    lost: list[str] = []
+    caught: list[int] = []
+    writer = TerminalWriter(os.fdopen(slave, "w", closefd=True), on_lost=lost.append,
+                            on_caught_up=caught.append, limit_chars=100_000)
+    writer.start()
+    for _ in range(200):  # 2 MB at once: far more than the pty and the limit hold
+        writer.write("x" * 10_000)
+    assert writer.dropped > 0 and writer.queued <= 100_000
+    deadline = time.monotonic() + 30.0  # the terminal reads again: it catches up
+    while not caught and time.monotonic() < deadline:
+        if select.select([master], [], [], 0.1)[0]:
+            os.read(master, 65536)
+    assert caught and sum(caught) == writer.dropped
+    os.close(master)
+    writer.write("after the hangup")
+    writer.join(30.0)
+    assert not writer.is_alive() and len(lost) == 1
+    assert writer.lost in {"it hung up"} or writer.lost.startswith("writing to it failed")
