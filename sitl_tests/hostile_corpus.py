@@ -355,9 +355,10 @@ def _nan_at(key: str, index: tuple[int, ...] | None = None) -> Callable[[dict[st
 
 
 def tamper_separation(a: dict[str, Any]) -> None:
-    """The issue's plan: limits edited to min_separation 0.2, drones 2 and 1 0.3 m apart."""
-    a["meta"]["limits"]["min_separation"] = 0.2
-    shift = np.array([0.3, 0.0, 0.0])
+    """The issue's plan: limits edited down (to 0.6 m: the issue's 0.2 m is now below the
+    floor of what drones can keep, refused for that alone), drones 2 and 1 0.7 m apart."""
+    a["meta"]["limits"]["min_separation"] = 0.6
+    shift = np.array([0.7, 0.0, 0.0])
     a["home"][1] = a["home"][0] + shift
     a["pos"][1] = a["pos"][0] + shift
     a["vel"][1] = a["vel"][0]

@@ -148,15 +148,20 @@ def test_only_a_participant_can_say_it_is_idle() -> None:
 
 
 def test_the_valve_counts_from_when_a_participant_began_to_hold_not_its_last_report() -> None:
-    clock = PacedClock(100.0, valve_s=0.1)
+    # Wall-clock margins of a second (the valve), so that a busy machine's scheduling
+    # (threads preempted for tens of milliseconds) cannot change the outcome.
+    clock = PacedClock(100.0, valve_s=1.0)
     early, late = clock.participant(0), clock.participant(1)
     early.idle_until(5.0)  # reports once, long before it holds the clock
     late.idle_until(0.2)
-    time.sleep(0.15)
-    assert early.now() == pytest.approx(0.25)  # the late one held it past the valve:
-    assert clock.left_behind() == [0, 1]  # left behind, and the clock goes on from here
-    time.sleep(0.08)  # the clock reaches 5.05 and waits there for the early one...
-    assert early.now() == pytest.approx(5.05)  # ...which is not left behind at once
+    time.sleep(1.5)
+    w = time.monotonic()
+    resumed = early.now()  # the late one held it past the valve: left behind, and the
+    # clock goes on from where it waited (by at most what ran at x100 during this call)
+    assert 0.25 - 1e-9 <= resumed <= 0.25 + 100.0 * (time.monotonic() - w) + 1e-6
+    assert clock.left_behind() == [0, 1]
+    time.sleep(0.2)  # the clock reaches 5.05 (48 ms at x100) and waits there for the
+    assert early.now() == pytest.approx(5.05)  # early one, which is not left behind at once
     assert clock.left_behind() == [0, 1]
 
 

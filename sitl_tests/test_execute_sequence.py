@@ -316,6 +316,51 @@ def test_two_vehicles_off_their_plans_at_once_land_the_fleet_on_one_joint_return
         assert seq.return_start(sysid, start + 2.0) == pytest.approx(np.asarray(hold))
 
 
+def test_no_return_for_drones_off_their_plans_lands_them_column_by_column_never_again() -> None:
+    """The strong-wind livelock: stranded drones, land-all, no return, the show flown on,
+    stranded again at once, 40 times over.  Now the last resort: everyone holds where it
+    is and goes straight down, the lowest first, none with a drone below it."""
+    _, states, seq, start = _in_formation_show()
+    for v in states.values():
+        v.lost = True
+    seq.update(start + 1.0, states)
+    for v in states.values():
+        v.lost = False
+    # Vehicle 2 hovers 1 m right above where vehicle 1 is: 1 goes first, 2 waits.
+    _at_plan_point(states[1], seq, 0, start + 2.0, off=(2.5, 0.0, 0.0))
+    p1 = np.array(states[1].position_ned)
+    states[2].position_ned = (float(p1[0]), float(p1[1]), float(p1[2]) - 1.0)
+    seq.update(start + 2.0, states)
+    assert seq.return_needed is not None
+    actions = seq.return_failed("planner gave up", start + 3.0)
+    assert isinstance(actions[0], Notice) and actions[0].kind == "land_in_columns"
+    assert "one column at a time" in actions[0].text
+    assert Land(1) in actions and Land(2) not in actions
+    assert seq.in_columns and seq.ended and seq.return_needed is None
+    assert seq.vehicles[1].phase is VehiclePhase.LANDING
+    v2 = seq.vehicles[2]
+    assert v2.phase is VehiclePhase.LEAVING and v2.hold_point is not None
+    assert seq.stream_request(start + 3.0).fixed == {2: v2.hold_point}  # holds meanwhile
+    # Nothing re-enters planning: no stranded land-all, no return asked, a stop signal
+    # (or the guard) changes nothing.
+    assert [a for a in seq.update(start + 3.5, states) if isinstance(a, Land)] == []
+    assert seq.land_all(start + 3.6) == [
+        Notice(None, "already landing every vehicle, one column at a time")]
+    assert seq.return_needed is None and seq.leave_needed == []
+    # Vehicle 1 lands and disarms below it: 2's column is clear of anyone in the air, and
+    # the one on the ground is within GROUND_CLEARANCE_M, so 2 still waits ...
+    states[1].position_ned = (float(p1[0]), float(p1[1]), 0.0)
+    states[1].armed = False
+    set_altitude(states[1], 0.0)
+    seq.update(start + 20.0, states)
+    assert seq.vehicles[1].phase is VehiclePhase.LANDED
+    assert seq.vehicles[2].phase is VehiclePhase.LEAVING
+    # ... until it drifts clear of where 1 stands: then down it goes.
+    states[2].position_ned = (float(p1[0]) + 1.2, float(p1[1]), float(p1[2]) - 1.0)
+    assert Land(2) in seq.update(start + 21.0, states)
+    assert seq.vehicles[2].phase is VehiclePhase.LANDING
+
+
 def test_one_vehicle_off_its_plan_leaves_alone_and_the_show_goes_on() -> None:
     _, states, seq, start = _in_formation_show()
     states[2].lost = True
@@ -536,6 +581,33 @@ def test_land_is_resent_when_the_vehicle_never_enters_its_land_mode() -> None:
     assert seq.update(20.0, states) == []  # descending takes as long as it takes
     states[1].armed = False
     assert seq.update(30.0, states) == [Notice(1, "vehicle 1 landed")]
+
+
+def test_a_land_whose_acks_are_lost_counts_as_landing_once_its_land_mode_is_seen() -> None:
+    """Half the packets lost: LAND carried out, every ACK of it (and of its repeats) lost.
+    The mode change is the effect: the timeouts do not give the vehicle up."""
+    states = _fleet(ARDU, n=1)
+    seq = ShowSequence(make_plan(), {1: 0}, {1: ARDU}, SequenceConfig(max_attempts=3))
+    t0 = _airborne_ardupilot(seq, states, 0.0)
+    land = seq.land_here(1, t0 + 1.0)[-1]
+    assert land == Land(1)
+    states[1].mode = "LAND"
+    seq.update(t0 + 1.5, states)
+    for k in range(5):  # more timeouts than max_attempts
+        assert seq.command_failed(land, "no COMMAND_ACK after 3 tries", t0 + 2.0 + k) == []
+    v = seq.vehicles[1]
+    assert v.phase is VehiclePhase.LANDING and v.reason != "no COMMAND_ACK after 3 tries"
+    states[1].armed = False
+    assert Notice(1, "vehicle 1 landed") in seq.update(t0 + 12.0, states)
+    # Not in its land mode: the timeouts count, and the vehicle is given up in the end.
+    states = _fleet(ARDU, n=1)
+    seq = ShowSequence(make_plan(), {1: 0}, {1: ARDU}, SequenceConfig(max_attempts=2))
+    t0 = _airborne_ardupilot(seq, states, 0.0)
+    land = seq.land_here(1, t0 + 1.0)[-1]
+    seq.command_failed(land, "timeout", t0 + 2.0)
+    seq.vehicles[1].attempts = 2
+    assert any("failed 2 times" in getattr(a, "text", "")
+               for a in seq.command_failed(land, "timeout", t0 + 3.0))
 
 
 def test_a_vehicle_lost_on_its_slot_next_to_a_climber_aborts_the_show() -> None:

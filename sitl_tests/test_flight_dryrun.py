@@ -126,6 +126,34 @@ def test_an_arming_refusal_is_retried_with_its_reason_shown(flavour: Flavour) ->
     assert v2["last_refusal"] == "PreArm: Gyros inconsistent"
 
 
+def test_a_vehicle_that_never_arms_is_reported_as_never_taking_off(tmp_path: Path) -> None:
+    # Refused every time: given up on its slot (track 2's: on nobody's way), the others
+    # fly the show.  It never took off, so it did not "fail to land under control" (what
+    # the report used to say).
+    async def refuse(runner: ShowRunner, sim: SimProcess) -> None:
+        sim.call("refuse_arming", 3, 100, "PreArm: Gyros inconsistent")
+
+    result = dry_run(tmp_path, during=refuse)
+    report = result.report
+    assert vehicle(report, 3)["phase"] == "failed"
+    assert [v["system_id"] for v in report["never_took_off"]] == [3]
+    assert "Gyros inconsistent" in report["never_took_off"][0]["reason"]
+    assert report["landed"] and report["safe"], report["unsafe_reasons"]
+    assert all(f["flown"] for f in report["pattern_error_m"])  # the show was flown
+    assert [v["phase"] for v in report["vehicles"] if v["system_id"] != 3] == ["landed"] * 8
+    assert report["simulator"]["down_and_disarmed"] == 9
+    # Vehicle 2's slot is on another track's landing spot: the show cannot be flown, and
+    # the report says that, not that a vehicle failed to land.
+    async def refuse_2(runner: ShowRunner, sim: SimProcess) -> None:
+        sim.call("refuse_arming", 2, 100, "PreArm: Gyros inconsistent")
+
+    report = dry_run(during=refuse_2).report
+    assert not report["safe"] and report["unsafe_reasons"][0].startswith(
+        "the show was called off: vehicle 2 stays on its slot"), report["unsafe_reasons"]
+    assert not any("did not land" in r for r in report["unsafe_reasons"])
+    assert [v["system_id"] for v in report["never_took_off"]] == [2]
+
+
 def test_a_takeoff_whose_ack_is_lost_and_whose_repeat_is_refused_goes_on(
         tmp_path: Path) -> None:
     """Vehicle 2's ACCEPTED for NAV_TAKEOFF is lost; the link's resend a second later is

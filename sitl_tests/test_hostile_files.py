@@ -122,7 +122,7 @@ def test_a_plan_next_to_its_show_is_checked_against_the_show(
 
 def test_the_issues_edited_plan_is_never_safe(tmp_path: Path,
                                                 capsys: pytest.CaptureFixture[str]) -> None:
-    """min_separation edited to 0.2 and two drones 0.3 m apart: SAFE before."""
+    """min_separation edited down and two drones just beyond it: SAFE before."""
     arrays = base_arrays()
     tamper_separation(arrays)
     path = write_plan(tmp_path, arrays)
@@ -130,7 +130,7 @@ def test_the_issues_edited_plan_is_never_safe(tmp_path: Path,
     assert (code, out) == (EXIT_USAGE, "")
     assert err.splitlines() == [
         f"groundctl check: error: {path}: its limits differ from the show's (min_separation "
-        f"0.2 in the plan, 1.5 in the show): the plan was edited after it was planned from "
+        f"0.6 in the plan, 1.5 in the show): the plan was edited after it was planned from "
         f"{tmp_path / 'show.toml'}; re-plan it with 'groundctl plan {tmp_path / 'show.toml'}'"]
     # The same refusal before a dry-run starts a simulator.
     code, out, err = _check(["dry-run", str(path), "--no-record", "-q"], capsys)
@@ -158,6 +158,21 @@ def test_a_plan_moved_closer_than_its_shows_limit_is_unsafe(
     code, out, _ = _check(["check", str(path)], capsys)
     assert code == EXIT_UNSAFE
     assert out.startswith("UNSAFE") and "(min_separation 1.5 m)" in out
+
+
+def test_an_unsafe_plan_checked_against_a_show_it_is_not_tied_to_says_so(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # Unsafe by its own limits: UNSAFE whatever the show; the line says the show was given
+    # but could not be used (it said "no show to check it against").
+    arrays = base_arrays()
+    tamper_separation(arrays)
+    arrays["meta"]["limits"]["min_separation"] = 1.5
+    path = write_plan(tmp_path, arrays, sibling=False)
+    other = write_show(tmp_path, BASE_SHOW.replace('"#ff0000"', '"#00ff00"'), "other.toml")
+    code, out, _ = _check(["check", str(path), "--show", str(other)], capsys)
+    assert code == EXIT_UNSAFE and out.startswith("UNSAFE")
+    assert "limits from the plan file itself (not tied to the show given:" in out
+    assert "no show to check it against" not in out
 
 
 def test_a_plan_is_refused_with_another_show_or_without_a_hash(
@@ -371,6 +386,9 @@ def test_a_plans_show_name_cannot_leave_recordings(tmp_path: Path) -> None:
     (show_with(hold="hold = 1e12"), "formation 1 'line'", "'hold' must be at most 900, got 1e+12"),
     (show_with(origin__heading="heading = 1e300"), "[origin]",
      "'heading' must be at most 360, got 1e+300"),
+    # Below what physical drones can keep (issue 35: planned SAFE, flown 0.002 m apart).
+    (show_with(min_separation="min_separation = 1e-6"), "[limits]",
+     "'min_separation' must be at least 0.5, got 1e-06"),
     (show_with(alt="alt = -1e30"), "[origin]", "'alt' must be at least -500, got -1e+30"),
     (show_with(transition="transition = 500.0"), "formation 1 'line'",
      "'transition' 500.0 s at [planner] dt 0.2 s is 2500 QP steps, more than 2000; raise 'dt' "

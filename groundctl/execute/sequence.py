@@ -240,6 +240,13 @@ _LINK_FAILSAFE_MODES = {
 #: flies on, each take the others for drones on their plans (measured: a 5 s cut of a
 #: PX4 fleet's link on a busy machine stranded five at once; two came 1.30 m apart).
 STRANDED_LAND_ALL = 2
+#: The last resort lands a drone straight down only if no drone on the ground is within
+#: this of where it lands, m (drones are under half a metre across; the separation limit
+#: is for drones in the air).
+GROUND_CLEARANCE_M = 1.0
+#: ... and only if every drone in the air below it is this much farther than the limit
+#: sideways, m: a descent takes 10-20 s, and a wind that stranded drones moves them.
+COLUMN_MARGIN_M = 1.0
 #: Returns planned again because a landing spot was taken (then: nearest free spot).
 MAX_REPLANS = 2
 #: A vehicle is taken back from a link-loss failsafe at most this many times.
@@ -359,6 +366,8 @@ class VehicleRun:
     """While LOST: the phase it was lost in (what it is still streamed as)."""
     altitude: float | None = None
     """Last altitude above home seen in telemetry, m."""
+    mode: str | None = None
+    """Last flight mode seen in telemetry."""
     takeoff_from: float | None = None
     """Its altitude above home when its takeoff was first sent, m (None: unknown)."""
     leave_at: float | None = None
@@ -474,6 +483,8 @@ class ShowSequence:
             sysid: VehicleRun(sysid, track, flavours[sysid])
             for sysid, track in sorted(tracks.items())}
         self.grounded_tracks: set[int] = set(grounded_tracks)
+        self.aborted: str | None = None
+        """Why the show was called off before it could be flown (None: it was not)."""
         self._slots = plan.landing_hover  # where each track's descent starts
         self._home_hover = plan.home + np.array([0.0, 0.0, plan.takeoff_altitude])
         self._first = plan.trajectories.evaluate(0.0)[0]  # where each track's show starts
@@ -483,6 +494,7 @@ class ShowSequence:
         self._return_clock: ShowClock | None = None
         self._started = False
         self._ended = False
+        self._columns = False  # the last resort: landing straight down, column by column
         self._stopped_at: float | None = None  # show time at which land_all stopped the show
         brake = self.config.brake_accel or 0.5 * plan.limits.max_accel
         speeds = np.linalg.norm(plan.trajectories.vel, axis=-1)
@@ -666,6 +678,7 @@ class ShowSequence:
             if v.fell and v.phase is VehiclePhase.FAILED and state is not None:
                 actions += self._armed_again(v, state, now)
         actions += self._land_all_if_stranded(now)
+        actions += self._descend_columns(now)
         actions += self._maybe_start_show(now, states)
         actions += self._begin_leaves(now)
         if self.started_at is not None and not self._ended \
@@ -757,6 +770,11 @@ class ShowSequence:
             # Judged once the vehicle has had the time to lift off (_retake_off).
             v.reason = reason
             v.retry_at = now + self.config.takeoff_retry_after_s
+            return []
+        if isinstance(command, Land) and v.mode in _LAND_MODES:
+            # In its land mode already: the LAND was carried out and only its ACK was
+            # lost (half the packets lost, say).  Its effect is what counts: counting the
+            # timeouts gave a vehicle that went on to land up as "land failed 3 times".
             return []
         v.reason = reason
         if v.attempts >= self.config.max_attempts:
@@ -896,6 +914,12 @@ class ShowSequence:
             return [Notice(None, f"no collision-free return could be planned ({reason}); "
                                  "flying straight to the landing points: watch the fleet")]
         assert now is not None
+        if any(v.hold_point is not None and v.before_return is VehiclePhase.LEAVING
+               for v in self.vehicles.values()):
+            # Drones off their plans hover where they were stopped: the show flying on
+            # is not known to be clear of them (and they would be stranded again at
+            # once: land-all, no return, the show again -- the livelock).
+            return self._land_in_columns(reason, now)
         self._ended, self._stopped_at = False, None
         for v in self.vehicles.values():
             if v.phase is VehiclePhase.RETURNING and v.before_return is not None:
@@ -910,6 +934,69 @@ class ShowSequence:
         return [Notice(None, f"no collision-free return could be planned ({reason}): the "
                              "show flies on to its end, the one way known to be clear, and "
                              "every drone lands from there")]
+
+    # -- the last resort: straight down, one column at a time ------------------------------
+    @property
+    def in_columns(self) -> bool:
+        """The fleet is landing by the last resort (:meth:`_land_in_columns`)."""
+        return self._columns
+
+    def _land_in_columns(self, reason: str, now: float) -> list[Action]:
+        """No collision-free return, and drones off their plans: every airborne drone
+        holds where its path stopped, and they go straight down one column at a time
+        (:meth:`_descend_columns`).  It always exists and plans nothing: nothing more
+        can fail, and a stop signal meanwhile changes nothing (:meth:`land_all`)."""
+        self._columns = True
+        self._return_wanted = False
+        held = []
+        for v in self.vehicles.values():
+            if self.streamed_as(v) is not VehiclePhase.RETURNING:
+                continue
+            point = tuple(float(x) for x in self.return_start(v.sysid, now))
+            v.hold_point = point  # type: ignore[assignment]
+            v.leave, v.leave_at, v.before_return = None, None, None
+            if v.phase is VehiclePhase.LOST:
+                v.lost_from = VehiclePhase.LEAVING
+            else:
+                v.phase = VehiclePhase.LEAVING
+            held.append(v.sysid)
+        actions: list[Action] = [Notice(
+            None, f"no collision-free return could be planned ({reason}) and "
+                  f"{'drones are' if len(held) != 1 else 'a drone is'} off the plan: every "
+                  "drone holds where it is and they land straight down, one column at a "
+                  "time (the lowest first; nobody descends with a drone below it)",
+            "land_in_columns")]
+        return actions + self._descend_columns(now)
+
+    def _descend_columns(self, now: float) -> list[Action]:
+        """Send down each held drone whose column is clear (no airborne drone within the
+        separation limit below it, no drone on the ground within
+        :data:`GROUND_CLEARANCE_M` of where it lands); re-checked every update, so a
+        drone waits while another drifts under it."""
+        if not self._columns:
+            return []
+        waiting = [v for v in self.vehicles.values()
+                   if v.phase is VehiclePhase.LEAVING and v.hold_point is not None
+                   and v.pending is None]
+        actions: list[Action] = []
+        for v in sorted(waiting, key=lambda u: self._height(u)):
+            # Only drones below count: one above is left behind by the descent.
+            if not self._column_clear(v, ground_m=GROUND_CLEARANCE_M, above_m=0.0,
+                                      margin_m=COLUMN_MARGIN_M):
+                continue
+            v.phase, v.reason = VehiclePhase.LANDING, "landed by the last resort (columns)"
+            actions += [Notice(v.sysid, f"vehicle {v.sysid}: its column is clear: landing "
+                                        "straight down", "column_landing",
+                               "landing straight down (last resort)"),
+                        self._send(v, Land(v.sysid), now)]
+            # The ones above it wait for it: their columns are rechecked next update.
+        return actions
+
+    def _height(self, v: VehicleRun) -> float:
+        pos = self._positions.get(v.sysid)
+        if pos is not None:
+            return float(pos[2])
+        return v.hold_point[2] if v.hold_point is not None else math.inf
 
     # -- land-one mid-show: a way out -------------------------------------------------------
     @property
@@ -1015,6 +1102,8 @@ class ShowSequence:
 
     def land_all(self, now: float) -> list[Action]:
         """Every vehicle back to its landing slot and down; the show is over."""
+        if self._columns:
+            return [Notice(None, "already landing every vehicle, one column at a time")]
         if self._stopped_at is None:
             interrupted = self.started_at is not None and not self._ended \
                 and self.clock.show_time(now) < self.plan.duration
@@ -1295,6 +1384,7 @@ class ShowSequence:
                      if c.track in flying]
         if not conflicts or self._ended:
             return []
+        self.aborted = f"vehicle {v.sysid} stays on its slot and {conflicts[0]}"
         return [Notice(None, f"aborting the show: {conflicts[0]}"), *self.land_all(now)]
 
     def _taken_over(self, v: VehicleRun, state: VehicleState) -> list[Action]:
@@ -1410,6 +1500,7 @@ class ShowSequence:
     def _advance(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
         cfg = self.config
         v.altitude = self._altitude(state)
+        v.mode = state.mode
         # Streamed phases fly our setpoints, so must be in the flight mode.
         if v.retaking is not None and state.mode == _FLIGHT_MODE[v.flavour]:
             v.retaking, v.pending = None, None
@@ -1634,18 +1725,27 @@ class ShowSequence:
             "battery low: leaving the show")]
         return actions + self.land_one(v.sysid, now)
 
-    def _column_clear(self, v: VehicleRun) -> bool:
+    def _column_clear(self, v: VehicleRun, ground_m: float | None = None,
+                      above_m: float | None = None, margin_m: float = 0.0) -> bool:
         """Whether no other drone is within the separation limit, horizontally, of the
-        column below ``v`` (descending there would not pass through anyone)."""
+        column below ``v`` (descending there would not pass through anyone), counting
+        drones up to ``above_m`` (default: the limit) above it, and ``margin_m`` beyond
+        the limit sideways.  With ``ground_m``,
+        drones down on the ground count only within that distance of where ``v`` lands
+        (a landed drone is not flying into anyone)."""
         here = self._positions.get(v.sysid)
         if here is None:
             return False
         limit = self.plan.limits.min_separation
+        above = limit if above_m is None else above_m
         for u in self.vehicles.values():
             pos = self._positions.get(u.sysid)
             if u is v or pos is None or u.phase in (VehiclePhase.PREFLIGHT,):
                 continue
-            if pos[2] < here[2] + limit and float(np.hypot(*(pos[:2] - here[:2]))) < limit:
+            reach = limit + margin_m
+            if ground_m is not None and u.phase in _DONE:
+                reach = ground_m
+            if pos[2] < here[2] + above and float(np.hypot(*(pos[:2] - here[:2]))) < reach:
                 return False
         return True
 

@@ -124,6 +124,9 @@ class Separation:
     """System ids of the two vehicles."""
     at_s: float | None = None
     """Our time it happened."""
+    commanded_m: float | None = None
+    """How far apart their paths put the two at that instant, m (None: not known): well
+    apart, the drones were pushed together (wind, a gust, a weak motor), not flown so."""
 
 
 def nearest_pair(ids: list[int], pos: FloatArray) -> Separation:

@@ -89,21 +89,32 @@ def flight_report(runner: ShowRunner, error: str | None = None,
             "rtk_correction_age_s": _r(runner.rtk.age_of(sysid), 2)
             if runner.rtk is not None else None,
         })
+    # Given up on the ground (arming refused, say): it stands on its slot, never flew.
+    grounded = seq.grounded_tracks if seq is not None else set()
+    never = {s: v for s, v in flown.items()
+             if v.phase is VehiclePhase.FAILED and v.track in grounded and not v.fell}
     landed = seq is not None and bool(flown) and all(
-        v.phase is VehiclePhase.LANDED for v in flown.values())
+        v.phase is VehiclePhase.LANDED for s, v in flown.items() if s not in never)
     min_sep = mon.separation.distance_m if mon is not None else math.inf
     reasons: list[str] = []
     if error is not None:
         reasons.append(error)
     if seq is None:
         reasons.append("the flight never started")
-    elif not landed:
-        down = [s for s, v in flown.items() if v.phase is not VehiclePhase.LANDED]
+    if seq is not None and seq.aborted is not None:
+        reasons.append(f"the show was called off: {seq.aborted}")
+    if seq is not None and not landed:
+        down = [s for s, v in flown.items()
+                if v.phase is not VehiclePhase.LANDED and s not in never]
         reasons.append(f"vehicle(s) {down} did not land under control")
+    commanded = mon.separation.commanded_m if mon is not None else None
     if min_sep < limit:
         pair = mon.separation.pair if mon is not None else None
-        reasons.append(f"separation {min_sep:.2f} m between vehicles {pair} "
-                       f"(limit {limit:.2f} m)")
+        why = f"separation {min_sep:.2f} m between vehicles {pair} (limit {limit:.2f} m)"
+        if commanded is not None and commanded >= limit:
+            why += (f" while their paths kept them {commanded:.2f} m apart: pushed together "
+                    "(wind, a gust, a weak vehicle), not flown there")
+        reasons.append(why)
     reasons += more_reasons
     led = mon.led_errors() if mon is not None else []
     unmatched = sum(v.led_unmatched for v in mon.vehicles.values()) if mon is not None else 0
@@ -114,9 +125,11 @@ def flight_report(runner: ShowRunner, error: str | None = None,
         "safe": not reasons,
         "unsafe_reasons": reasons,
         "landed": landed,
+        "never_took_off": [{"system_id": s, "reason": v.reason} for s, v in sorted(never.items())],
         "vehicles": vehicles,
         "min_separation_m": _r(min_sep),
         "min_separation_pair": list(mon.separation.pair) if mon and mon.separation.pair else None,
+        "min_separation_commanded_m": _r(commanded) if commanded is not None else None,
         "min_separation_at_s": _r(mon.separation.at_s - seq.started_at, 2)
         if mon and seq and seq.started_at is not None and mon.separation.at_s is not None
         else None,
@@ -170,6 +183,9 @@ def render_report(report: dict[str, Any]) -> str:
     lines = [f"show {report['show']}: {'SAFE' if report['safe'] else 'NOT SAFE'}"]
     for why in report["unsafe_reasons"]:
         lines.append(f"  - {why}")
+    for v in report.get("never_took_off", []):
+        lines.append(f"  vehicle {v['system_id']} never took off: {v['reason']} (it stands on "
+                     "its slot; its part of the show was dark)")
     if "separation_limit_m" not in report:
         return "\n".join(lines)  # the flight never started: nothing was measured
     sep = report["min_separation_m"]

@@ -23,6 +23,12 @@ Why these bounds:
 * ``MAX_COORD`` 10 km: the show frame is a flat tangent plane at the origin.
 * Flight time: every transition and hold, plus the climb and the descent, must
   fit in ``[limits] max_flight_time`` (default 900 s), the battery's endurance.
+* ``MIN_SEPARATION`` 0.5 m: the least ``min_separation`` physical drones can keep.
+  Show quadcopters are 0.25-0.3 m across (two half-spans: 0.3 m), and they fly
+  0.1 m off their paths each even in calm air (0.085 m the largest error measured
+  on nine ArduCopter SITL vehicles, README): below 0.5 m a plan "keeps the
+  separation" while the propellers touch.  A show planned at 1e-6 m was planned
+  SAFE and flown 0.002 m apart before this floor.
 """
 
 from __future__ import annotations
@@ -32,6 +38,7 @@ from dataclasses import dataclass
 
 from groundctl.files import MiB
 
+MIN_SEPARATION = 0.5
 MAX_DRONES = 10_000
 MAX_SLOTS = 10_000
 MAX_ASSIGN_CELLS = 5_000_000
@@ -93,7 +100,7 @@ LIMIT_RANGES: dict[str, Range] = {
     "max_speed_up": above_zero(50.0),
     "max_speed_down": above_zero(50.0),
     "max_accel": above_zero(50.0),
-    "min_separation": above_zero(100.0),
+    "min_separation": Range(MIN_SEPARATION, 100.0),
     "min_alt": Range(0.0, MAX_COORD),
     "max_alt": above_zero(MAX_COORD),
     "land_battery_pct": Range(0.0, 100.0, low_open=True, high_open=True),
