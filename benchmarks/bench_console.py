@@ -1,11 +1,16 @@
 """The console's cost to the control loop, with the console really drawn.
 
     .venv/bin/python benchmarks/bench_console.py [--sizes 200] [--seconds 20] [--repeat 2]
+        [--stall S]
 
 Runs ``bench_flight.py load --console off on`` with stdin and stderr on a
 pseudo-terminal (200 x 60), where Textual draws, and prints its table: setpoint
 lateness p99 with the console off and on, alternating.  Without a terminal the
 console would not be drawn at all, and its cost would not be measured.
+
+``--stall S``: the terminal stops reading for S seconds after every 5 s of reading
+(a paused terminal, a stuck SSH connection), so the runs with the console are
+drawn into a terminal that keeps filling up: what it costs the control loop.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import subprocess
 import sys
 import tempfile
 import termios
+import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -30,6 +36,8 @@ def main() -> int:
     ap.add_argument("--sizes", nargs="+", default=["200"])
     ap.add_argument("--seconds", default="20")
     ap.add_argument("--repeat", default="2")
+    ap.add_argument("--stall", type=float, default=0.0,
+                    help="stop reading the terminal this long after every 5 s of reading")
     args = ap.parse_args()
     master, slave = pty.openpty()
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 60, 200, 0, 0))
@@ -40,7 +48,11 @@ def main() -> int:
              "--seconds", args.seconds, "--console", "off", "on", "--repeat", args.repeat],
             stdin=slave, stdout=out, stderr=slave, env=env, cwd=HERE.parent)
         os.close(slave)
-        while True:  # drain what the console draws, or it blocks on a full terminal
+        reading_since = time.monotonic()
+        while True:  # drain what the console draws (between stalls, with --stall)
+            if args.stall > 0 and time.monotonic() - reading_since >= 5.0:
+                time.sleep(args.stall)  # the terminal takes nothing meanwhile
+                reading_since = time.monotonic()
             ready, _, _ = select.select([master], [], [], 0.5)
             if ready:
                 try:

@@ -275,9 +275,9 @@ def apply(state: VehicleState, msg: mavlink.MAVLink_message, now: float) -> list
     kind = msg.get_type()
     verdict = numbering.check(header.seq, hash(bytes(buf)) if buf else hash(str(msg)), kind,
                               now)
-    if numbering.blame is not None:
-        _conflict(state, f"component {comp}: {numbering.blame}", changes, numbering.blamed)
-        numbering.blame = None
+    for why, kinds in numbering.blame:
+        _conflict(state, f"component {comp}: {why}", changes, kinds)
+    numbering.blame.clear()
     if verdict is Seq.DUPLICATE:
         trust.last_trusted = False  # the same bytes again: already acted on
         return changes

@@ -84,6 +84,12 @@ CONFIRM_PACKETS_IN_STEP = 4
 #: Forward steps up to this are losses; more is read as a step back (MAVLink's ring
 #: is 256 long, so half of it is the most either way).
 SEQ_WINDOW = 128
+#: A stream going on from packets held far ahead of the numbering for this long (our
+#: clock, s) is a new numbering; sooner it may be a burst the link reordered (the
+#: simulator's 50 ms of jitter on parameter and fence bursts: 185 "conflicts" a flight).
+REORDER_S = 0.3
+#: Packets held far from the numbering at once, at most (the oldest is blamed).
+MAX_HELD = 16
 
 #: A show-ending report is confirmed by a second one at least this much later (our
 #: clock, s): long enough for the vehicle's own stream to have spoken in between.
@@ -188,17 +194,19 @@ class SequenceCheck:
     step: int = 0
     """How far the last packet moved the numbering (1: the very next number; 0: it did
     not move it forward as the vehicle's own next packet does)."""
-    held: tuple[int, int, str] | None = None
-    """A packet far from the numbering, held: (number, digest, type)."""
+    held: list[tuple[int, int, str, float]] = field(default_factory=list)
+    """Packets far from the numbering, held (never acted on): (number, digest, type, our
+    time).  One ahead of the numbering waits for it to get there (a jittery link sends
+    a burst out of order); one the numbering passes was the vehicle's own, early; one
+    that does not fit (behind, beyond the window, or another packet under its number)
+    is blamed."""
     reason: str = ""
     """Why the last packet was a conflict (or a restart)."""
     suspects: frozenset[str] = frozenset()
     """The message types the last conflict involved (either packet may be the forged)."""
-    blame: str | None = None
-    """Set by :meth:`check` when an earlier, held packet turned out not to fit (someone
-    else's): why.  The caller counts it and clears it."""
-    blamed: frozenset[str] = frozenset()
-    """The type of that held packet."""
+    blame: list[tuple[str, frozenset[str]]] = field(default_factory=list)
+    """Set by :meth:`check` when held packets turned out not to be the vehicle's: why,
+    and the type of each (one conflict each).  The caller counts them and clears it."""
 
     def check(self, seq: int, digest: int, kind: str = "", at: float = 0.0) -> Seq:
         """Account for packet number ``seq`` of type ``kind`` whose bytes hash to
@@ -214,39 +222,65 @@ class SequenceCheck:
             # before the silence is not a second sender's (measured: after a 5 s link
             # cut, every vehicle "conflicted" with its own old packets, was not
             # believed, and two came within 0.56 m).
-            self.held = None
+            self.held = []
             self.slots = [None] * 256
             self.kinds = [""] * 256
             self._put(seq, digest, kind)
             self.newest, self.newest_at, self.late_run = seq, at, 0
             return Seq.NEXT
         verdict = self._fit(seq, digest, kind)
-        held = self.held
         if verdict is not Seq.HELD:
-            if held is not None:  # the numbering went on from before it: not the vehicle's
-                self.held = None
-                self.blame = (f"packet numbered {held[0]} does not fit the numbering "
-                              f"(at {self.newest})")
-                self.blamed = frozenset({held[2]} - {""})
             if verdict is not Seq.CONFLICT:
                 self.newest_at = at
+            self._settle_held()
             return verdict
-        if held is not None and 0 < (seq - held[0]) % 256 <= MAX_STEP:
-            # The stream goes on from the held packet: a new numbering.  Which one is
-            # the vehicle's is unknown; follow the newest, and say so.
-            self.held = None
-            self.reason = (f"numbering moved from {self.newest} to {held[0]} (a reboot, or a "
-                           "second sender)")
-            self._put(held[0], held[1], held[2])
+        # Far from the numbering.  A stream going on from held packets for REORDER_S
+        # with the numbering not catching up is a new numbering (a reboot without a
+        # silence, or a second sender that took over); sooner, it may be a burst
+        # reordered by the link, and the numbering may yet get there.
+        chain = [h for h in self.held if 0 < (seq - h[0]) % 256 <= MAX_STEP]
+        if chain and at - min(h[3] for h in chain) >= REORDER_S:
+            first = min(chain, key=lambda h: h[3])
+            self.reason = (f"numbering moved from {self.newest} to {first[0]} (a reboot, or "
+                           "a second sender)")
+            for h in chain:
+                self._put(h[0], h[1], h[2])
+            self.held = [h for h in self.held if h not in chain]
             self._put(seq, digest, kind)
             self.newest, self.newest_at, self.late_run = seq, at, 0
+            self._settle_held()
             return Seq.RESTART
-        if held is not None:
-            self.blame = (f"packet numbered {held[0]} does not fit the numbering "
-                          f"(at {self.newest})")
-            self.blamed = frozenset({held[2]} - {""})
-        self.held = (seq, digest, kind)
+        self.held.append((seq, digest, kind, at))
+        if len(self.held) > MAX_HELD:
+            self._blame(self.held.pop(0))
         return Seq.HELD
+
+    def _settle_held(self) -> None:
+        """After the numbering moved: each held packet it passed was the vehicle's own
+        (early), each still ahead within the window waits, the rest are blamed."""
+        assert self.newest is not None
+        keep = []
+        for h in self.held:
+            number, digest, kind, _ = h
+            behind = (self.newest - number) % 256
+            if behind <= MAX_STEP:  # the numbering got there (or just past it)
+                old = self.slots[number]
+                if old is None:
+                    self._put(number, digest, kind)  # early, and now in its place
+                elif old != digest:
+                    self.slots[number] = _CONTESTED
+                    self._blame(h, f"two different packets numbered {number}")
+                continue
+            if 0 < (number - self.newest) % 256 <= SEQ_WINDOW:
+                keep.append(h)  # still ahead: the numbering may get there
+                continue
+            self._blame(h)
+        self.held = keep
+
+    def _blame(self, h: tuple[int, int, str, float], why: str | None = None) -> None:
+        """Held packet ``h`` was not the vehicle's: one conflict (see :attr:`blame`)."""
+        self.blame.append((why or f"packet numbered {h[0]} does not fit the numbering "
+                                  f"(at {self.newest})", frozenset({h[2]} - {""})))
 
     def _fit(self, seq: int, digest: int, kind: str) -> Seq:
         """Where ``seq`` falls against the newest (HELD: far from it)."""
