@@ -51,10 +51,13 @@ def one_line(text: str) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from groundctl.console.terminal import LineHandler
+
+    handler = LineHandler()  # never waits on the terminal (a stuck one drops lines)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     logging.basicConfig(
         level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
+        handlers=[handler],
     )
     try:
         return int(args.func(args))
@@ -65,6 +68,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         _error_line(f"groundctl {args.command}: interrupted")
         return EXIT_ABORTED
     finally:
+        from groundctl.console.terminal import stderr_lines
+        stderr_lines().wait_written()  # log lines still queued, for a moment
         _flush_or_detach()
 
 

@@ -209,3 +209,59 @@ def test_the_writer_never_blocks_and_says_when_the_terminal_is_gone() -> None:
     writer.join(30.0)
     assert not writer.is_alive() and len(lost) == 1
     assert writer.lost in {"it hung up"} or writer.lost.startswith("writing to it failed")
+
+
+class _Runner:
+    """The two things a stop signal does to a runner, recorded."""
+
+    def __init__(self) -> None:
+        self.events = None
+        self.sequence = object()  # the show is under way
+        self.landings = 0
+
+    def land_all(self) -> None:
+        self.landings += 1
+
+
+def test_a_terminal_lost_after_ctrl_c_never_abandons_the_landing() -> None:
+    # Ctrl-C lands the fleet; then the SSH connection drops (SIGHUP and the console's own
+    # finding, both).  A second stop would abandon the fleet to its failsafes: it is not.
+    from groundctl.commands.flying import Interrupts
+
+    stops = Interrupts(lambda text: None)
+    runner = _Runner()
+    stops.attach(runner)  # type: ignore[arg-type]
+    stops.stop("Ctrl-C")
+    stops.hangup("SIGHUP (terminal closed)")
+    stops.hangup("terminal closed (writing to it failed)")
+    assert stops.presses == 1 and runner.landings == 1
+    # A hangup first is one stop too, and the console's finding of it adds nothing.
+    stops = Interrupts(lambda text: None)
+    runner = _Runner()
+    stops.attach(runner)  # type: ignore[arg-type]
+    stops.hangup("terminal closed (writing to it failed)")
+    stops.hangup("SIGHUP (terminal closed)")
+    assert stops.presses == 1 and runner.landings == 1
+
+
+def test_a_terminal_made_non_blocking_by_someone_else_is_slow_not_gone() -> None:
+    # Another program on the same terminal set O_NONBLOCK: a full terminal then says
+    # EAGAIN.  That is a terminal not reading (wait for it), not one that is gone.
+    master, slave = pty.openpty()
+    flags = fcntl.fcntl(slave, fcntl.F_GETFL)
+    fcntl.fcntl(slave, fcntl.F_SETFL, flags | os.O_NONBLOCK)
+    writer = TerminalWriter(os.fdopen(slave, "w", closefd=True), limit_chars=1_000_000)
+    writer.start()
+    text = "y" * 200_000  # far more than the pty holds
+    writer.write(text)
+    time.sleep(1.0)  # nobody reads meanwhile
+    assert writer.lost is None
+    got = 0
+    deadline = time.monotonic() + 30.0
+    while got < len(text) and time.monotonic() < deadline:
+        if select.select([master], [], [], 0.2)[0]:
+            got += len(os.read(master, 65536))
+    assert got >= len(text) and writer.lost is None
+    assert writer.wait_written(5.0)
+    writer.stop()
+    os.close(master)

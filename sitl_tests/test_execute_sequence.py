@@ -292,16 +292,22 @@ def test_a_vehicle_heard_again_off_its_plan_holds_there_and_leaves_from_there() 
     assert seq.vehicles[2].phase is VehiclePhase.LANDING
 
 
-def test_two_vehicles_off_their_plans_at_once_land_the_fleet_on_one_joint_return() -> None:
-    """A fleet-wide silence stranded both: one way out each, planned one at a time through
-    a show that flies on, would each take the other for a drone on its plan.  One return,
-    planned from where each hovers, lands everyone instead."""
+def _after_a_fleet_wide_silence() -> tuple[dict[int, VehicleState], ShowSequence, float]:
+    """The formation show with both vehicles lost for a second and heard again."""
     _, states, seq, start = _in_formation_show()
     for v in states.values():
         v.lost = True
     seq.update(start + 1.0, states)
     for v in states.values():
         v.lost = False
+    return states, seq, start
+
+
+def test_two_vehicles_off_their_plans_at_once_land_the_fleet_on_one_joint_return() -> None:
+    """A fleet-wide silence stranded both: one way out each, planned one at a time through
+    a show that flies on, would each take the other for a drone on its plan.  One return,
+    planned from where each hovers, lands everyone instead."""
+    states, seq, start = _after_a_fleet_wide_silence()
     _at_plan_point(states[1], seq, 0, start + 2.0, off=(2.5, 0.0, 0.0))
     _at_plan_point(states[2], seq, 1, start + 2.0, off=(-2.5, 0.0, 0.0))
     actions = seq.update(start + 2.0, states)
@@ -320,18 +326,14 @@ def test_no_return_for_drones_off_their_plans_lands_them_column_by_column_never_
     """The strong-wind livelock: stranded drones, land-all, no return, the show flown on,
     stranded again at once, 40 times over.  Now the last resort: everyone holds where it
     is and goes straight down, the lowest first, none with a drone below it."""
-    _, states, seq, start = _in_formation_show()
-    for v in states.values():
-        v.lost = True
-    seq.update(start + 1.0, states)
-    for v in states.values():
-        v.lost = False
+    states, seq, start = _after_a_fleet_wide_silence()
     # Vehicle 2 hovers 1 m right above where vehicle 1 is: 1 goes first, 2 waits.
     _at_plan_point(states[1], seq, 0, start + 2.0, off=(2.5, 0.0, 0.0))
     p1 = np.array(states[1].position_ned)
     states[2].position_ned = (float(p1[0]), float(p1[1]), float(p1[2]) - 1.0)
     seq.update(start + 2.0, states)
     assert seq.return_needed is not None
+    starts = {s: seq.return_start(s, start + 3.0) for s in (1, 2)}
     actions = seq.return_failed("planner gave up", start + 3.0)
     assert isinstance(actions[0], Notice) and actions[0].kind == "land_in_columns"
     assert "one column at a time" in actions[0].text
@@ -340,7 +342,11 @@ def test_no_return_for_drones_off_their_plans_lands_them_column_by_column_never_
     assert seq.vehicles[1].phase is VehiclePhase.LANDING
     v2 = seq.vehicles[2]
     assert v2.phase is VehiclePhase.LEAVING and v2.hold_point is not None
+    # It holds where its path stopped (where it was stranded), not over its landing spot.
+    assert np.asarray(v2.hold_point) == pytest.approx(starts[2])
+    assert np.linalg.norm(np.asarray(v2.hold_point) - seq.plan.landing_hover[1]) > 1.0
     assert seq.stream_request(start + 3.0).fixed == {2: v2.hold_point}  # holds meanwhile
+    assert seq.land_one(2, start + 3.2)[0].text.startswith("every vehicle lands straight")
     # Nothing re-enters planning: no stranded land-all, no return asked, a stop signal
     # (or the guard) changes nothing.
     assert [a for a in seq.update(start + 3.5, states) if isinstance(a, Land)] == []

@@ -504,6 +504,25 @@ def test_a_reboot_restarts_the_numbering_silently_or_with_one_conflict() -> None
     assert c.blame == [] and c.held == []
 
 
+def test_a_slow_forged_stream_beside_the_vehicles_own_never_restarts_the_numbering() -> None:
+    # A forger 70 numbers ahead, one packet every 0.2 s, while the vehicle streams at
+    # 100 packets a second: held, blamed once the numbering shows they do not fit, never
+    # taken as a new numbering (RESTART) and never acted on.
+    c = SequenceCheck()
+    for own in range(20):
+        c.check(own, own, "LOCAL_POSITION_NED", at=own * 0.01)
+    t, own, forged, verdicts = 0.2, 19, 19 + 70, []
+    for _ in range(6):
+        verdicts.append(c.check(forged % 256, -forged, "HEARTBEAT", at=t))
+        forged += 1
+        for _ in range(20):
+            own += 1
+            t += 0.01
+            assert c.check(own % 256, own % 256, "LOCAL_POSITION_NED", at=t) is Seq.NEXT
+    # Held while ahead, a conflict once the vehicle's own numbering has passed its number.
+    assert set(verdicts) <= {Seq.HELD, Seq.CONFLICT} and Seq.HELD in verdicts, verdicts
+
+
 def _s(t: float, x: float, vx: float = 0.0, at: float | None = None) -> Sample:
     return Sample(t, (x, 0.0, -5.0), (vx, 0.0, 0.0), t if at is None else at)
 

@@ -237,10 +237,17 @@ class Interrupts:
 
     def hangup(self, label: str) -> None:
         """The operator's terminal is gone: SIGHUP, or the console found it gone (a
-        failed write or read).  Both come for one closed terminal: it counts once."""
+        failed write or read).  Both come for one closed terminal: it counts once, and
+        only ever as the first stop -- after a Ctrl-C (the fleet already landing) a
+        dropped connection must not abandon the flight."""
         if self._hung_up:
             return
         self._hung_up = True
+        if self.presses:
+            if self.runner is not None and self.runner.events is not None:
+                self.runner.events.emit("signal", signal=label, count=self.presses,
+                                        ignored="a stop is already under way")
+            return
         self._on_signal(label)
 
     def _on_signal(self, label: str) -> None:

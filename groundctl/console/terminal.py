@@ -38,6 +38,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import io
+import logging
 import os
 import select
 import threading
@@ -78,6 +79,7 @@ class TerminalWriter(threading.Thread):
         self._queued = 0
         self._stopping = False
         self._dropped_since = 0
+        self._busy = False
         self.dropped = 0
         """Writes dropped because the terminal was not taking output."""
         self.written = 0
@@ -118,8 +120,9 @@ class TerminalWriter(threading.Thread):
         """Wait (at most ``timeout``) until the terminal took what is queued; whether it
         did.  For the end of a command, never for the control loop."""
         with self._cond:
-            return self._cond.wait_for(lambda: not self._chunks or self.lost is not None
-                                       or not self.is_alive(), timeout)
+            return self._cond.wait_for(
+                lambda: (not self._chunks and not self._busy) or self.lost is not None
+                or not self.is_alive(), timeout)
 
     def stop(self, timeout: float = STOP_WAIT_S) -> None:
         """Write what is queued (for at most ``timeout``), then end the thread."""
@@ -137,18 +140,19 @@ class TerminalWriter(threading.Thread):
                     self._cond.wait(WATCH_S)
                 chunks, self._chunks = self._chunks, []
                 self._queued = 0
+                self._busy = bool(chunks)
                 stopping = self._stopping
             if chunks:
                 text = "".join(chunks)
                 try:
-                    self._file.write(text)
-                    self._file.flush()
+                    self._write(text)
                 except (OSError, ValueError) as exc:
                     self._gone(_why(exc))
                     return
                 self.written += len(text)
                 dropped = 0
                 with self._cond:
+                    self._busy = False
                     if not self._chunks and self._dropped_since:
                         dropped, self._dropped_since = self._dropped_since, 0
                     self._cond.notify_all()  # for wait_written
@@ -162,11 +166,33 @@ class TerminalWriter(threading.Thread):
                     self._gone(hung)
                     return
 
+    def _write(self, text: str) -> None:
+        """Write ``text`` whole.  To a descriptor, with ``os.write`` and waiting for room
+        as a blocking write does, also when someone sharing the terminal made it
+        non-blocking (EAGAIN is a terminal not reading, not a terminal gone); to a
+        stream without one (a test's capture), through the stream."""
+        fd = _descriptor(self._file)
+        if fd is None:
+            self._file.write(text)
+            self._file.flush()
+            return
+        encoding = getattr(self._file, "encoding", None) or "utf-8"
+        view = memoryview(text.encode(encoding, "replace"))
+        while view:
+            try:
+                view = view[os.write(fd, view):]
+            except (BlockingIOError, InterruptedError):
+                if self._stopping:
+                    return
+                select.select([], [fd], [], WATCH_S)
+
     def _gone(self, why: str) -> None:
         with self._cond:
             self.lost = why
             self._chunks = []
             self._queued = 0
+            self._busy = False
+            self._cond.notify_all()
         self._call(self._on_lost, why)
 
     def _call(self, callback: Callable[..., None] | None, arg: object) -> None:
@@ -178,6 +204,15 @@ class TerminalWriter(threading.Thread):
             return
         with contextlib.suppress(RuntimeError):  # the loop is closed: nobody to tell
             self._loop.call_soon_threadsafe(callback, arg)
+
+
+def _descriptor(file: IO[str]) -> int | None:
+    """``file``'s descriptor, or None for a stream that has none."""
+    try:
+        fd = file.fileno()
+    except (OSError, ValueError):
+        return None
+    return fd if isinstance(fd, int) and fd >= 0 else None
 
 
 def _why(exc: BaseException) -> str:
@@ -248,6 +283,17 @@ class LineWriter:
     def close(self, timeout: float = STOP_WAIT_S) -> None:
         """Write what is queued, waiting for the terminal at most ``timeout``."""
         self._writer.stop(timeout)
+
+
+class LineHandler(logging.Handler):
+    """Log records as lines on standard error through :func:`stderr_lines`: a log line
+    (a link conflict, a warning) never makes the control loop wait on the terminal."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            stderr_lines().line(self.format(record))
+        except Exception:
+            self.handleError(record)
 
 
 _stderr_lines: tuple[object, LineWriter] | None = None

@@ -247,6 +247,8 @@ GROUND_CLEARANCE_M = 1.0
 #: ... and only if every drone in the air below it is this much farther than the limit
 #: sideways, m: a descent takes 10-20 s, and a wind that stranded drones moves them.
 COLUMN_MARGIN_M = 1.0
+#: A drone held this long with a drone below it says so (it keeps waiting), s.
+COLUMN_WAIT_S = 30.0
 #: Returns planned again because a landing spot was taken (then: nearest free spot).
 MAX_REPLANS = 2
 #: A vehicle is taken back from a link-loss failsafe at most this many times.
@@ -368,6 +370,14 @@ class VehicleRun:
     """Last altitude above home seen in telemetry, m."""
     mode: str | None = None
     """Last flight mode seen in telemetry."""
+    column_since: float | None = None
+    """When the last resort made it hold to descend in its column (None: it did not)."""
+    column: bool = False
+    """Sent straight down by the last resort."""
+    column_waited: bool = False
+    """Said it has waited long to descend."""
+    never_flew: bool = False
+    """Given up before it took off (arming refused): it stands on its slot."""
     takeoff_from: float | None = None
     """Its altitude above home when its takeoff was first sent, m (None: unknown)."""
     leave_at: float | None = None
@@ -907,19 +917,22 @@ class ShowSequence:
         to be collision-free: it flies on to its end (ramping up from the hold), where
         every drone is over its landing spot, and lands from there.  Otherwise (spots
         re-planned after the show) each flies straight to its landing point, loudly."""
-        self._return_wanted = False
         interrupted = self._stopped_at is not None and self._stopped_at < self.plan.duration \
             and not self._after_return and now is not None
+        if interrupted and now is not None and any(
+                v.hold_point is not None and v.before_return is VehiclePhase.LEAVING
+                for v in self.vehicles.values()):
+            # Drones off their plans hover where they were stopped: the show flying on
+            # is not known to be clear of them (and they would be stranded again at
+            # once: land-all, no return, the show again -- the livelock).  Where each
+            # holds is read while the return is still awaited (then every path is where
+            # it braked, not the landing spot a failed return falls back to).
+            return self._land_in_columns(reason, now)
+        self._return_wanted = False
         if not interrupted:
             return [Notice(None, f"no collision-free return could be planned ({reason}); "
                                  "flying straight to the landing points: watch the fleet")]
         assert now is not None
-        if any(v.hold_point is not None and v.before_return is VehiclePhase.LEAVING
-               for v in self.vehicles.values()):
-            # Drones off their plans hover where they were stopped: the show flying on
-            # is not known to be clear of them (and they would be stranded again at
-            # once: land-all, no return, the show again -- the livelock).
-            return self._land_in_columns(reason, now)
         self._ended, self._stopped_at = False, None
         for v in self.vehicles.values():
             if v.phase is VehiclePhase.RETURNING and v.before_return is not None:
@@ -946,14 +959,18 @@ class ShowSequence:
         holds where its path stopped, and they go straight down one column at a time
         (:meth:`_descend_columns`).  It always exists and plans nothing: nothing more
         can fail, and a stop signal meanwhile changes nothing (:meth:`land_all`)."""
+        # Where each path stopped, read before anything changes (return_start).
+        points = {v.sysid: tuple(float(x) for x in self.return_start(v.sysid, now))
+                  for v in self.vehicles.values()
+                  if self.streamed_as(v) is VehiclePhase.RETURNING}
         self._columns = True
         self._return_wanted = False
         held = []
         for v in self.vehicles.values():
-            if self.streamed_as(v) is not VehiclePhase.RETURNING:
+            if v.sysid not in points:
                 continue
-            point = tuple(float(x) for x in self.return_start(v.sysid, now))
-            v.hold_point = point  # type: ignore[assignment]
+            v.hold_point = points[v.sysid]  # type: ignore[assignment]
+            v.column_since = now
             v.leave, v.leave_at, v.before_return = None, None, None
             if v.phase is VehiclePhase.LOST:
                 v.lost_from = VehiclePhase.LEAVING
@@ -983,7 +1000,16 @@ class ShowSequence:
             # Only drones below count: one above is left behind by the descent.
             if not self._column_clear(v, ground_m=GROUND_CLEARANCE_M, above_m=0.0,
                                       margin_m=COLUMN_MARGIN_M):
+                if v.column_since is not None and now - v.column_since >= COLUMN_WAIT_S \
+                        and not v.column_waited:
+                    v.column_waited = True
+                    actions.append(Notice(
+                        v.sysid, f"vehicle {v.sysid} has waited {COLUMN_WAIT_S:.0f} s to "
+                                 "descend: a drone is below it (lost, or still landing); it "
+                                 f"holds (land-here {v.sysid} brings it straight down now)",
+                        "column_blocked", "waiting to descend: a drone below it"))
                 continue
+            v.column = True
             v.phase, v.reason = VehiclePhase.LANDING, "landed by the last resort (columns)"
             actions += [Notice(v.sysid, f"vehicle {v.sysid}: its column is clear: landing "
                                         "straight down", "column_landing",
@@ -1129,6 +1155,9 @@ class ShowSequence:
         v = self.vehicles.get(sysid)
         if v is None:
             return [Notice(None, f"no vehicle {sysid} in this show")]
+        if self._columns:
+            return [Notice(sysid, f"every vehicle lands straight down, one column at a time; "
+                                  f"land-here {sysid} brings it down now")]
         if self.streamed_as(v) is VehiclePhase.SHOW and not self._ended:
             if v.leave_at is not None:
                 return [Notice(sysid, f"vehicle {sysid} already leaves the show at show time "
@@ -1373,6 +1402,7 @@ class ShowSequence:
                 # drone lands: the same obstacle as a drone that never took off.
                 actions += self._left_on_slot(v, now)
             return actions
+        v.never_flew = True
         return actions + self._left_on_slot(v, now)
 
     def _left_on_slot(self, v: VehicleRun, now: float) -> list[Action]:
@@ -1738,13 +1768,18 @@ class ShowSequence:
             return False
         limit = self.plan.limits.min_separation
         above = limit if above_m is None else above_m
+        others: list[tuple[np.ndarray, bool]] = []  # (position, down on the ground)
         for u in self.vehicles.values():
             pos = self._positions.get(u.sysid)
             if u is v or pos is None or u.phase in (VehiclePhase.PREFLIGHT,):
                 continue
-            reach = limit + margin_m
-            if ground_m is not None and u.phase in _DONE:
-                reach = ground_m
+            # Down is what telemetry says, not the phase: a FAILED drone may be airborne.
+            others.append((pos, u.phase in _DONE and float(pos[2]) <= AIRBORNE_M))
+        if ground_m is not None:  # excluded drones, and those never airborne, on slots
+            others += [(self.plan.home[t], True) for t in self.grounded_tracks
+                       if t != v.track]
+        for pos, down in others:
+            reach = ground_m if ground_m is not None and down else limit + margin_m
             if pos[2] < here[2] + above and float(np.hypot(*(pos[:2] - here[:2]))) < reach:
                 return False
         return True

@@ -90,9 +90,8 @@ def flight_report(runner: ShowRunner, error: str | None = None,
             if runner.rtk is not None else None,
         })
     # Given up on the ground (arming refused, say): it stands on its slot, never flew.
-    grounded = seq.grounded_tracks if seq is not None else set()
     never = {s: v for s, v in flown.items()
-             if v.phase is VehiclePhase.FAILED and v.track in grounded and not v.fell}
+             if v.phase is VehiclePhase.FAILED and v.never_flew and not v.fell}
     landed = seq is not None and bool(flown) and all(
         v.phase is VehiclePhase.LANDED for s, v in flown.items() if s not in never)
     min_sep = mon.separation.distance_m if mon is not None else math.inf
@@ -103,6 +102,8 @@ def flight_report(runner: ShowRunner, error: str | None = None,
         reasons.append("the flight never started")
     if seq is not None and seq.aborted is not None:
         reasons.append(f"the show was called off: {seq.aborted}")
+    elif flown and len(never) == len(flown):
+        reasons.append("no vehicle took off")
     if seq is not None and not landed:
         down = [s for s, v in flown.items()
                 if v.phase is not VehiclePhase.LANDED and s not in never]

@@ -983,9 +983,9 @@ class ShowRunner:
         for s in sep.pair:
             v = seq.vehicles.get(s)
             if s not in wanted and v is not None and v.phase is VehiclePhase.LANDING \
-                    and v.hold_point is not None and s in here:
-                # Sent straight down from where it held (the last resort, land-here):
-                # told to stay over that point.
+                    and v.column and v.hold_point is not None and s in here:
+                # Sent straight down by the last resort from where it held: told to stay
+                # over that point.
                 wanted[s] = np.array([v.hold_point[0], v.hold_point[1], here[s][2]])
         a, b = sep.pair
         if a in wanted and b in wanted:

@@ -235,11 +235,14 @@ class SequenceCheck:
             self._settle_held()
             return verdict
         # Far from the numbering.  A stream going on from held packets for REORDER_S
-        # with the numbering not catching up is a new numbering (a reboot without a
-        # silence, or a second sender that took over); sooner, it may be a burst
-        # reordered by the link, and the numbering may yet get there.
+        # with the old numbering silent meanwhile is a new numbering (a reboot without a
+        # silence of SILENCE_S, or a second sender that took over); sooner, it may be a
+        # burst reordered by the link, and the numbering may yet get there.
         chain = [h for h in self.held if 0 < (seq - h[0]) % 256 <= MAX_STEP]
-        if chain and at - min(h[3] for h in chain) >= REORDER_S:
+        # ... and only while the old numbering is quiet: with the vehicle's own packets
+        # still coming, a stream beside them is a second sender's, never a restart.
+        if chain and at - min(h[3] for h in chain) >= REORDER_S \
+                and at - self.newest_at >= REORDER_S:
             first = min(chain, key=lambda h: h[3])
             self.reason = (f"numbering moved from {self.newest} to {first[0]} (a reboot, or "
                            "a second sender)")
