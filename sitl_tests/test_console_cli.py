@@ -5,14 +5,12 @@ changes; ``--console`` where it cannot be drawn is one line and exit 2."""
 from __future__ import annotations
 
 import os
-import pty
-import select
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
+from console_fixtures import Terminal
 
 from groundctl.errors import EXIT_OK, EXIT_USAGE
 
@@ -26,33 +24,9 @@ ENV = {**os.environ, "PYTHONPATH": str(REPO), "TERM": "xterm-256color", "COLUMNS
 def test_dry_run_on_a_terminal_opens_the_console_and_exits_on_its_own(tmp_path: Path) -> None:
     """The README's main job on a terminal: the console comes up, the show flies (``--go``:
     no key pressed), the console closes and the report follows, exit 0."""
-    master, slave = pty.openpty()
-    proc = subprocess.Popen(
-        [*GROUNDCTL, "dry-run", str(QUICK), "--speed", "8", "--ready-delay", "2", "--go",
-         "--record", str(tmp_path / "rec")],
-        stdin=slave, stdout=slave, stderr=slave, env=ENV, cwd=REPO, start_new_session=True)
-    os.close(slave)
-    out = b""
-    deadline = time.monotonic() + 150
-    try:
-        while time.monotonic() < deadline:
-            ready, _, _ = select.select([master], [], [], 0.5)
-            if ready:
-                try:
-                    data = os.read(master, 65536)
-                except OSError:  # the child closed the terminal
-                    break
-                if not data:
-                    break
-                out += data
-            elif proc.poll() is not None:
-                break
-        rc = proc.wait(timeout=30)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        os.close(master)
-    text = out.decode(errors="replace")
+    term = Terminal(tmp_path / "rec", "--go", speed=8.0)
+    rc = term.finish(timeout=150.0)
+    text = term.out.decode(errors="replace")
     assert rc == EXIT_OK, text[-3000:]
     assert "\x1b[?1049h" in text  # the console took the screen (alternate screen) ...
     assert "PRE-FLIGHT" in text or "SHOW" in text

@@ -15,88 +15,19 @@ import os
 import pty
 import select
 import signal
-import struct
 import subprocess
-import sys
-import termios
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
-from flight_fixtures import QUICK_SHOW, REPO
+from console_fixtures import Terminal
 
 from groundctl.console.terminal import TerminalWriter
 from groundctl.errors import EXIT_ABORTED, EXIT_OK
 from groundctl.record.events import read_events
 
 pytestmark = pytest.mark.slow
-
-GROUNDCTL = [sys.executable, "-m", "groundctl"]
-ENV = {**os.environ, "PYTHONPATH": str(REPO), "TERM": "xterm-256color"}
-
-
-def _controlling_tty() -> None:  # in the child, after setsid: the pty becomes its terminal
-    fcntl.ioctl(0, termios.TIOCSCTTY, 0)
-
-
-class Terminal:
-    """A dry-run of the quick show on a pty of 160 x 48, read by this test."""
-
-    def __init__(self, record: Path, *extra: str, speed: float = 4.0) -> None:
-        self.master, slave = pty.openpty()
-        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 48, 160, 0, 0))
-        self.proc = subprocess.Popen(
-            [*GROUNDCTL, "dry-run", str(QUICK_SHOW), "--speed", f"{speed:g}", "--ready-delay",
-             "2", "--record", str(record), *extra],
-            stdin=slave, stdout=slave, stderr=slave, env=ENV, cwd=REPO,
-            start_new_session=True, preexec_fn=_controlling_tty)
-        os.close(slave)
-        self.out = b""
-        self.open = True
-
-    def read_for(self, seconds: float) -> None:
-        end = time.monotonic() + seconds
-        while self.open and time.monotonic() < end:
-            ready, _, _ = select.select([self.master], [], [], 0.1)
-            if not ready:
-                if self.proc.poll() is not None:
-                    return
-                continue
-            try:
-                data = os.read(self.master, 65536)
-            except OSError:  # the child closed its end
-                return
-            if not data:
-                return
-            self.out += data
-
-    def wait_for(self, text: str, timeout: float = 120.0) -> None:
-        """Read until ``text`` was drawn (a liveness deadline, not a speed bound)."""
-        end = time.monotonic() + timeout
-        while text.encode() not in self.out:
-            assert time.monotonic() < end and self.proc.poll() is None, \
-                (text, self.proc.poll(), self.out[-2000:].decode(errors="replace"))
-            self.read_for(0.2)
-
-    def close(self) -> None:
-        """The terminal goes away: the window closed, the SSH connection dropped."""
-        if self.open:
-            os.close(self.master)
-            self.open = False
-
-    def finish(self, timeout: float = 180.0) -> int:
-        try:
-            if self.open:
-                end = time.monotonic() + timeout
-                while self.proc.poll() is None and time.monotonic() < end:
-                    self.read_for(0.5)
-            return self.proc.wait(timeout=timeout)
-        finally:
-            if self.proc.poll() is None:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-            self.close()
-
 
 def _report(record: Path) -> dict[str, Any]:
     return json.loads((record / "report.json").read_text())

@@ -23,7 +23,7 @@ import contextlib
 import gc
 import time
 from collections import deque
-from typing import Any, ClassVar
+from typing import Any, ClassVar, cast
 
 from rich.text import Text
 from textual.app import App, ComposeResult
@@ -76,12 +76,12 @@ class ConsoleDriver(linux_driver.LinuxDriver):
     """
 
     def start_application_mode(self) -> None:
-        app = self._app
+        app = cast(ConsoleApp, self._app)  # the one app that uses this driver
         loop = asyncio.get_running_loop()
 
         def writer(file: Any) -> TerminalWriter:
-            return TerminalWriter(file, loop=loop, on_lost=_lost_on(app),
-                                  on_caught_up=_caught_up_on(app), name="console-writer")
+            return TerminalWriter(file, loop=loop, on_lost=app.terminal_lost,
+                                  on_caught_up=app.terminal_caught_up, name="console-writer")
 
         # Textual 8 builds its WriterThread inside this method and offers no hook: the
         # module's name points at ours for the call, on the loop's thread.
@@ -96,25 +96,11 @@ class ConsoleDriver(linux_driver.LinuxDriver):
         try:
             super().run_input_thread()
         except OSError as exc:  # EIO once the terminal hung up: the app must not panic
-            loop = self._app._loop
-            if loop is not None:
+            app = cast(ConsoleApp, self._app)
+            if app._loop is not None:
                 with contextlib.suppress(RuntimeError):
-                    loop.call_soon_threadsafe(_lost_on(self._app),
-                                              f"reading it failed ({exc.strerror or exc})")
-
-
-def _lost_on(app: App[Any]) -> Any:
-    def lost(why: str) -> None:
-        if isinstance(app, ConsoleApp):
-            app.terminal_lost(why)
-    return lost
-
-
-def _caught_up_on(app: App[Any]) -> Any:
-    def caught_up(dropped: int) -> None:
-        if isinstance(app, ConsoleApp):
-            app.terminal_caught_up(dropped)
-    return caught_up
+                    app._loop.call_soon_threadsafe(
+                        app.terminal_lost, f"reading it failed ({exc.strerror or exc})")
 
 
 def progress_bar(fraction: float, width: int = 30) -> str:
@@ -227,8 +213,6 @@ class ConsoleApp(App[None]):
         """Called once (on the loop) with why, when the terminal is gone."""
         self.terminal_gone: str | None = None
         """Why the terminal is gone (None while it is there)."""
-        self.frames_dropped = 0
-        """Frames the terminal did not take while it was not reading."""
 
     def get_driver_class(self) -> type[Driver]:
         driver = super().get_driver_class()
@@ -250,7 +234,6 @@ class ConsoleApp(App[None]):
 
     def terminal_caught_up(self, dropped: int) -> None:
         """The terminal reads again after ``dropped`` frames were skipped: repaint all."""
-        self.frames_dropped += dropped
         self.feed.console(f"console: the terminal was not reading; {dropped} screen "
                           "update(s) skipped, redrawn")
         with contextlib.suppress(Exception):

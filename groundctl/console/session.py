@@ -45,9 +45,8 @@ class ConsoleSession:
         self.app.on_terminal_lost = self._terminal_lost
         self._hangup = hangup or stop
         self.alive = True
-        """False once the app has ended: lines go to stderr again."""
-        self.terminal_lost: str | None = None
-        """Why the operator's terminal is gone (None while it is there)."""
+        """False once the app has ended: lines go to stderr again (unless the terminal is
+        gone: ``app.terminal_gone``)."""
         _start_resource_tracker()
 
     def notify(self, text: str) -> None:
@@ -57,13 +56,12 @@ class ConsoleSession:
         if self.alive:
             self.feed.notice(text)
             return
-        if self.terminal_lost is None:
+        if self.app.terminal_gone is None:
             stderr_lines().line(text)
 
     def _terminal_lost(self, why: str) -> None:
         """The terminal went away under the console: as SIGHUP (it may come too, and
         counts once) -- a no-go before the show, a landing along a planned return in it."""
-        self.terminal_lost = why
         self.alive = False
         inner = self.feed.inner
         if inner is not None:

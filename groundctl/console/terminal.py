@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import io
 import logging
 import os
 import select
@@ -82,8 +81,6 @@ class TerminalWriter(threading.Thread):
         self._busy = False
         self.dropped = 0
         """Writes dropped because the terminal was not taking output."""
-        self.written = 0
-        """Characters the terminal took."""
         self.lost: str | None = None
         """Why the terminal is gone (None while it is there)."""
 
@@ -149,7 +146,6 @@ class TerminalWriter(threading.Thread):
                 except (OSError, ValueError) as exc:
                     self._gone(_why(exc))
                     return
-                self.written += len(text)
                 dropped = 0
                 with self._cond:
                     self._busy = False
@@ -210,7 +206,7 @@ def _descriptor(file: IO[str]) -> int | None:
     """``file``'s descriptor, or None for a stream that has none."""
     try:
         fd = file.fileno()
-    except (OSError, ValueError):
+    except Exception:  # closed, or a stand-in stream (a test's capture) without one
         return None
     return fd if isinstance(fd, int) and fd >= 0 else None
 
@@ -222,17 +218,11 @@ def _why(exc: BaseException) -> str:
 
 
 def _hung_up(file: IO[str]) -> str | None:
-    """Why ``file``'s terminal is gone (hung up, an error on it), or None."""
-    try:
-        fd = file.fileno()
-    except io.UnsupportedOperation:  # a stand-in stream (a test's capture) without one
+    """Why ``file``'s terminal is gone (hung up, an error on it), or None (also for a
+    stream with no descriptor to watch: its writes say when it is gone)."""
+    fd = _descriptor(file)
+    if fd is None:
         return None
-    except (OSError, ValueError):
-        return "its descriptor is closed"
-    except Exception:  # any other stand-in: nothing to watch
-        return None
-    if not isinstance(fd, int) or fd < 0:
-        return None  # nothing to watch: writes still say when it is gone
     poller = select.poll()
     try:
         poller.register(fd, select.POLLOUT)
@@ -256,18 +246,9 @@ class LineWriter:
     """
 
     def __init__(self, file: IO[str], limit_chars: int = LIMIT_CHARS) -> None:
-        self._file = file
         self._writer = TerminalWriter(file, on_caught_up=self._skipped, limit_chars=limit_chars,
                                       name="terminal-lines")
         self._writer.start()
-
-    @property
-    def lost(self) -> str | None:
-        return self._writer.lost
-
-    @property
-    def dropped(self) -> int:
-        return self._writer.dropped
 
     def line(self, text: str) -> None:
         self._writer.write(text + "\n")
@@ -280,9 +261,9 @@ class LineWriter:
         """Wait (at most ``timeout``) until the terminal took every line; whether it did."""
         return self._writer.wait_written(timeout)
 
-    def close(self, timeout: float = STOP_WAIT_S) -> None:
-        """Write what is queued, waiting for the terminal at most ``timeout``."""
-        self._writer.stop(timeout)
+    def close(self) -> None:
+        """End the writer's thread once it has written what is queued (not waited for)."""
+        self._writer.stop(timeout=0.0)
 
 
 class LineHandler(logging.Handler):
@@ -308,6 +289,8 @@ def stderr_lines() -> LineWriter:
     stream = sys.stderr if sys.stderr is not None else sys.__stderr__
     with _stderr_lock:
         if _stderr_lines is None or _stderr_lines[0] is not stream:
+            if _stderr_lines is not None:
+                _stderr_lines[1].close()  # the stream it wrote to was replaced
             if stream is None:
                 stream = open(os.devnull, "w")  # noqa: SIM115 - lives with the process
             _stderr_lines = (stream, LineWriter(stream))

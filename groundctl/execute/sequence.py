@@ -963,9 +963,10 @@ class ShowSequence:
         points = {v.sysid: tuple(float(x) for x in self.return_start(v.sysid, now))
                   for v in self.vehicles.values()
                   if self.streamed_as(v) is VehiclePhase.RETURNING}
+        off = [v.sysid for v in self.vehicles.values()
+               if v.hold_point is not None and v.before_return is VehiclePhase.LEAVING]
         self._columns = True
         self._return_wanted = False
-        held = []
         for v in self.vehicles.values():
             if v.sysid not in points:
                 continue
@@ -976,12 +977,12 @@ class ShowSequence:
                 v.lost_from = VehiclePhase.LEAVING
             else:
                 v.phase = VehiclePhase.LEAVING
-            held.append(v.sysid)
         actions: list[Action] = [Notice(
             None, f"no collision-free return could be planned ({reason}) and "
-                  f"{'drones are' if len(held) != 1 else 'a drone is'} off the plan: every "
-                  "drone holds where it is and they land straight down, one column at a "
-                  "time (the lowest first; nobody descends with a drone below it)",
+                  f"{'vehicles' if len(off) != 1 else 'vehicle'} "
+                  f"{', '.join(str(s) for s in off)} {'are' if len(off) != 1 else 'is'} off "
+                  "the plan: every drone holds where it is and they land straight down, one "
+                  "column at a time (the lowest first; nobody descends with a drone below it)",
             "land_in_columns")]
         return actions + self._descend_columns(now)
 
@@ -1760,9 +1761,9 @@ class ShowSequence:
         """Whether no other drone is within the separation limit, horizontally, of the
         column below ``v`` (descending there would not pass through anyone), counting
         drones up to ``above_m`` (default: the limit) above it, and ``margin_m`` beyond
-        the limit sideways.  With ``ground_m``,
-        drones down on the ground count only within that distance of where ``v`` lands
-        (a landed drone is not flying into anyone)."""
+        the limit sideways.  With ``ground_m``, drones down on the ground (and the slots
+        of those that never flew) count only within that distance of where ``v`` lands:
+        a landed drone is not flying into anyone."""
         here = self._positions.get(v.sysid)
         if here is None:
             return False

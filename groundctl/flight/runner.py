@@ -718,13 +718,8 @@ class ShowRunner:
                 a, b = wanted.get(pair[0]), wanted.get(pair[1])
                 if a is not None and b is not None:
                     planned = float(np.linalg.norm(a - b))
-        # The link judges a fleet-wide silence over the drones in the air only, and not
-        # over those already marked lost: their silence is their own, judged one by one
-        # (one drone lost for good, still streamed after the others landed, read as the
-        # whole fleet silent and held the flight for the ground station's "trouble").
-        self.link.silence_ids = {s for s in streamed
-                                 if not (s in self.link.vehicles
-                                         and self.link.vehicles[s].lost)} if flying else None
+        # The link judges a fleet-wide silence over the drones in the air only.
+        self.link.silence_ids = set(streamed) if flying else None
         facts = TickFacts(
             now=now, lag_s=lag, period_s=period, last_sent_show_time=self._last_show_time,
             fleet_silent=self.link.fleet_silent, errors_m=errors, closest_m=closest,
@@ -976,17 +971,17 @@ class ShowRunner:
         last = self.monitor.last_positions
         if sep.at_s != now or sep.pair is None or last is None:
             return
-        here = dict(zip(last[1], last[2], strict=True))
         streamed = [s for s in sep.pair if s in req.paths]
         wanted = seq.commanded_all(replace(req, sysids=frozenset(streamed),
                                            paths={s: req.paths[s] for s in streamed}), now)
         for s in sep.pair:
             v = seq.vehicles.get(s)
             if s not in wanted and v is not None and v.phase is VehiclePhase.LANDING \
-                    and v.column and v.hold_point is not None and s in here:
+                    and v.column and v.hold_point is not None and s in last[1]:
                 # Sent straight down by the last resort from where it held: told to stay
-                # over that point.
-                wanted[s] = np.array([v.hold_point[0], v.hold_point[1], here[s][2]])
+                # over that point (at the height it is at).
+                z = last[2][last[1].index(s)][2]
+                wanted[s] = np.array([v.hold_point[0], v.hold_point[1], z])
         a, b = sep.pair
         if a in wanted and b in wanted:
             self.monitor.separation = replace(

@@ -466,10 +466,15 @@ class FleetLink:
 
     def fleet_silent_for(self, now: float) -> float:
         """Seconds since any vehicle of :attr:`silence_ids` (default: any) was heard
-        (infinite before the first packet)."""
+        (infinite before the first packet).  Vehicles already marked lost do not count:
+        their silence is their own, judged one by one (one drone lost for good, the last
+        still streamed after the others landed, read as the whole fleet silent)."""
         if self.silence_ids is not None:
-            heard = [v.last_heard for s, v in self.vehicles.items()
-                     if s in self.silence_ids and v.last_heard is not None]
+            judged = [v for s, v in self.vehicles.items() if s in self.silence_ids
+                      and not v.lost]
+            if not judged:
+                return 0.0  # nobody to judge a fleet-wide silence by
+            heard = [v.last_heard for v in judged if v.last_heard is not None]
             return now - max(heard) if heard else math.inf
         return math.inf if self.last_packet_at is None else now - self.last_packet_at
 
@@ -486,8 +491,7 @@ class FleetLink:
         for sysid, state in self.vehicles.items():
             for change in expire_chunks(state, now):
                 self._emit(change.event, system_id=sysid, **change.fields)
-        silent = self.fleet_silent_for(now) > self.fleet_silence and bool(self.vehicles) \
-            and self.silence_ids != set()
+        silent = self.fleet_silent_for(now) > self.fleet_silence and bool(self.vehicles)
         if silent != self.fleet_silent:
             self.fleet_silent = silent
             self._emit("fleet_silent" if silent else "fleet_heard",
