@@ -84,9 +84,9 @@ def test_preflight_view_has_every_check_of_every_vehicle_and_a_go_line() -> None
     view = model.view(NOW, selected=4)
     pre = view.preflight
     assert pre is not None
-    assert pre.checks == ("heartbeat", "gps", "position", "battery", "slot", "link",
+    assert pre.checks == ("heartbeat", "gps", "position", "battery", "slot", "link", "wind",
                           "autopilot")
-    assert len(pre.rows) == 9 and all(len(r.cells) == 7 for r in pre.rows)
+    assert len(pre.rows) == 9 and all(len(r.cells) == 8 for r in pre.rows)
     cells = {r.sysid: {c.name: c for c in r.cells} for r in pre.rows}
     assert cells[4]["battery"].state == "fail"
     assert cells[4]["battery"].detail == "35 % (minimum 60 %)"

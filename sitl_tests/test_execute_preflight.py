@@ -45,6 +45,22 @@ def test_each_failure_says_the_value_and_the_rule() -> None:
     }
 
 
+def test_a_vehicle_that_estimates_more_wind_than_the_show_allows_is_not_ready() -> None:
+    th = Thresholds(max_wind=10.0)
+    v = make_vehicle(1, NOW)
+    by_name = {r.name: r for r in check_vehicle(v, _assignment(1), NOW, th)}
+    # On the ground an estimator has learnt no wind yet: passes, and says so.
+    assert by_name["wind"].ok and by_name["wind"].detail == "no estimate yet (limit 10 m/s)"
+    v.wind_ned, v.wind_at = (-8.0, -9.0, 0.0), NOW - 1.0
+    (wind,) = [r for r in check_vehicle(v, _assignment(1), NOW, th) if r.name == "wind"]
+    assert not wind.ok and wind.detail == "12.0 m/s estimated, above the show's limit of " \
+                                          "10 m/s"
+    v.wind_ned = (3.0, 4.0, 1.0)
+    (wind,) = [r for r in check_vehicle(v, _assignment(1), NOW, th) if r.name == "wind"]
+    assert wind.ok and wind.detail == "5.0 m/s (limit 10 m/s)"
+    assert "wind" not in {r.name for r in check_vehicle(v, _assignment(1), NOW)}
+
+
 def test_unknown_values_fail_rather_than_pass() -> None:
     v = make_vehicle(3, NOW, rtt_s=None)
     v.flavour, v.battery_remaining_pct, v.gps_fix_type = None, None, None

@@ -18,7 +18,10 @@ import pytest
 from flight_fixtures import dry_run, flavours, quick_plan, show_time, until, vehicle
 
 from groundctl.execute.frames import ned_to_show
+from groundctl.execute.guard import GuardConfig
+from groundctl.execute.preflight import Thresholds
 from groundctl.execute.sequence import VehiclePhase
+from groundctl.execute.wind import WindConfig
 from groundctl.flight.runner import RunnerConfig, ShowRunner
 from groundctl.link.flavours import Flavour
 from groundctl.record.events import read_events
@@ -236,8 +239,9 @@ def test_a_strong_wind_that_strands_drones_ends_with_every_drone_down(tmp_path: 
     used to loop (land-all, no return, the show flown on, stranded again) for 8 minutes
     with the fleet hovering in the wind, 0.056 m apart at worst.  Every flight ends: the
     last resort lands them column by column, and the report says what the wind did."""
+    # The show's wind limit (10 m/s) would keep it from starting: raised, to fly into it.
     result = dry_run(tmp_path, wind=(12.0, 0.0, 0.0), gust_std=4.0, seed=1,
-                     ready_delay_s=10.0)
+                     ready_delay_s=10.0, runner=RunnerConfig(thresholds=Thresholds(max_wind=30)))
     report = result.report
     assert [v["phase"] for v in report["vehicles"]] == ["landed"] * 9, report["unsafe_reasons"]
     assert report["simulator"]["down_and_disarmed"] == 9
@@ -248,12 +252,53 @@ def test_a_strong_wind_that_strands_drones_ends_with_every_drone_down(tmp_path: 
     if report["min_separation_m"] < report["separation_limit_m"]:
         # The report says how far apart the ground station had put the pair then, and
         # blames the wind exactly when that was beyond the limit.  (At x8 the wind blows
-        # drones 2 and 9 together and the safety hold strands them where they are, 0.6 m
-        # apart: the hold points, not only the wind -- issue 35 stays open for that.)
+        # drones 2 and 9 together, 0.6 m; their hold points are held 1.5 m apart.)
         commanded = report["min_separation_commanded_m"]
         assert commanded is not None
         why = next(r for r in report["unsafe_reasons"] if r.startswith("separation"))
         assert ("pushed together" in why) == (commanded >= report["separation_limit_m"])
+
+
+@pytest.mark.parametrize("flavour", [Flavour.ARDUPILOT, Flavour.PX4], ids=str)
+def test_a_wind_above_the_shows_limit_keeps_the_show_from_starting_and_lands_the_fleet(
+        tmp_path: Path, flavour: Flavour) -> None:
+    """12 m/s against the show's 10 m/s limit (issue 35): the vehicles learn it in the air
+    (ArduPilot's WIND, PX4's WIND_COV), the show does not start, and when the wind stays
+    the fleet lands where it took off."""
+    guard = GuardConfig(wind=WindConfig(land_after_s=10.0))
+    result = dry_run(tmp_path, flavour=flavour, wind=(12.0, 0.0, 0.0),
+                     runner=RunnerConfig(guard=guard))
+    report = result.report
+    _assert_safe(report)
+    assert report["wind"]["limit_m_s"] == 10.0
+    assert report["wind"]["holds"] == 1 and report["wind"]["landed_for_wind"]
+    assert report["wind"]["strongest_estimated_m_s"] > 10.0
+    held = _events(tmp_path, "show_held")
+    assert [e["reason"] for e in held] == ["wind"], held
+    assert "the show does not start" in held[0]["text"]
+    assert not any("show started" in e["text"] for e in _events(tmp_path, "sequence"))
+    (landing,) = _events(tmp_path, "guard_land_all")
+    assert "wind" in landing["text"]
+
+
+def test_a_wind_above_the_limit_mid_show_holds_the_show_until_it_drops(
+        tmp_path: Path) -> None:
+    """A fleet-wide gust lifts the vehicles' wind estimates above a 5 m/s limit mid-show:
+    the show holds, and resumes once the estimates have been below 90 % of the limit for
+    10 s; it ends as planned."""
+    async def gust(runner: ShowRunner, sim: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 6.0)
+        sim.call("gust", (5.0, 0.0, 0.0), 10.0)
+
+    result = dry_run(tmp_path, wind=(2.0, 0.0, 0.0), during=gust,
+                     runner=RunnerConfig(thresholds=Thresholds(max_wind=5.0)))
+    report = result.report
+    _assert_safe(report)
+    assert report["wind"]["holds"] == 1 and not report["wind"]["landed_for_wind"]
+    assert [e["reason"] for e in _events(tmp_path, "show_held")] == ["wind"]
+    (released,) = _events(tmp_path, "show_released")
+    assert released["reason"] == "wind" and released["resumed"]
+    assert all(f["flown"] for f in report["pattern_error_m"])
 
 
 def test_a_gust_that_blows_a_drone_off_its_path_holds_the_show_and_takes_it_out(

@@ -122,6 +122,23 @@ def test_telemetry_fields() -> None:
     assert (s.battery_remaining_pct, s.battery_voltage_v) == (55, 12.0)
 
 
+def test_each_autopilots_wind_estimate_is_read_as_the_airs_velocity() -> None:
+    v = Vehicle()
+    s = VehicleState(3)
+    # ArduPilot's WIND: from the west-south-west (240 deg) at 10 m/s: the air moves to
+    # the east-north-east.
+    apply(s, v(v.mav.wind_encode(240.0, 10.0, 0.5)), 1.0)
+    assert s.wind_ned == pytest.approx((5.0, 8.660254, 0.5), abs=1e-5)
+    assert s.wind_speed(2.0, 5.0) == pytest.approx(10.0, rel=1e-5)
+    assert s.wind_speed(7.0, 5.0) is None  # stale
+    # PX4's WIND_COV: the vector itself; NaN (no estimate yet) leaves it as it was.
+    apply(s, v(v.mav.wind_cov_encode(0, 3.0, -4.0, 0.0, 0.1, 0.1, 10.0, 0.5, 0.5)), 3.0)
+    assert s.wind_ned == (3.0, -4.0, 0.0) and s.wind_speed(3.0, 5.0) == 5.0
+    apply(s, v(v.mav.wind_cov_encode(0, float("nan"), 0.0, 0.0, 0, 0, 0, 0, 0)), 4.0)
+    apply(s, v(v.mav.wind_encode(0.0, 1e6, 0.0)), 4.0)  # not a wind: ignored
+    assert s.wind_ned == (3.0, -4.0, 0.0) and s.wind_at == 3.0
+
+
 def test_statustext_and_acks_are_kept() -> None:
     v = Vehicle()
     s = VehicleState(3)

@@ -417,6 +417,12 @@ def test_model_and_takeoff_errors():
         "'geofence' encloses no area")
     assert error(base(limits={"land_battery_pct": 100})).message.startswith(
         "'land_battery_pct' 100.0 must be below 100")
+    assert "'max_wind' must be greater than 0" in error(base(limits={"max_wind": 0})).message
+
+
+def test_the_wind_limit_defaults_to_ten_metres_per_second_and_can_be_set():
+    assert parse_show(base(), PATH, ".").limits.max_wind == 10.0
+    assert parse_show(base(limits={"max_wind": 7.5}), PATH, ".").limits.max_wind == 7.5
 
 
 def test_planner_tolerance_above_what_keeps_the_scp_safe_is_refused():

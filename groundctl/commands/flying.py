@@ -58,6 +58,10 @@ def add_runner_options(p: argparse.ArgumentParser) -> None:
                         "show's [mpc] table says)")
     p.add_argument("--min-battery", type=float, default=Thresholds.min_battery_pct,
                    metavar="PCT", help="pre-flight battery minimum (default %(default)s %%)")
+    p.add_argument("--max-wind", type=positive, default=None, metavar="M/S",
+                   help="the strongest wind the vehicles may estimate: pre-flight refuses "
+                        "above it, the show holds then lands (default: the show's "
+                        "[limits] max_wind, 10)")
     p.add_argument("--preflight-timeout", type=positive, default=120.0, metavar="S",
                    help="give up if the pre-flight checks have not all passed after this "
                         "(default 120)")
@@ -93,7 +97,7 @@ def runner_config(args: argparse.Namespace, tracks: dict[int, int] | None = None
                         preflight_timeout_s=args.preflight_timeout,
                         excluded=frozenset(args.exclude), tracks=tracks,
                         thresholds=Thresholds(
-                            min_battery_pct=args.min_battery,
+                            min_battery_pct=args.min_battery, max_wind=args.max_wind,
                             require_fix_type=REQUIRE_RTK.get(args.require_rtk or "")),
                         vehicle=vehicle_settings(args))
 

@@ -18,6 +18,9 @@ Two kinds of trouble, told apart by their evidence:
   out of the show (a way out planned from where it is, or landed there).  The
   show resumes when nothing is wrong for ``safety_settle_s``; after
   ``max_safety_holds`` such holds the fleet is landed.
+* **the weather is beyond the show** -- the vehicles' own wind estimates above the
+  show's ``limits.max_wind``: the show holds (or does not start), and lands if the wind
+  stays (:mod:`groundctl.execute.wind`).
 
 The driver measures, calls :meth:`FlightGuard.tick` and carries out the
 returned actions on the sequence; nothing here reads a clock.
@@ -31,6 +34,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from groundctl.execute.sequence import FLEET_HOLDS
+from groundctl.execute.wind import WindConfig, WindVerdict, WindWatch
 
 
 @dataclass(frozen=True)
@@ -69,6 +73,8 @@ class GuardConfig:
     closing_below_plan_m: float = 0.05
     """A pair within the margin counts only if it is also this much closer than the plan
     has it (plans keep pairs just above the limit by design)."""
+    wind: WindConfig = field(default_factory=WindConfig)
+    """The wind hold's timing."""
 
 
 @dataclass(frozen=True)
@@ -141,13 +147,20 @@ class TickFacts:
     """Drones are flying our setpoints on a clock (the show, or a return after it)."""
     stopped: bool = False
     """The show clock is at rest (held and done braking)."""
+    show_airborne: bool = False
+    """Drones are in the air for the show (ready for its start, or flying it)."""
+    wind_mps: tuple[float, ...] = ()
+    """The fresh wind estimates of the vehicles in the air, m/s horizontal."""
 
 
 class FlightGuard:
     """See the module docstring."""
 
-    def __init__(self, config: GuardConfig | None = None) -> None:
+    def __init__(self, config: GuardConfig | None = None,
+                 max_wind: float | None = None) -> None:
         self.config = config or GuardConfig()
+        self.wind = WindWatch(max_wind, self.config.wind)
+        """The show's wind limit in the air."""
         self.active: dict[str, float] = {}
         """Holds in force, by reason, with our time they started."""
         self.freezes = 0
@@ -225,7 +238,32 @@ class FlightGuard:
         # -- the flight going wrong ------------------------------------------------------
         if f.in_show and not self.landed_all:
             out += self._safety(f)
+        # -- the weather beyond the show -------------------------------------------------
+        if not self.landed_all:
+            out += self._wind(f)
         return out
+
+    def _wind(self, f: TickFacts) -> list[GuardAction]:
+        watch = self.wind
+        verdict = watch.tick(f.now, f.wind_mps, f.show_airborne,
+                             started=f.in_show)
+        wind = watch.wind if watch.wind is not None else 0.0
+        limit = watch.limit if watch.limit is not None else math.inf
+        if verdict is WindVerdict.HOLD:
+            what = ("holding the show; every drone brakes along its path" if f.in_show
+                    else "the show does not start; the fleet hovers")
+            return self._hold("wind", f, f"the vehicles estimate {wind:.1f} m/s of wind, "
+                                         f"above the show's limit of {limit:g} m/s: {what}")
+        if verdict is WindVerdict.RELEASE:
+            return [self._release("wind", f"the wind is down to {wind:.1f} m/s: "
+                                          "resuming the show")]
+        if verdict is WindVerdict.LAND:
+            self._land_all()
+            return [LandAll(f"the wind has not dropped below the show's limit of {limit:g} m/s "
+                            f"in {self.config.wind.land_after_s:.0f} s (up to "
+                            f"{watch.hold_peak:.1f} m/s, now {wind:.1f}): landing every "
+                            "vehicle")]
+        return []
 
     def _safety(self, f: TickFacts) -> list[GuardAction]:
         cfg = self.config
@@ -295,6 +333,8 @@ class FlightGuard:
         # The show is over: the land-all return takes no safety hold with it.
         self.landed_all = True
         self.active.pop("safety", None)
+        self.active.pop("wind", None)
+        self.wind.stopped = True
 
     def _hold(self, reason: str, f: TickFacts, text: str,
               show_time: float | None = None) -> list[GuardAction]:
@@ -314,3 +354,5 @@ class FlightGuard:
 
 #: Reasons that are the ground station's own trouble.
 _OWN = FLEET_HOLDS
+#: The guard's holds of the show itself, dropped when it lands the fleet.
+GUARD_SHOW_HOLDS = ("safety", "wind")

@@ -48,6 +48,9 @@ class Thresholds:
     require_fix_type: int | None = None
     """``--require-rtk``: min GPS_RAW_INT.fix_type (5 RTK float, 6 RTK fixed); None: no
     ``rtk`` check."""
+    max_wind: float | None = None
+    """The show's ``limits.max_wind`` (or ``--max-wind``), m/s: a vehicle estimating a
+    stronger wind fails ``wind``; None: no ``wind`` check."""
 
 
 @dataclass(frozen=True)
@@ -55,8 +58,8 @@ class CheckResult:
     """The outcome of one check on one vehicle."""
 
     name: str
-    """Short check name: ``heartbeat``, ``gps``, ``position``, ``battery``, ``slot``,
-    ``link``, ``autopilot``."""
+    """Short check name: ``heartbeat``, ``gps``, ``rtk``, ``position``, ``battery``,
+    ``slot``, ``link``, ``wind``, ``autopilot``."""
     ok: bool
     """True if the vehicle passed."""
     detail: str
@@ -166,6 +169,24 @@ def check_link(state: VehicleState, th: Thresholds) -> CheckResult:
     return CheckResult("link", True, detail)
 
 
+#: A wind estimate older than this is not the wind now, s (they stream at 1 Hz).
+WIND_FRESH_S = 5.0
+
+
+def check_wind(state: VehicleState, now: float, th: Thresholds) -> CheckResult:
+    """The vehicle's own wind estimate is within the show's limit.  Without one it passes
+    (said so): a multirotor's estimator learns the wind in flight, and the limit is
+    watched again in the air before the show starts (:mod:`groundctl.execute.wind`)."""
+    assert th.max_wind is not None
+    speed = state.wind_speed(now, WIND_FRESH_S)
+    if speed is None:
+        return CheckResult("wind", True, f"no estimate yet (limit {th.max_wind:g} m/s)")
+    if speed > th.max_wind:
+        return CheckResult("wind", False, f"{speed:.1f} m/s estimated, above the show's "
+                                          f"limit of {th.max_wind:g} m/s")
+    return CheckResult("wind", True, f"{speed:.1f} m/s (limit {th.max_wind:g} m/s)")
+
+
 def check_autopilot(state: VehicleState) -> CheckResult:
     """The autopilot is one whose modes we know how to command."""
     if state.flavour is None:
@@ -178,6 +199,7 @@ def check_vehicle(state: VehicleState, assignment: Assignment, now: float,
     """Every pre-flight check on one vehicle, in a fixed order."""
     th = thresholds or Thresholds()
     rtk = [check_rtk(state, th)] if th.require_fix_type is not None else []
+    wind = [check_wind(state, now, th)] if th.max_wind is not None else []
     return [
         check_heartbeat(state, now, th),
         check_gps(state, th),
@@ -186,6 +208,7 @@ def check_vehicle(state: VehicleState, assignment: Assignment, now: float,
         check_battery(state, th),
         check_slot(state.system_id, assignment, th),
         check_link(state, th),
+        *wind,
         check_autopilot(state),
     ]
 

@@ -97,6 +97,7 @@ from groundctl.execute.paths import (
 )
 from groundctl.execute.preflight import remaining_plan_conflicts
 from groundctl.execute.showclock import ShowClock, brake_ramp
+from groundctl.execute.spread import spread_apart
 from groundctl.link.flavours import Flavour
 from groundctl.link.state import VehicleState
 from groundctl.plan.plan import Plan
@@ -207,6 +208,8 @@ class ShowPhase(enum.StrEnum):
 
 #: Above this height above home a vehicle is taking off (or flying), m.
 AIRBORNE_M = 0.5
+#: A hold point is moved at most this many separation limits to clear the others.
+HOLD_APART_MAX_M = 2.0
 #: Risen this far since its takeoff was sent, a vehicle is climbing (whatever its height
 #: above home), m: well above an EKF's altitude noise on the ground.
 CLIMB_SEEN_M = 0.2
@@ -960,17 +963,18 @@ class ShowSequence:
         (:meth:`_descend_columns`).  It always exists and plans nothing: nothing more
         can fail, and a stop signal meanwhile changes nothing (:meth:`land_all`)."""
         # Where each path stopped, read before anything changes (return_start).
-        points = {v.sysid: tuple(float(x) for x in self.return_start(v.sysid, now))
-                  for v in self.vehicles.values()
+        starts = {v.sysid: self.return_start(v.sysid, now) for v in self.vehicles.values()
                   if self.streamed_as(v) is VehiclePhase.RETURNING}
         off = [v.sysid for v in self.vehicles.values()
                if v.hold_point is not None and v.before_return is VehiclePhase.LEAVING]
+        points = self._held_apart({s: (float(p[0]), float(p[1]), float(p[2]))
+                                    for s, p in starts.items()}, now)
         self._columns = True
         self._return_wanted = False
         for v in self.vehicles.values():
             if v.sysid not in points:
                 continue
-            v.hold_point = points[v.sysid]  # type: ignore[assignment]
+            v.hold_point = points[v.sysid]
             v.column_since = now
             v.leave, v.leave_at, v.before_return = None, None, None
             if v.phase is VehiclePhase.LOST:
@@ -985,6 +989,35 @@ class ShowSequence:
                   "column at a time (the lowest first; nobody descends with a drone below it)",
             "land_in_columns")]
         return actions + self._descend_columns(now)
+
+    def _held_apart(self, points: Mapping[int, tuple[float, float, float]], now: float
+                    ) -> dict[int, tuple[float, float, float]]:
+        """``points`` (system id -> where it would hold) pushed sideways until each is the
+        separation limit from the others and from every other drone in the air (where it
+        holds, or is and will hover once the braking show clock stops): the wind or a
+        fault may have pushed them together
+        (:func:`~groundctl.execute.spread.spread_apart`)."""
+        others: list[tuple[float, ...]] = []
+        for u in self.vehicles.values():
+            if u.sysid in points or u.phase in _DONE or u.never_flew:
+                continue
+            pos = self._positions.get(u.sysid)
+            if pos is None or pos[2] <= AIRBORNE_M:
+                continue
+            if u.hold_point is not None:
+                others.append(u.hold_point)
+                continue
+            # Where it is, and where it will hover once the braking clock stops.
+            others += [tuple(pos), tuple(self.return_start(u.sysid, now))]
+        ids = list(points)
+        if not ids:
+            return {}
+        pts = np.array([points[s] for s in ids] + others, dtype=float).reshape(-1, 3)
+        movable = np.arange(len(pts)) < len(ids)
+        limit = self.plan.limits.min_separation
+        spread = spread_apart(pts, movable, limit, HOLD_APART_MAX_M * limit)
+        return {s: (float(p[0]), float(p[1]), float(p[2]))
+                for s, p in zip(ids, spread[:len(ids)], strict=True)}
 
     def _descend_columns(self, now: float) -> list[Action]:
         """Send down each held drone whose column is clear (no airborne drone within the
@@ -1316,7 +1349,7 @@ class ShowSequence:
         then leave the show on a way out planned from there."""
         distance, here = off
         v.phase, v.reason = VehiclePhase.LEAVING, f"{how} {distance:.1f} m off its plan"
-        v.hold_point, v.leave = here, None
+        v.hold_point, v.leave = self._held_apart({v.sysid: here}, now)[v.sysid], None
         v.leave_at = self._hold_leave_time(v, now)
         if v.leave_at is None:
             return [Notice(v.sysid, f"vehicle {v.sysid} {how} {distance:.1f} m off its plan: "

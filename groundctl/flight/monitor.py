@@ -127,6 +127,8 @@ class Separation:
     commanded_m: float | None = None
     """How far apart their paths put the two at that instant, m (None: not known): well
     apart, the drones were pushed together (wind, a gust, a weak motor), not flown so."""
+    wind_m_s: float | None = None
+    """The fleet's wind estimate at that instant, m/s (:mod:`groundctl.execute.wind`)."""
 
 
 def nearest_pair(ids: list[int], pos: FloatArray) -> Separation:

@@ -113,8 +113,12 @@ def flight_report(runner: ShowRunner, error: str | None = None,
         pair = mon.separation.pair if mon is not None else None
         why = f"separation {min_sep:.2f} m between vehicles {pair} (limit {limit:.2f} m)"
         if commanded is not None and commanded >= limit:
+            wind = mon.separation.wind_m_s if mon is not None else None
+            cause = (f"the wind: the vehicles estimated {wind:.1f} m/s then, or a gust, a "
+                     "weak vehicle" if wind is not None and wind > 0
+                     else "wind, a gust, a weak vehicle")
             why += (f" while their paths kept them {commanded:.2f} m apart: pushed together "
-                    "(wind, a gust, a weak vehicle), not flown there")
+                    f"({cause}), not flown there")
         reasons.append(why)
     reasons += more_reasons
     led = mon.led_errors() if mon is not None else []
@@ -131,6 +135,8 @@ def flight_report(runner: ShowRunner, error: str | None = None,
         "min_separation_m": _r(min_sep),
         "min_separation_pair": list(mon.separation.pair) if mon and mon.separation.pair else None,
         "min_separation_commanded_m": _r(commanded) if commanded is not None else None,
+        "min_separation_wind_m_s": _r(mon.separation.wind_m_s)
+        if mon is not None and mon.separation.wind_m_s is not None else None,
         "min_separation_at_s": _r(mon.separation.at_s - seq.started_at, 2)
         if mon and seq and seq.started_at is not None and mon.separation.at_s is not None
         else None,
@@ -157,6 +163,10 @@ def flight_report(runner: ShowRunner, error: str | None = None,
             "overruns": runner.overruns,
         },
         "link": {k: int(v) for k, v in vars(stats).items()},
+        "wind": {"limit_m_s": runner.guard.wind.limit,
+                 "strongest_estimated_m_s": _r(runner.guard.wind.strongest),
+                 "holds": runner.guard.wind.holds,
+                 "landed_for_wind": runner.guard.wind.landed},
         "mpc": runner.replanner.report() if runner.replanner is not None
         else runner.mpc_summary if runner.mpc_summary is not None
         else Replanner.off_report(),

@@ -46,6 +46,7 @@ from groundctl.errors import (
 )
 from groundctl.execute.frames import ned_vel_to_show, show_positions
 from groundctl.execute.guard import (
+    GUARD_SHOW_HOLDS,
     FlightGuard,
     GuardConfig,
     Hold,
@@ -59,6 +60,7 @@ from groundctl.execute.leds import LedSchedule
 from groundctl.execute.mapping import Assignment, auto_assign, explicit_assign
 from groundctl.execute.paths import PathKind
 from groundctl.execute.preflight import (
+    WIND_FRESH_S,
     PreflightReport,
     Thresholds,
     remaining_plan_conflicts,
@@ -268,7 +270,11 @@ class ShowRunner:
         self.plan = plan
         self.link = link
         self.clock = clock
-        self.config = config or RunnerConfig()
+        config = config or RunnerConfig()
+        if config.thresholds.max_wind is None:
+            config = replace(config, thresholds=replace(config.thresholds,
+                                                        max_wind=plan.limits.max_wind))
+        self.config = config
         self.events = events
         self.notify = notify
         self.expected_ids = None if expected_ids is None else sorted(expected_ids)
@@ -288,7 +294,7 @@ class ShowRunner:
         """Called after every tick with (now, show time): the dry-run's truth probe."""
         self.loop_lag_s: list[float] = []
         """Per tick: how late the tick started against its scheduled instant."""
-        self.guard = FlightGuard(self.config.guard)
+        self.guard = FlightGuard(self.config.guard, self.config.thresholds.max_wind)
         """Holds for our own lag, fleet-wide silence and safety responses."""
         self._stream: SetpointStream | None = None
         self._led_schedule: LedSchedule | None = None
@@ -718,6 +724,13 @@ class ShowRunner:
                 a, b = wanted.get(pair[0]), wanted.get(pair[1])
                 if a is not None and b is not None:
                     planned = float(np.linalg.norm(a - b))
+        show_airborne = not seq.ended and any(v.phase in _AIRBORNE
+                                              for v in seq.vehicles.values())
+        # Every drone in the air estimates the wind, a landing one included.
+        winds = tuple(w for s, p in ids_pos.items() if p[2] > AIRBORNE_M
+                      and s in self.link.vehicles
+                      and (w := self.link.vehicles[s].wind_speed(now, WIND_FRESH_S))
+                      is not None)
         # The link judges a fleet-wide silence over the drones in the air only.
         self.link.silence_ids = set(streamed) if flying else None
         facts = TickFacts(
@@ -726,7 +739,7 @@ class ShowRunner:
             closest_pair=pair, closing_mps=closing, closest_planned_m=planned,
             unheard=sum(1 for s in streamed if s not in ids_pos),
             limit_m=self.plan.limits.min_separation, in_show=in_show, flying=flying,
-            stopped=seq.clock.stopped(now))
+            stopped=seq.clock.stopped(now), show_airborne=show_airborne, wind_mps=winds)
         for action in self.guard.tick(facts):
             if isinstance(action, Hold):
                 if action.show_time is not None and in_show:
@@ -752,6 +765,8 @@ class ShowRunner:
             elif isinstance(action, LandAll):
                 self._say(action.text, "guard_land_all")
                 self._perform(seq.land_all(now))
+                for reason in GUARD_SHOW_HOLDS:  # the land-all's own hold stops the show
+                    seq.release(reason, now)
         return resynced
 
     # -- planning in worker processes ---------------------------------------------------
@@ -983,9 +998,10 @@ class ShowRunner:
                 z = last[2][last[1].index(s)][2]
                 wanted[s] = np.array([v.hold_point[0], v.hold_point[1], z])
         a, b = sep.pair
+        wind = self.guard.wind.wind
         if a in wanted and b in wanted:
-            self.monitor.separation = replace(
-                sep, commanded_m=float(np.linalg.norm(wanted[a] - wanted[b])))
+            sep = replace(sep, commanded_m=float(np.linalg.norm(wanted[a] - wanted[b])))
+        self.monitor.separation = replace(sep, wind_m_s=wind)
 
     def _replan_tick(self, seq: ShowSequence, req: StreamRequest, now: float) -> None:
         """MPC: who is replanned this tick, and their next batch (see flight.replanning)."""

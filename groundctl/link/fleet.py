@@ -65,6 +65,9 @@ DEFAULT_STREAMS: dict[int, float] = {
     mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,
     mavlink.MAVLINK_MSG_ID_VFR_HUD: 4.0,  # throttle: each vehicle's thrust authority
 }
+#: Each autopilot's own wind estimate (the show's wind limit), streamed at 1 Hz.
+WIND_MESSAGE = {Flavour.ARDUPILOT: mavlink.MAVLINK_MSG_ID_WIND,
+                Flavour.PX4: mavlink.MAVLINK_MSG_ID_WIND_COV}
 
 
 
@@ -695,9 +698,19 @@ class FleetLink:
     async def request_streams(
         self, sysid: int, rates: Mapping[int, float] | None = None, **kw: Any
     ) -> None:
-        """Ask for every stream in ``rates`` (message id -> Hz; default :data:`DEFAULT_STREAMS`)."""
+        """Ask for every stream in ``rates`` (message id -> Hz; default :data:`DEFAULT_STREAMS`
+        and the flavour's wind estimate, :data:`WIND_MESSAGE`, which is tried once: a
+        vehicle that refuses it flies, its wind unknown)."""
         for msg_id, hz in (DEFAULT_STREAMS if rates is None else rates).items():
             await self.set_message_interval(sysid, msg_id, hz, **kw)
+        state = self.vehicles.get(sysid)
+        flavour = state.flavour if state is not None else None
+        wind = WIND_MESSAGE.get(flavour) if rates is None and flavour is not None else None
+        if wind is not None:
+            try:
+                await self.set_message_interval(sysid, wind, 1.0, **{**kw, "retries": 0})
+            except LinkError as exc:
+                log.info("vehicle %s does not stream its wind estimate: %s", sysid, exc)
 
     # -- streaming senders (non-blocking, fire and forget) -------------------
 

@@ -147,6 +147,11 @@ class VehicleState:
     thrust it has left: :mod:`groundctl.execute.authority`)."""
     throttle_at: float | None = None
     """Our time of that VFR_HUD."""
+    wind_ned: Vec3 | None = None
+    """The vehicle's own wind estimate, NED m/s (where the air moves to): ArduPilot's
+    WIND, PX4's WIND_COV."""
+    wind_at: float | None = None
+    """Our time of that estimate."""
     prearm_ok: bool | None = None
     """SYS_STATUS pre-arm check bit: True passing, False failing, None not reported."""
     gps_fix_type: int | None = None
@@ -228,9 +233,19 @@ class VehicleState:
         t = self.timesync.vehicle_time_s(now)
         return None if t is None else max(int(t * 1000), 0)
 
+    def wind_speed(self, now: float, max_age_s: float) -> float | None:
+        """Horizontal speed of its own wind estimate, m/s; None without one this fresh."""
+        if self.wind_ned is None or self.wind_at is None or now - self.wind_at > max_age_s:
+            return None
+        return math.hypot(self.wind_ned[0], self.wind_ned[1])
+
     def silent_for(self, now: float) -> float:
         """Seconds since the last packet (infinite if never heard)."""
         return float("inf") if self.last_heard is None else now - self.last_heard
+
+
+#: A wind estimate this strong or more is not one (no multirotor flies in it), m/s.
+MAX_WIND_MPS = 100.0
 
 
 def _is_autopilot_heartbeat(msg: mavlink.MAVLink_heartbeat_message) -> bool:
@@ -803,6 +818,25 @@ def _vfr_hud(state: VehicleState, msg: Any, now: float, changes: list[StateChang
         state.throttle_at = now
 
 
+def _wind(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
+    # ArduPilot's WIND: the direction the wind comes *from* (degrees) and its speed.
+    speed, direction = float(msg.speed), math.radians(float(msg.direction))
+    down = float(msg.speed_z)
+    if math.isfinite(speed) and math.isfinite(direction) and 0.0 <= speed < MAX_WIND_MPS:
+        state.wind_ned = (-speed * math.cos(direction), -speed * math.sin(direction),
+                          down if math.isfinite(down) else 0.0)
+        state.wind_at = now
+
+
+def _wind_cov(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
+    # PX4's WIND_COV: the air's velocity, north and east (NaN while it has no estimate).
+    north, east, down = float(msg.wind_x), float(msg.wind_y), float(msg.wind_z)
+    if math.isfinite(north) and math.isfinite(east) \
+            and math.hypot(north, east) < MAX_WIND_MPS:
+        state.wind_ned = (north, east, down if math.isfinite(down) else 0.0)
+        state.wind_at = now
+
+
 def _ack(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
     state.acks.append(msg)
 
@@ -827,4 +861,6 @@ _HANDLERS = {
     "TIMESYNC": _timesync,
     "PARAM_VALUE": _param_value,
     "VFR_HUD": _vfr_hud,
+    "WIND": _wind,
+    "WIND_COV": _wind_cov,
 }

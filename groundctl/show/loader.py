@@ -15,7 +15,8 @@ optional)::
     [origin]    lat, lon, alt, heading = 0
     [limits]    max_speed_h, max_speed_up, max_speed_down, max_accel,
                 min_separation, min_altitude, max_altitude, geofence = [[x, y], ...],
-                land_battery_pct = 20, max_flight_time = 900
+                land_battery_pct = 20, max_flight_time = 900,
+                max_wind = 10
     [model]     kind = "quadrotor" | "unicycle"; unicycle: speed, r_min, max_turn_rate
     [planner]   dt, steps, max_iterations, tolerance, pattern_tolerance, alpha, beta,
                 tracking_margin, budget
@@ -112,6 +113,7 @@ _LIMIT_KEYS = {
     "max_altitude": "max_alt",
     "land_battery_pct": "land_battery_pct",
     "max_flight_time": "max_flight_time",
+    "max_wind": "max_wind",
 }
 #: Most parts of a dotted key or table name (``a.b.c`` has 3); show files use 2.
 MAX_KEY_PARTS = 32

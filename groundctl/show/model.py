@@ -60,6 +60,11 @@ class Limits:
     max_flight_time: float = 900.0
     """The battery's endurance: the climb, every transition and hold, and the descent
     must fit in it, s."""
+    max_wind: float = 10.0
+    """Strongest wind the show is flown in, m/s horizontal, as the vehicles themselves
+    estimate it (ArduPilot's WIND, PX4's WIND_COV): pre-flight refuses a vehicle that
+    estimates more; in the air the fleet holds while the wind is above it, and lands
+    when it stays there (:mod:`groundctl.execute.wind`)."""
 
     def scaled(self, speed: float, accel: float = 1.0) -> Limits:
         """These limits with the three speeds scaled by ``speed`` and the acceleration

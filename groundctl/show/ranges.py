@@ -105,6 +105,7 @@ LIMIT_RANGES: dict[str, Range] = {
     "max_alt": above_zero(MAX_COORD),
     "land_battery_pct": Range(0.0, 100.0, low_open=True, high_open=True),
     "max_flight_time": above_zero(3600.0),
+    "max_wind": above_zero(50.0),
 }
 #: GeoOrigin field -> its range.
 ORIGIN_RANGES: dict[str, Range] = {

@@ -94,6 +94,7 @@ class ArduPilotVehicle(Vehicle):
     """A simulated ArduCopter."""
 
     flavour = Flavour.ARDUPILOT
+    foreign_messages = frozenset({mavlink.MAVLINK_MSG_ID_WIND_COV})
     unknown_mode_result = FAILED
     land_mode = "LAND"
     rtl_mode = "RTL"

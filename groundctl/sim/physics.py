@@ -46,6 +46,9 @@ CRASH_SPEED = 3.0
 #: Gust and GPS-error correlation times (s).
 GUST_TAU = 2.0
 GPS_TAU = 20.0
+#: Time constant of the autopilots' wind estimate (s): the EKF's wind states follow the
+#: air the airframe feels, in flight only (on the ground it keeps its last estimate).
+WIND_EST_TAU = 2.0
 #: The random gusts are one field over space (:class:`GustField`): Fourier modes per
 #: axis, and the smallest correlation length they get (m).
 GUST_MODES = 48
@@ -206,6 +209,8 @@ class FleetPhysics:
         """The gusts' wind field (None without gusts)."""
         self.gust_extra = np.zeros((n, 3))
         """Injected gusts (fault), m/s."""
+        self.wind_est = np.zeros((n, 3))
+        """Each autopilot's own wind estimate, ENU m/s (:data:`WIND_EST_TAU`)."""
         self.gps_noise_m = float(gps_noise_m)
         """Standard deviation of the slowly varying estimate error (m)."""
         self.gps_err = np.zeros((n, 3))
@@ -369,6 +374,8 @@ class FleetPhysics:
             self.gust = self.gust_field.at(self.pos, self.t)
         wind = self.wind_at() + self.turbulence + self.gust + self.gust_extra
         air = wind - self.vel
+        follow = np.where(airborne & ~self.on_ground, min(dt / WIND_EST_TAU, 1.0), 0.0)
+        self.wind_est += follow[:, None] * (wind - self.wind_est)
         drag = (d.drag + d.drag_quad * np.linalg.norm(air, axis=1, keepdims=True)) * air
         total = acc + np.where(airborne[:, None], drag, 0.0)
         self.vel = self.vel + total * dt

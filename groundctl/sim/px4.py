@@ -85,6 +85,7 @@ class PX4Vehicle(Vehicle):
     guided_modes: ClassVar[frozenset[str]] = frozenset({
         "OFFBOARD", "AUTO.TAKEOFF", "AUTO.LOITER", "AUTO.MISSION", "AUTO.RTL", "AUTO.LAND"})
     supports_led = False
+    foreign_messages = frozenset({mavlink.MAVLINK_MSG_ID_WIND})
 
     def __init__(self, *args: object, **kwargs: object) -> None:
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]

@@ -219,6 +219,22 @@ def estimator_status(v: Vehicle, now: float) -> Msg:
         int(v.time_since_boot(now) * 1e6), flags, 0.1, 0.1, 0.1, 0.1, 0.1, 0.0, 0.5, 0.5)
 
 
+def wind(v: Vehicle, now: float) -> Msg:
+    """WIND (ArduPilot, GCS_MAVLINK::send_wind): where the estimated wind comes *from*
+    (degrees), its speed (the whole vector's length) and its vertical part."""
+    w = v.frames.vec_enu_to_ned(v.i, v.ph.wind_est[v.i])
+    direction = math.degrees(math.atan2(-w[1], -w[0]))
+    return mavlink.MAVLink_wind_message(direction, float(np.linalg.norm(w)), float(w[2]))
+
+
+def wind_cov(v: Vehicle, now: float) -> Msg:
+    """WIND_COV (PX4): the estimated air velocity, NED, with its variances."""
+    w = v.frames.vec_enu_to_ned(v.i, v.ph.wind_est[v.i])
+    return mavlink.MAVLink_wind_cov_message(
+        int(v.time_since_boot(now) * 1e6), float(w[0]), float(w[1]), float(w[2]), 0.25, 0.25,
+        float(v.ph.pos[v.i][2]), 0.5, 0.5)
+
+
 def system_time(v: Vehicle, now: float) -> Msg:
     """SYSTEM_TIME: Unix time (from GPS on a real vehicle) and time since boot."""
     unix_us = int((v.unix_at_boot + v.time_since_boot(now)) * 1e6)
@@ -269,6 +285,8 @@ BUILDERS: dict[int, Callable[[Vehicle, float], Msg]] = {
     mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION: autopilot_version,
     mavlink.MAVLINK_MSG_ID_EKF_STATUS_REPORT: ekf_status_report,
     mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: estimator_status,
+    mavlink.MAVLINK_MSG_ID_WIND: wind,
+    mavlink.MAVLINK_MSG_ID_WIND_COV: wind_cov,
 }
 
 #: Messages that exist only once the EKF has an origin (nothing to report before).
@@ -288,5 +306,6 @@ DATA_STREAM_GROUPS: dict[int, tuple[int, ...]] = {
     mavlink.MAV_DATA_STREAM_EXTRA1: (mavlink.MAVLINK_MSG_ID_ATTITUDE,),
     mavlink.MAV_DATA_STREAM_EXTRA2: (mavlink.MAVLINK_MSG_ID_VFR_HUD,),
     mavlink.MAV_DATA_STREAM_EXTRA3: (
-        mavlink.MAVLINK_MSG_ID_SYSTEM_TIME, mavlink.MAVLINK_MSG_ID_BATTERY_STATUS),
+        mavlink.MAVLINK_MSG_ID_WIND, mavlink.MAVLINK_MSG_ID_SYSTEM_TIME,
+        mavlink.MAVLINK_MSG_ID_BATTERY_STATUS),
 }

@@ -147,6 +147,9 @@ class Vehicle:
     #: MAV_RESULT for DO_SET_MODE without the custom flag or with an unknown mode.
     unknown_mode_result: ClassVar[int] = UNSUPPORTED
     arm_refused_result: ClassVar[int] = FAILED
+    #: Messages of the other autopilot that this one has no stream for (its wind estimate:
+    #: ArduPilot sends WIND, PX4 WIND_COV).
+    foreign_messages: ClassVar[frozenset[int]] = frozenset()
     """How a failing arming check is coded (ArduPilot FAILED, PX4 TEMPORARILY_REJECTED)."""
     #: Modes MAV_CMD_NAV_LAND and MAV_CMD_NAV_RETURN_TO_LAUNCH switch to.
     land_mode: ClassVar[str]
@@ -573,7 +576,7 @@ class Vehicle:
 
     def _cmd_message_interval(self, msg: Msg, p: list[float], now: float) -> None:
         msgid, interval_us = as_int(p[0]), p[1]
-        if msgid not in T.BUILDERS:
+        if msgid not in T.BUILDERS or msgid in self.foreign_messages:
             self.ack(msg, FAILED)
             return
         if interval_us == -1:
@@ -593,7 +596,7 @@ class Vehicle:
 
     def _cmd_request_message(self, msg: Msg, msgid: int, now: float) -> None:
         builder = T.BUILDERS.get(msgid)
-        if builder is None:
+        if builder is None or msgid in self.foreign_messages:
             self.ack(msg, UNSUPPORTED)
             return
         if msgid in T.NEEDS_ORIGIN and not self.origin_set(now):
