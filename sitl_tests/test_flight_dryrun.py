@@ -172,13 +172,19 @@ def test_a_takeoff_whose_ack_is_lost_and_whose_repeat_is_refused_goes_on(
 
 
 @pytest.mark.parametrize("flavour", flavours(Flavour.ARDUPILOT))
-def test_ten_percent_loss_and_100_ms_latency_are_still_flown_safely(flavour: Flavour) -> None:
-    result = dry_run(flavour=flavour, loss=0.1, latency_ms=100.0, seed=7)
+def test_ten_percent_loss_and_a_slow_jittery_link_are_still_flown_safely(
+        flavour: Flavour) -> None:
+    result = dry_run(flavour=flavour, loss=0.1, latency_ms=60.0, jitter_ms=30.0, seed=7)
     _assert_flown_safely(result.report)
-    losses = [v["loss_ratio"] for v in result.report["vehicles"]]
+    vehicles = result.report["vehicles"]
+    # A jittery link delays packets; it is no second sender (issue 35: a burst of
+    # PARAM_VALUEs shuffled packet by packet read as 125 link conflicts).
+    assert sum(v["link_conflicts"] for v in vehicles) == 0, [
+        (v["system_id"], v["last_conflict"]) for v in vehicles if v["link_conflicts"]]
+    losses = [v["loss_ratio"] for v in vehicles]
     assert 0.05 < float(np.mean(losses)) < 0.15
-    rtts = [v["rtt_ms"] for v in result.report["vehicles"]]
-    assert float(np.median(rtts)) > 190, rtts  # 100 ms each way, as the link measures it
+    rtts = [v["rtt_ms"] for v in vehicles]
+    assert float(np.median(rtts)) > 90, rtts  # 60 +- 30 ms each way, as the link sees it
 
 
 @pytest.mark.parametrize("flavour", flavours(Flavour.ARDUPILOT))

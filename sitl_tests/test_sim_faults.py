@@ -11,6 +11,7 @@ from groundctl.errors import SimulatorError
 from groundctl.link.flavours import Flavour
 from groundctl.sim import LinkFaults, SimFleet
 from groundctl.sim.config import ARDUPILOT_DYNAMICS
+from groundctl.sim.faults import Jitter
 
 AP = Flavour.ARDUPILOT
 POS_ONLY = 0x0DF8
@@ -52,6 +53,20 @@ def test_latency_and_jitter_delay_the_reply() -> None:
         fleet.run_until(20.0)
         peer.poll()
         assert len(peer.all("HEARTBEAT")) >= 18
+
+
+def test_jitter_is_a_wandering_delay_first_in_first_out() -> None:
+    rng = np.random.default_rng(11)
+    jitter = Jitter()
+    # Over time: latency +- the jitter's standard deviation (4,000 samples 0.1 s apart,
+    # about 2,000 independent ones: the estimate is within a few percent).
+    sent = 0.1 * np.arange(4000)
+    slow = np.array([jitter.sample(t, 100.0, 50.0, rng) for t in sent])
+    assert 95.0 < float(np.mean(slow)) < 105.0 and 45.0 < float(np.std(slow)) < 55.0
+    # A burst sent within 10 ms arrives in the order it was sent.
+    sent = 1000.0 + 1e-4 * np.arange(100)
+    arrival = sent + np.array([jitter.sample(t, 100.0, 50.0, rng) for t in sent]) / 1000.0
+    assert np.all(np.diff(arrival) >= 0.0)
 
 
 def test_duplicated_packets_arrive_twice_with_the_same_sequence() -> None:

@@ -2,7 +2,10 @@
 
 Link faults act on every datagram in both directions, in simulated time, like
 trio's fake network: each packet may be lost, duplicated, delayed by
-``latency ± jitter``, or dropped while the link is cut.  Physical faults
+``latency ± jitter``, or dropped while the link is cut.  The jitter is a queue's: a
+delay that wanders (:class:`Jitter`), first in first out, as on a radio or one network
+path, not each packet shuffled on its own (a burst of 60 PARAM_VALUEs shuffled over
+50 ms of independent jitter read as dozens of packets "not fitting the numbering").  Physical faults
 (GPS glitch, motor failure, low battery, gust) are :class:`FaultEvent` values
 scheduled on the fleet by system id or fleet-wide.
 """
@@ -57,8 +60,10 @@ class LinkFaults:
             return False
         return self.restore_at is None or now < self.restore_at
 
-    def deliveries(self, now: float, rng: np.random.Generator) -> list[float]:
-        """Delays (s) after which a packet sent at ``now`` arrives: [] lost, 2 duplicated."""
+    def deliveries(self, now: float, rng: np.random.Generator,
+                   jitter: Jitter | None = None) -> list[float]:
+        """Delays (s) after which a packet sent at ``now`` arrives: [] lost, 2 duplicated;
+        ``jitter`` the link direction's wandering delay (None: each packet's own)."""
         if self.is_clean:
             return [0.0]
         if self.is_cut(now):
@@ -68,11 +73,43 @@ class LinkFaults:
         copies = 2 if self.duplicate and rng.random() < self.duplicate else 1
         delays = []
         for _ in range(copies):
-            delay = self.latency_ms
-            if self.jitter_ms:
-                delay += float(rng.normal(0.0, self.jitter_ms))
+            if jitter is not None:
+                delay = jitter.sample(now, self.latency_ms, self.jitter_ms, rng)
+            else:
+                delay = self.latency_ms + (float(rng.normal(0.0, self.jitter_ms))
+                                           if self.jitter_ms else 0.0)
             delays.append(max(0.0, delay) / 1000.0)
         return delays
+
+
+#: How fast a link's queueing delay wanders, s (an Ornstein-Uhlenbeck time constant).
+JITTER_TAU_S = 0.2
+
+
+class Jitter:
+    """One link direction's extra delay: normal with the jitter's standard deviation over
+    time, wandering with :data:`JITTER_TAU_S` between packets (a queue that fills and
+    drains), and first in, first out: no packet overtakes an earlier one."""
+
+    def __init__(self) -> None:
+        self._at: float | None = None
+        self._unit = 0.0  # the wandering delay in standard deviations
+        self._last_arrival = -math.inf
+
+    def sample(self, now: float, base_ms: float, std_ms: float,
+               rng: np.random.Generator) -> float:
+        """The delay of a packet sent at ``now`` over a link of ``base_ms`` latency,
+        milliseconds (never negative, never arriving before the packet before it)."""
+        if self._at is None:
+            self._unit = float(rng.standard_normal())
+        else:
+            keep = math.exp(-max(now - self._at, 0.0) / JITTER_TAU_S)
+            self._unit = self._unit * keep + math.sqrt(1.0 - keep * keep) \
+                * float(rng.standard_normal())
+        self._at = now
+        delay = max(base_ms + self._unit * std_ms, 0.0, (self._last_arrival - now) * 1000.0)
+        self._last_arrival = now + delay / 1000.0
+        return delay
 
 
 class FaultKind(enum.StrEnum):

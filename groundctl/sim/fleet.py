@@ -39,7 +39,7 @@ from groundctl.link.flavours import Flavour
 from groundctl.sim.ardupilot import ArduPilotVehicle
 from groundctl.sim.codec import VehicleCodec
 from groundctl.sim.config import SimConfig
-from groundctl.sim.faults import FaultEvent, FaultKind, LinkFaults
+from groundctl.sim.faults import FaultEvent, FaultKind, Jitter, LinkFaults
 from groundctl.sim.frames import FleetFrames
 from groundctl.sim.physics import FleetPhysics
 from groundctl.sim.px4 import PX4Vehicle
@@ -94,6 +94,8 @@ class SimFleet:
             for i, sid in enumerate(self.sysids)]
         self.codecs = [VehicleCodec(sid, config.signing_key) for sid in self.sysids]
         self._links: list[LinkFaults] = [config.link_faults] * config.count
+        # Each link direction's wandering queueing delay: (to the vehicle, from it).
+        self._jitter = [(Jitter(), Jitter()) for _ in range(config.count)]
         self._gcs: list[tuple[str, int]] = [config.gcs] * config.count
         self._lock = threading.RLock()
         self._inbox: list[tuple[float, int, int, bytes, tuple[str, int]]] = []
@@ -450,7 +452,7 @@ class SimFleet:
                     break
                 except OSError:
                     break  # e.g. an ICMP error reported on the socket: nothing to read
-                for delay in link.deliveries(rel, self._link_rng):
+                for delay in link.deliveries(rel, self._link_rng, self._jitter[i][0]):
                     if delay == 0:
                         self._deliver(i, data, addr, now)
                     else:
@@ -480,7 +482,7 @@ class SimFleet:
     def _queue(self, i: int, data: bytes, now: float) -> None:
         """Send one datagram of vehicle ``i`` through its link faults."""
         rel = now - self.boot_time
-        for delay in self._links[i].deliveries(rel, self._link_rng):
+        for delay in self._links[i].deliveries(rel, self._link_rng, self._jitter[i][1]):
             if delay == 0:
                 self._sendto(i, data)
             else:
