@@ -1,0 +1,112 @@
+"""The operator's commands (hold, resume, land-all, land-one, land-here, kill):
+each returns actions, and bad input comes back as a Notice, never an exception."""
+
+from __future__ import annotations
+
+from groundctl.execute.leaving import leave_time
+from groundctl.execute.sequence.leaves import WaysOut
+from groundctl.execute.sequence.types import _DONE, Action, Kill, Land, Notice, VehiclePhase
+
+
+class OperatorCommands(WaysOut):
+    """The operator's commands (a layer of :class:`ShowSequence`)."""
+
+    # -- operator --------------------------------------------------------------------
+    def hold(self, now: float) -> list[Action]:
+        """Brake the show to a stop: every drone decelerates along its own trajectory and
+        hovers on it (the plan keeps them apart at every instant)."""
+        if "operator" in self.holds:
+            return [Notice(None, "already holding")]
+        if self.started_at is None:
+            self._pre_start_hold = True
+            return [Notice(None, "holding: the show clock will not start until resume")]
+        self.hold_for("operator", now)
+        return [Notice(None, f"holding: braking along the plan, stopped at show time "
+                             f"{min(self.clock.stop_time(now), self.plan.duration):.1f} s")]
+
+    def resume(self, now: float) -> list[Action]:
+        """Run the show clock again (ramping up) from where it was held."""
+        if self._pre_start_hold:
+            self._pre_start_hold = False
+            return [Notice(None, "resumed: the show starts once the fleet is ready")]
+        if "operator" not in self.holds:
+            return [Notice(None, "not holding: nothing to resume")]
+        self.release("operator", now)
+        others = sorted(self.holds)
+        if others:
+            return [Notice(None, f"operator hold released; still holding for {', '.join(others)}")]
+        return [Notice(None, f"resuming at show time {self.show_time(now):.1f} s")]
+
+    def land_all(self, now: float) -> list[Action]:
+        """Every vehicle back to its landing slot and down; the show is over."""
+        if self._columns:
+            return [Notice(None, "already landing every vehicle, one column at a time")]
+        if self._stopped_at is None:
+            interrupted = self.started_at is not None and not self._ended \
+                and self.clock.show_time(now) < self.plan.duration
+            self._pre_start_hold = False
+            self.release("operator", now)
+            self.hold_for("land-all", now)
+            self._stopped_at = min(self.clock.stop_time(now), self.plan.duration)
+            # Interrupted mid-show: the way home needs planning (see return_needed).
+            self._return_wanted = self._return_wanted or interrupted
+        self._ended = True
+        actions: list[Action] = [Notice(None, "landing all vehicles")]
+        for v in self.vehicles.values():
+            actions += self._land(v, now)
+        return actions
+
+    def land_one(self, sysid: int, now: float) -> list[Action]:
+        """Vehicle ``sysid`` back to its landing slot and down; the others go on.
+
+        Mid-show it first flies on to the next instant it rests on a formation and
+        leaves from there on a way out planned around the others (see
+        :attr:`leave_needed`); a straight line home would cut through the show.
+        """
+        v = self.vehicles.get(sysid)
+        if v is None:
+            return [Notice(None, f"no vehicle {sysid} in this show")]
+        if self._columns:
+            return [Notice(sysid, f"every vehicle lands straight down, one column at a time; "
+                                  f"land-here {sysid} brings it down now")]
+        if self.streamed_as(v) is VehiclePhase.SHOW and not self._ended:
+            if v.leave_at is not None:
+                return [Notice(sysid, f"vehicle {sysid} already leaves the show at show time "
+                                      f"{v.leave_at:.1f} s")]
+            at = leave_time(self.plan, v.track, self.show_time(now))
+            if at is None:
+                return [Notice(sysid, f"vehicle {sysid}: no formation left to leave the show "
+                                      "from; it lands with the others at the end (land-here "
+                                      f"{sysid} brings it straight down now)")]
+            v.leave_at = at
+            return [Notice(sysid, f"vehicle {sysid} leaves the show at show time {at:.1f} s, "
+                                  "on a way out planned around the others")]
+        return [Notice(sysid, f"landing vehicle {sysid}"), *self._land(v, now)]
+
+    def land_here(self, sysid: int, now: float) -> list[Action]:
+        """Vehicle ``sysid`` straight down where it is (not over its slot); the others go on.
+
+        For a drone that misbehaves: it stops following the plan at once, so
+        the operator must know the column below it is clear.
+        """
+        v = self.vehicles.get(sysid)
+        if v is None:
+            return [Notice(None, f"no vehicle {sysid} in this show")]
+        if v.phase in _DONE or v.phase is VehiclePhase.LANDING:
+            return [Notice(sysid, f"vehicle {sysid} is already {v.phase}")]
+        if v.phase in (VehiclePhase.PREFLIGHT, VehiclePhase.ARMING):
+            return [Notice(sysid, f"landing vehicle {sysid} here"), *self._land(v, now)]
+        v.phase = VehiclePhase.LANDING
+        return [Notice(sysid, f"landing vehicle {sysid} where it is"),
+                self._send(v, Land(sysid), now)]
+
+    def kill(self, sysid: int, now: float, confirm: bool = False) -> list[Action]:
+        """Stop ``sysid``'s motors in flight; needs ``confirm`` because the drone falls."""
+        v = self.vehicles.get(sysid)
+        if v is None:
+            return [Notice(None, f"no vehicle {sysid} in this show")]
+        if not confirm:
+            return [Notice(sysid, f"kill vehicle {sysid} not sent: it stops the motors and "
+                                  "the drone falls; confirm to kill")]
+        v.phase, v.pending = VehiclePhase.KILLED, None
+        return [Kill(sysid), Notice(sysid, f"vehicle {sysid} killed by the operator")]

@@ -1,0 +1,200 @@
+"""A vehicle lost, heard again, off its plan or given up: stranded off its plan it
+holds and leaves on a way out (too many at once land the fleet), and a drone given up
+on its slot may abort the show."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from groundctl.execute.preflight import remaining_plan_conflicts
+from groundctl.execute.sequence.commands import OperatorCommands
+from groundctl.execute.sequence.types import (
+    _DONE,
+    _FLIGHT_MODE,
+    _HOLD_MODE,
+    _LAND_MODES,
+    _STREAMED,
+    AIRBORNE_M,
+    OFF_PLAN_WINDOW_S,
+    STRANDED_LAND_ALL,
+    Action,
+    Land,
+    Notice,
+    VehiclePhase,
+    VehicleRun,
+)
+from groundctl.link.state import VehicleState
+
+
+class OffPlan(OperatorCommands):
+    """Lost, off-plan, stranded and given-up vehicles (a layer of :class:`ShowSequence`)."""
+
+    def _lose(self, v: VehicleRun, now: float, state: VehicleState | None) -> list[Action]:
+        silent = "never heard" if state is None else f"silent for {state.silent_for(now):.1f} s"
+        was = v.phase
+        v.phase, v.pending, v.reason = VehiclePhase.LOST, None, f"link lost ({silent})"
+        v.lost_from, v.retaking = was, None
+        still = ("still streamed its plan in case it hears us, otherwise its failsafe is in "
+                 "charge" if was in _STREAMED else "its failsafe is in charge")
+        actions: list[Action] = [
+            Notice(v.sysid, f"vehicle {v.sysid} lost during {was} ({silent}); {still}; "
+                            "the show goes on", "lost", f"lost during {was}; {still}")]
+        if was is VehiclePhase.ARMING:
+            actions += self._left_on_slot(v, now)
+        return actions
+
+    def _rejoin(self, v: VehicleRun, now: float, state: VehicleState) -> list[Action]:
+        assert v.lost_from is not None
+        v.gap_seen, v.gap_at = state.stream_gaps, now  # this silence is handled here
+        if v.lost_from in (VehiclePhase.ARMING, VehiclePhase.TAKEOFF):
+            # Lost before the show and counted as standing on its slot meanwhile: it
+            # does not join a show planned without it; it stands down.
+            v.phase, v.lost_from = v.lost_from, None
+            return [Notice(v.sysid, f"vehicle {v.sysid} heard again before the show: "
+                                    "standing it down", "heard_again", "heard again: "
+                                    "standing down"), *self._land(v, now)]
+        off = self._off_plan(v, now)
+        if off is not None and v.lost_from is VehiclePhase.SHOW:
+            v.lost_from = None
+            return self._strand(v, off, now, "heard again")
+        v.phase, v.lost_from, v.reason = v.lost_from, None, None
+        if v.phase is VehiclePhase.READY and self.started_at is not None:
+            v.phase = VehiclePhase.SHOW if not self._ended else VehiclePhase.RETURNING
+        if v.phase is VehiclePhase.LANDING:
+            return self._rejoin_landing(v, state, now)
+        return [Notice(v.sysid, f"vehicle {v.sysid} heard again: back in the sequence "
+                                f"({v.phase})", "heard_again", f"heard again ({v.phase})")]
+
+    def _rejoin_landing(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
+        """Heard again after being lost while landing: what it does now decides what is
+        still needed.  Disarmed: down (the next update counts it landed).  In its land
+        mode: descending.  Still in our flight mode (or PX4's Hold, where losing its
+        setpoints put it): the LAND was lost in the silence, so send it again.  Any other
+        mode: its failsafe or a pilot has it, and we do not fight them."""
+        if not state.armed:
+            doing = "down and disarmed"
+        elif state.mode in _LAND_MODES:
+            doing = "landing"
+        elif state.mode in (_FLIGHT_MODE[v.flavour], _HOLD_MODE[v.flavour]):
+            return [Notice(v.sysid, f"vehicle {v.sysid} heard again still in {state.mode}: "
+                                    "its LAND was lost, sending it again", "heard_again",
+                           f"heard again in {state.mode}: LAND re-sent"),
+                    self._send(v, Land(v.sysid), now)]
+        else:
+            doing = f"in {state.mode} (its failsafe or a pilot)"
+        return [Notice(v.sysid, f"vehicle {v.sysid} heard again: {doing}", "heard_again",
+                       f"heard again: {doing}")]
+
+    def _off_plan(self, v: VehicleRun, now: float
+                  ) -> tuple[float, tuple[float, float, float]] | None:
+        """(distance, position) if a vehicle is mid-show farther than
+        ``rejoin_tolerance_m`` from its plan over the last ``OFF_PLAN_WINDOW_S`` (so a
+        late telemetry sample or a lagging autopilot does not count); None otherwise."""
+        pos = self._positions.get(v.sysid)
+        if self.started_at is None or self._ended or pos is None:
+            return None
+        t = self.show_time(now)
+        recent = np.linspace(max(t - OFF_PLAN_WINDOW_S, 0.0), t, 6)
+        path = self.plan.trajectories.evaluate(recent, np.array([v.track]))[0][0]
+        distance = float(np.linalg.norm(path - pos, axis=1).min())
+        if distance <= self.config.rejoin_tolerance_m:
+            return None
+        return distance, (float(pos[0]), float(pos[1]), float(pos[2]))
+
+    def _strand(self, v: VehicleRun, off: tuple[float, tuple[float, float, float]],
+                now: float, how: str) -> list[Action]:
+        """Off its plan mid-show (its autopilot held the last setpoint through a link drop,
+        say): snapping back would be a dash across the formation.  Hold where it is,
+        then leave the show on a way out planned from there."""
+        distance, here = off
+        v.phase, v.reason = VehiclePhase.LEAVING, f"{how} {distance:.1f} m off its plan"
+        v.hold_point, v.leave = self._held_apart({v.sysid: here}, now)[v.sysid], None
+        v.leave_at = self._hold_leave_time(v, now)
+        if v.leave_at is None:
+            return [Notice(v.sysid, f"vehicle {v.sysid} {how} {distance:.1f} m off its plan: "
+                                    "holding where it is until the show ends, then to its "
+                                    "landing spot", "stranded", "off its plan: holding "
+                                    "where it is until the show ends")]
+        return [Notice(v.sysid, f"vehicle {v.sysid} {how} {distance:.1f} m off its plan: "
+                                "holding where it is, then leaving the show on a way out "
+                                "planned from there", "stranded", "off its plan: holding, "
+                                "then leaving on a way out")]
+
+    def _armed_again(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
+        """Given up as disarmed in the air, but its own telemetry says it is armed, in the
+        air, in the flight mode: the disarm it was given up for was not real (believed
+        from reports the link could not check).  Left alone it would hover where it was
+        with nobody in charge while the show flies past: it holds there and leaves on a
+        way out, as a vehicle heard again off its plan does; after the show, it lands."""
+        altitude = self._altitude(state)
+        if not state.armed or state.lost or altitude is None or altitude <= AIRBORNE_M \
+                or state.mode != _FLIGHT_MODE[v.flavour]:
+            return []
+        v.fell, v.reason = False, None
+        pos = self._positions.get(v.sysid)
+        if self._ended or self.started_at is None or pos is None:
+            v.phase = VehiclePhase.LANDING
+            return [Notice(v.sysid, f"vehicle {v.sysid} is armed in the air after all: "
+                                    "landing it where it is"), self._send(v, Land(v.sysid), now)]
+        off = self._off_plan(v, now)
+        if off is None:
+            v.phase = VehiclePhase.SHOW
+            return [Notice(v.sysid, f"vehicle {v.sysid} is armed in the air after all, on its "
+                                    "plan: back in the show")]
+        return self._strand(v, off, now, "armed in the air after all,")
+
+    def _land_all_if_stranded(self, now: float) -> list[Action]:
+        """Land the whole fleet when STRANDED_LAND_ALL or more hold off their plans."""
+        if self._ended:
+            return []
+        stranded = sorted(v.sysid for v in self.vehicles.values()
+                          if v.hold_point is not None
+                          and self.streamed_as(v) is VehiclePhase.LEAVING)
+        if len(stranded) < STRANDED_LAND_ALL:
+            return []
+        names = ", ".join(str(s) for s in stranded)
+        return [Notice(None, f"vehicles {names} are off their plans at once: landing the whole "
+                             "fleet on one collision-free return planned from where each "
+                             "hovers", "stranded_land_all"), *self.land_all(now)]
+
+    def take_out(self, sysid: int, now: float, distance: float,
+                 why: str = "taken out of the show") -> list[Action]:
+        """Take a vehicle off its path out of the show from where it is (the guard's
+        response): it holds there and leaves on a way out planned from there, or lands
+        there if there is none."""
+        v = self.vehicles.get(sysid)
+        pos = self._positions.get(sysid)
+        if v is None or v.phase is not VehiclePhase.SHOW or pos is None or self._ended:
+            return []
+        here = (float(pos[0]), float(pos[1]), float(pos[2]))
+        return self._strand(v, (distance, here), now, why)
+
+    def _give_up(self, v: VehicleRun, why: str, now: float) -> list[Action]:
+        was, v.reason, v.pending = v.phase, why, None
+        v.phase = VehiclePhase.FAILED
+        if was is VehiclePhase.LANDING:
+            return [Notice(v.sysid, f"vehicle {v.sysid}: {why}; land it by hand")]
+        actions: list[Action] = [Notice(v.sysid, f"vehicle {v.sysid}: {why}")]
+        if was is not VehiclePhase.ARMING:
+            # In the air (or may be): bring it down where it is, straight below.
+            v.phase = VehiclePhase.LANDING
+            actions.append(self._send(v, Land(v.sysid), now))
+            if was is VehiclePhase.TAKEOFF:
+                # Straight below is its own takeoff spot, which may be where another
+                # drone lands: the same obstacle as a drone that never took off.
+                actions += self._left_on_slot(v, now)
+            return actions
+        v.never_flew = True
+        return actions + self._left_on_slot(v, now)
+
+    def _left_on_slot(self, v: VehicleRun, now: float) -> list[Action]:
+        # A drone that never took off stands on its slot: an obstacle for its
+        # neighbours' takeoff and landing.  If it is in their way, stop the show.
+        self.grounded_tracks.add(v.track)
+        flying = {u.track for u in self.vehicles.values() if u.phase not in _DONE}
+        conflicts = [c for c in remaining_plan_conflicts(self.plan, self.grounded_tracks)
+                     if c.track in flying]
+        if not conflicts or self._ended:
+            return []
+        self.aborted = f"vehicle {v.sysid} stays on its slot and {conflicts[0]}"
+        return [Notice(None, f"aborting the show: {conflicts[0]}"), *self.land_all(now)]
