@@ -125,7 +125,7 @@ def pattern_half_width(eps: float) -> float:
     is room for the linearisation).  A box of half-width eps/2 let the end point sit
     in a corner, eps/2 sqrt(2) = 0.071 m off for eps 0.1, and the cost does push it
     there: the constant-speed drones save turning by arriving short or wide (paper
-    star and transitions: 0.068-0.072 m, the README's old figures).  An octagon
+    star and transitions: 0.068-0.072 m, docs/benchmarks.md's old figures).  An octagon
     (two more rows per drone, sides at cos(pi/8) eps/2) gives more room but cost
     more ADMM iterations per solve (paper circle 0.062 -> 0.103 s); the inscribed
     box did not (`benchmarks/bench_plan.py`).  The corners sit AIM_MARGIN inside

@@ -30,7 +30,7 @@ optional)::
                 gcs_timeout, offboard_loss, rtl_alt, land_speed, set = true,
                 params = { NAME = value, ardupilot = {...}, px4 = {...} }
 
-Every number has a range (:mod:`groundctl.show.ranges`, the README's "Ranges"),
+Every number has a range (:mod:`groundctl.show.ranges`, docs/show-files.md's "Ranges"),
 checked before a shape is generated or a matrix allocated; point files must be
 regular files of bounded size under the show file's directory (or a directory
 the operator allows with ``--points-dir``).

@@ -3,14 +3,14 @@
 A show file is operator input and a plan file may come from anywhere: a
 number out of these ranges is refused by the loader with one line naming the
 file, the place, the rule and the value (``ShowFileError``), before a shape
-is generated, a matrix allocated or a planner started.  The README's
-"Ranges" section lists them; the loader and the plan-file reader both read
+is generated, a matrix allocated or a planner started.  The manual's
+"Ranges" (docs/show-files.md) lists them; the loader and the plan-file reader both read
 them from here.
 
 Why these bounds:
 
-* ``MAX_DRONES`` 10,000: the largest fleet the planner is measured at (README,
-  10,000 drones grid -> sphere planned and verified in 37 s).  One MAVLink network
+* ``MAX_DRONES`` 10,000: the largest fleet the planner is measured at
+  (10,000 drones grid -> sphere planned and verified in 37 s).  One MAVLink network
   addresses 254 vehicles, so the dry-run and a flight take at most that many; larger
   shows are planned (and split over ground stations) only.
 * ``MAX_SLOTS`` 10,000 points per formation, and ``MAX_ASSIGN_CELLS`` 5,000,000: a
@@ -26,7 +26,7 @@ Why these bounds:
 * ``MIN_SEPARATION`` 0.5 m: the least ``min_separation`` physical drones can keep.
   Show quadcopters are 0.25-0.3 m across (two half-spans: 0.3 m), and they fly
   0.1 m off their paths each even in calm air (0.085 m the largest error measured
-  on nine ArduCopter SITL vehicles, README): below 0.5 m a plan "keeps the
+  on nine ArduCopter SITL vehicles): below 0.5 m a plan "keeps the
   separation" while the propellers touch.  A show planned at 1e-6 m was planned
   SAFE and flown 0.002 m apart before this floor.
 """
