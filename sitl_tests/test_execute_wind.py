@@ -55,12 +55,29 @@ def test_a_wind_that_stays_lands_the_fleet_once_and_is_then_no_longer_watched() 
     assert _ticks(watch, 40.0, 80.0, [15.0]) == []
 
 
+def test_no_estimate_is_no_sign_of_calm_and_a_wind_about_the_limit_ends_in_a_landing() -> None:
+    watch = WindWatch(10.0)
+    assert _ticks(watch, 0.0, 3.0, [12.0]) == [(2.0, WindVerdict.HOLD)]
+    # The estimates stop (a stream lost): the hold stays until the landing.
+    assert _ticks(watch, 3.0, 33.0, []) == [(32.0, WindVerdict.LAND)]
+    # Gusting about the limit: each hold clears, but 90 s held in all lands the fleet.
+    gusty = WindWatch(10.0, WindConfig(clear_for_s=2.0))
+    verdicts = []
+    for k in range(40):
+        verdicts += _ticks(gusty, 10.0 * k, 10.0 * k + 5.0, [11.0])
+        verdicts += _ticks(gusty, 10.0 * k + 5.0, 10.0 * k + 10.0, [5.0])
+    kinds = [v for _, v in verdicts]
+    assert kinds[-1] is WindVerdict.LAND and kinds.count(WindVerdict.LAND) == 1
+    assert gusty.held_s >= 90.0 and gusty.holds > 10
+
+
 def test_before_the_start_any_moment_above_holds_and_no_limit_watches_nothing() -> None:
     assert _ticks(WindWatch(10.0), 0.0, 1.0, [10.5], started=False) \
         == [(0.0, WindVerdict.HOLD)]
     unwatched = WindWatch(None)
     assert _ticks(unwatched, 0.0, 60.0, [30.0]) == []
     assert unwatched.strongest == 30.0  # still reported
+    assert WindWatch(10.0).strongest is None  # nothing reported is not calm
 
 
 def test_the_guard_holds_for_the_wind_says_why_and_lands_if_it_stays() -> None:
@@ -77,6 +94,7 @@ def test_the_guard_holds_for_the_wind_says_why_and_lands_if_it_stays() -> None:
         out += guard.tick(replace(BASE, now=float(t), wind_mps=(11.0, 14.0)))
     (land,) = out
     assert isinstance(land, LandAll) and "up to 14.0 m/s" in land.text
+    assert land.text.startswith("the wind has not cleared (at most 9 m/s for 10 s) in 30 s")
     assert guard.landed_all and "wind" not in guard.active
 
 
@@ -85,6 +103,7 @@ def test_the_guard_releases_its_wind_hold_when_no_drone_is_in_the_air_for_the_sh
     assert isinstance(guard.tick(replace(BASE, in_show=False, wind_mps=(11.0,)))[0], Hold)
     (release,) = guard.tick(replace(BASE, now=0.1, in_show=False, show_airborne=False))
     assert isinstance(release, Release) and release.reason == "wind"
+    assert release.text == "wind hold dropped: no drone is in the air for the show"
 
 
 def test_points_pushed_together_are_held_the_limit_apart_sideways() -> None:

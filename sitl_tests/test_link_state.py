@@ -125,11 +125,11 @@ def test_telemetry_fields() -> None:
 def test_each_autopilots_wind_estimate_is_read_as_the_airs_velocity() -> None:
     v = Vehicle()
     s = VehicleState(3)
-    # ArduPilot's WIND: from the west-south-west (240 deg) at 10 m/s: the air moves to
-    # the east-north-east.
-    apply(s, v(v.mav.wind_encode(240.0, 10.0, 0.5)), 1.0)
-    assert s.wind_ned == pytest.approx((5.0, 8.660254, 0.5), abs=1e-5)
-    assert s.wind_speed(2.0, 5.0) == pytest.approx(10.0, rel=1e-5)
+    # ArduPilot's WIND: from the west-south-west (240 deg), 10 m/s the whole vector's
+    # length with 6 m/s of it vertical: the air moves 8 m/s to the east-north-east.
+    apply(s, v(v.mav.wind_encode(240.0, 10.0, 6.0)), 1.0)
+    assert s.wind_ned == pytest.approx((4.0, 6.928203, 6.0), abs=1e-5)
+    assert s.wind_speed(2.0, 5.0) == pytest.approx(8.0, rel=1e-5)
     assert s.wind_speed(7.0, 5.0) is None  # stale
     # PX4's WIND_COV: the vector itself; NaN (no estimate yet) leaves it as it was.
     apply(s, v(v.mav.wind_cov_encode(0, 3.0, -4.0, 0.0, 0.1, 0.1, 10.0, 0.5, 0.5)), 3.0)

@@ -255,13 +255,18 @@ class FlightGuard:
             return self._hold("wind", f, f"the vehicles estimate {wind:.1f} m/s of wind, "
                                          f"above the show's limit of {limit:g} m/s: {what}")
         if verdict is WindVerdict.RELEASE:
-            return [self._release("wind", f"the wind is down to {wind:.1f} m/s: "
-                                          "resuming the show")]
+            if watch.released_why == "grounded":
+                return [self._release("wind", "wind hold dropped: no drone is in the air "
+                                              "for the show")]
+            what = "resuming the show" if f.in_show else "the show may start"
+            return [self._release("wind", f"the wind is down to {wind:.1f} m/s: {what}")]
         if verdict is WindVerdict.LAND:
             self._land_all()
-            return [LandAll(f"the wind has not dropped below the show's limit of {limit:g} m/s "
-                            f"in {self.config.wind.land_after_s:.0f} s (up to "
-                            f"{watch.hold_peak:.1f} m/s, now {wind:.1f}): landing every "
+            cfg = self.config.wind
+            return [LandAll(f"the wind has not cleared (at most "
+                            f"{cfg.clear_fraction * limit:g} m/s for {cfg.clear_for_s:.0f} s) "
+                            f"in {watch.held_s:.0f} s of holding for it (limit {limit:g} m/s; "
+                            f"up to {watch.hold_peak:.1f} m/s, now {wind:.1f}): landing every "
                             "vehicle")]
         return []
 

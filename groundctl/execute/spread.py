@@ -7,7 +7,9 @@ separation limit: the wind blew two drones together, and holding each where it i
 keep them there (measured: 12 m/s gusting 4, two hold points 0.66 m apart with a 1.5 m
 limit).  :func:`spread_apart` moves the points that may move the least it can, sideways
 only (a drone above or below another keeps its height: the columns of the last resort
-are vertical), until every pair is at least the limit apart horizontally or vertically.
+are vertical), until every pair is at least the limit apart (in 3D).  Averaged pushes
+can cancel in a symmetric crowd; what is still too close after :data:`MAX_PASSES` is
+left as it is.
 """
 
 from __future__ import annotations

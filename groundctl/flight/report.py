@@ -114,9 +114,10 @@ def flight_report(runner: ShowRunner, error: str | None = None,
         why = f"separation {min_sep:.2f} m between vehicles {pair} (limit {limit:.2f} m)"
         if commanded is not None and commanded >= limit:
             wind = mon.separation.wind_m_s if mon is not None else None
+            strong = runner.guard.wind.limit is not None and wind is not None \
+                and wind >= 0.5 * runner.guard.wind.limit
             cause = (f"the wind: the vehicles estimated {wind:.1f} m/s then, or a gust, a "
-                     "weak vehicle" if wind is not None and wind > 0
-                     else "wind, a gust, a weak vehicle")
+                     "weak vehicle" if strong else "wind, a gust, a weak vehicle")
             why += (f" while their paths kept them {commanded:.2f} m apart: pushed together "
                     f"({cause}), not flown there")
         reasons.append(why)
@@ -164,7 +165,8 @@ def flight_report(runner: ShowRunner, error: str | None = None,
         },
         "link": {k: int(v) for k, v in vars(stats).items()},
         "wind": {"limit_m_s": runner.guard.wind.limit,
-                 "strongest_estimated_m_s": _r(runner.guard.wind.strongest),
+                 "strongest_estimated_m_s": _r(runner.guard.wind.strongest)
+                 if runner.guard.wind.strongest is not None else None,
                  "holds": runner.guard.wind.holds,
                  "landed_for_wind": runner.guard.wind.landed},
         "mpc": runner.replanner.report() if runner.replanner is not None

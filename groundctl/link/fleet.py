@@ -699,8 +699,8 @@ class FleetLink:
         self, sysid: int, rates: Mapping[int, float] | None = None, **kw: Any
     ) -> None:
         """Ask for every stream in ``rates`` (message id -> Hz; default :data:`DEFAULT_STREAMS`
-        and the flavour's wind estimate, :data:`WIND_MESSAGE`, which is tried once: a
-        vehicle that refuses it flies, its wind unknown)."""
+        and the flavour's wind estimate, :data:`WIND_MESSAGE`: a vehicle that refuses it
+        (or never answers) flies, its wind unknown, said in the log)."""
         for msg_id, hz in (DEFAULT_STREAMS if rates is None else rates).items():
             await self.set_message_interval(sysid, msg_id, hz, **kw)
         state = self.vehicles.get(sysid)
@@ -708,7 +708,7 @@ class FleetLink:
         wind = WIND_MESSAGE.get(flavour) if rates is None and flavour is not None else None
         if wind is not None:
             try:
-                await self.set_message_interval(sysid, wind, 1.0, **{**kw, "retries": 0})
+                await self.set_message_interval(sysid, wind, 1.0, **kw)
             except LinkError as exc:
                 log.info("vehicle %s does not stream its wind estimate: %s", sysid, exc)
 

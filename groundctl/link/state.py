@@ -819,12 +819,14 @@ def _vfr_hud(state: VehicleState, msg: Any, now: float, changes: list[StateChang
 
 
 def _wind(state: VehicleState, msg: Any, now: float, changes: list[StateChange]) -> None:
-    # ArduPilot's WIND: the direction the wind comes *from* (degrees) and its speed.
+    # ArduPilot's WIND: the direction the wind comes *from* (degrees), the whole
+    # vector's length (GCS_MAVLINK::send_wind: wind.length()) and its vertical part.
     speed, direction = float(msg.speed), math.radians(float(msg.direction))
     down = float(msg.speed_z)
+    down = down if math.isfinite(down) else 0.0
     if math.isfinite(speed) and math.isfinite(direction) and 0.0 <= speed < MAX_WIND_MPS:
-        state.wind_ned = (-speed * math.cos(direction), -speed * math.sin(direction),
-                          down if math.isfinite(down) else 0.0)
+        flat = math.sqrt(max(speed * speed - down * down, 0.0))
+        state.wind_ned = (-flat * math.cos(direction), -flat * math.sin(direction), down)
         state.wind_at = now
 
 

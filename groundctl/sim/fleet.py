@@ -436,11 +436,12 @@ class SimFleet:
         self._flush_outbox(now)
 
     def _receive(self, now: float) -> None:
-        rel = now - self.boot_time
         # A datagram's latency runs from when it really arrived: when the physics
         # lags the clock (a loaded machine), stamping it with the physics time
-        # would shorten the latency by the lag.
+        # would shorten the latency by the lag (and the link's queue, first in first
+        # out, is kept in the same time as the delivery is scheduled in).
         arrived = max(now, self.clock.now())
+        rel = arrived - self.boot_time
         for key, _ in self._selector.select(0):
             i: int = key.data
             sock = self._sockets[i]

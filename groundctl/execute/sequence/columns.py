@@ -15,6 +15,7 @@ from groundctl.execute.sequence.types import (
     COLUMN_MARGIN_M,
     COLUMN_WAIT_S,
     GROUND_CLEARANCE_M,
+    HOLD_APART_MARGIN_M,
     HOLD_APART_MAX_M,
     Action,
     Land,
@@ -82,7 +83,7 @@ class Columns(Returns):
             if pos is None or pos[2] <= AIRBORNE_M:
                 continue
             if u.hold_point is not None:
-                others.append(u.hold_point)
+                others += [u.hold_point, tuple(pos)]  # where it holds, and where it is
                 continue
             # Where it is, and where it will hover once the braking clock stops.
             others += [tuple(pos), tuple(self.return_start(u.sysid, now))]
@@ -92,7 +93,10 @@ class Columns(Returns):
         pts = np.array([points[s] for s in ids] + others, dtype=float).reshape(-1, 3)
         movable = np.arange(len(pts)) < len(ids)
         limit = self.plan.limits.min_separation
-        spread = spread_apart(pts, movable, limit, HOLD_APART_MAX_M * limit)
+        # To the limit plus the guard's margin: a pair held at the limit itself reads
+        # below it with a little position noise.
+        spread = spread_apart(pts, movable, limit + HOLD_APART_MARGIN_M,
+                              HOLD_APART_MAX_M * limit)
         return {s: (float(p[0]), float(p[1]), float(p[2]))
                 for s, p in zip(ids, spread[:len(ids)], strict=True)}
 

@@ -28,6 +28,10 @@ class OperatorCommands(WaysOut):
         """Run the show clock again (ramping up) from where it was held."""
         if self._pre_start_hold:
             self._pre_start_hold = False
+            others = sorted(self.holds)
+            if others:
+                return [Notice(None, "operator hold released; the show starts once the "
+                                     f"fleet is ready and no longer held for {', '.join(others)}")]
             return [Notice(None, "resumed: the show starts once the fleet is ready")]
         if "operator" not in self.holds:
             return [Notice(None, "not holding: nothing to resume")]

@@ -123,6 +123,8 @@ class ShowPhase(enum.StrEnum):
 AIRBORNE_M = 0.5
 #: A hold point is moved at most this many separation limits to clear the others.
 HOLD_APART_MAX_M = 2.0
+#: Hold points are held apart by the separation limit plus this, m (the guard's margin).
+HOLD_APART_MARGIN_M = 0.1
 #: Risen this far since its takeoff was sent, a vehicle is climbing (whatever its height
 #: above home), m: well above an EKF's altitude noise on the ground.
 CLIMB_SEEN_M = 0.2
