@@ -1,0 +1,191 @@
+"""Planning in worker processes: the workers started early, the returns and
+ways out the sequence asks for planned as tasks and handed back to it."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+from numpy.typing import NDArray
+
+from groundctl.errors import FlightError, GroundctlError, PlanningTimeout
+from groundctl.execute.frames import show_positions
+from groundctl.execute.paths import PathKind
+from groundctl.execute.sequence import ShowSequence, VehiclePhase
+from groundctl.flight.replanning import Replanner
+from groundctl.flight.returning import assign_landing, column
+from groundctl.flight.runner.commands import Commands
+from groundctl.flight.workers import PlannerPool
+
+
+class Planning(Commands):
+    """Planning in workers (a layer of :class:`ShowRunner`)."""
+
+    # -- planning in worker processes ---------------------------------------------------
+    def _start_workers(self) -> None:
+        """Start the planning (and MPC) workers loading numpy, scipy, OSQP and the plan
+        in their own processes, while the link comes up and pre-flight runs."""
+        if self.plan.model != "quadrotor" or self._finished:
+            return
+        if self._pool is None:
+            self._pool = PlannerPool(self.plan)
+            self._pool.start()
+        cfg = self.config
+        mpc_on = self.plan.mpc.enabled if cfg.mpc is None else cfg.mpc
+        if mpc_on and self.replanner is None:
+            self.replanner = Replanner(self.plan, self.plan.mpc, cfg.rate_hz,
+                                       cfg.mpc_deadline_s, self.clock)
+            self.replanner.start()
+
+    async def _planner_ready(self) -> None:
+        """Wait, before arming, until the planning worker can answer at once: a way out
+        (land-one) or a way home asked for early in the show has only seconds to be
+        planned, and a worker still importing numpy (nice, on a busy machine) spent them
+        all (a land-one 7 s ahead missed its formation and landed after the show)."""
+        if self._pool is None:
+            return
+        started = self.clock.now()
+        try:
+            await self._pool.warm_up()
+        except PlanningTimeout as exc:
+            raise FlightError(f"the planning worker did not start: {exc}; nothing "
+                              "armed") from None
+        waited = self.clock.now() - started
+        if waited >= 1.0:
+            self._say(f"waited {waited:.1f} s for the planning worker to load before arming",
+                      "planner_wait", wait_s=round(waited, 2))
+
+    def _start_planning(self, seq: ShowSequence) -> None:
+        if seq.return_needed is not None and self._return_task is None:
+            self._return_task = asyncio.create_task(self._plan_return(seq))
+            self._own(self._return_task)
+        # One way out at a time: each is planned around the ways out already set, so
+        # several planned at once would each take the others for drones that stay
+        # where they are (a link cut stranded all nine of a PX4 fleet at once under
+        # load, and their nine ways out, planned side by side, crossed at 0.58 m).
+        needed = seq.leave_needed
+        if needed and not self._leave_tasks:
+            sysid, track, at, start = needed[0]
+            self._leave_tasks[sysid] = task = asyncio.create_task(
+                self._plan_leave(seq, sysid, track, at, start))
+            self._own(task)
+
+    def _own(self, task: asyncio.Task[None]) -> None:
+        # Cancelled with the rest on the way out (see _drain).
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    def _planner(self) -> PlannerPool:
+        if self._finished:
+            raise FlightError("the flight is over: nothing more is planned")
+        if self._pool is None:
+            self._pool = PlannerPool(self.plan)
+            self._pool.start()
+        return self._pool
+
+    async def _plan_return(self, seq: ShowSequence) -> None:
+        cfg = self.config
+        try:
+            for attempt in range(1, cfg.planning_attempts + 1):
+                needed = seq.return_needed
+                if not needed:
+                    return
+                sysids = [s for s, _ in needed]
+                tracks = [t for _, t in needed]
+                now = self.clock.now()
+                start = np.array([seq.return_start(s, now) for s in sysids])
+                down = np.array(seq.down_positions()).reshape(-1, 3)
+                # Drones descending on their own spots are no spot thieves, but their
+                # columns are in the way of a path that crosses them.
+                descending = [p for p in seq.landing_positions() if len(down) == 0
+                              or np.min(np.linalg.norm(down - p, axis=1)) > 0.01]
+                reserved = np.array(seq.reserved_spots(sysids)).reshape(-1, 3)
+                try:
+                    goals = assign_landing(self.plan, tracks, start, down, reserved)
+                    obstacles = list(down) + descending
+                    static = np.concatenate([column(p) for p in obstacles]) if obstacles \
+                        else None
+                    authority, weakest = (1.0, None) if self.replanner is None \
+                        else self.replanner.weakest(sysids)
+                    self._say(f"planning a collision-free return for {len(sysids)} "
+                              "vehicle(s); they brake along their paths and hover meanwhile"
+                              + (f" ({len(down)} drone(s) down kept clear)" if len(down)
+                                 else "")
+                              + (f" (within {authority:.0%} of the limits: vehicle "
+                                 f"{weakest} is weak)" if weakest is not None else ""),
+                              "return_planning", attempt=attempt,
+                              authority=round(authority, 2))
+                    traj = await self._planner().plan_return(
+                        tracks, start, cfg.return_deadline_s, static, goals=goals,
+                        authority=authority)
+                except PlanningTimeout as exc:
+                    self._say(f"return planning attempt {attempt}: {exc}", "return_late")
+                    continue
+                except GroundctlError as exc:
+                    self._perform(seq.return_failed(str(exc), self.clock.now()))
+                    return
+                self._perform(seq.set_return(traj, sysids, self.clock.now(), goals))
+                return
+            self._perform(seq.return_failed(f"no plan within {cfg.planning_attempts} attempts "
+                                            f"of {cfg.return_deadline_s:.0f} s",
+                                            self.clock.now()))
+        finally:
+            self._return_task = None
+
+    async def _plan_leave(self, seq: ShowSequence, sysid: int, track: int, at: float,
+                          start: tuple[float, float, float] | None) -> None:
+        """Plan ``sysid``'s way out of the show (land-one mid-show, or heard again off its
+        plan: from ``start``) around everyone else, in a worker, before its instant."""
+        try:
+            absent, static = self._not_on_plan(seq, sysid)
+            now = self.clock.now()
+            # It must be ready before its instant comes on the show clock (which stands
+            # still while the show holds: then the planner has all the time it needs).
+            ahead = max(at - seq.show_time(now), 0.0)
+            wall = max(self.clock.wall_interval(max(ahead - 0.3, 0.5)), 0.05) \
+                if not seq.paused else self.config.return_deadline_s
+            self._say(f"planning vehicle {sysid}'s way out of the show (leaving at show time "
+                      f"{at:.1f} s)", "leave_planning", system_id=sysid, at=round(at, 2))
+            try:
+                leave = await self._planner().plan_leave(
+                    track, at, seq.leaves, absent, static,
+                    None if start is None else np.asarray(start, dtype=float),
+                    wall,
+                    what=f"planning vehicle {sysid}'s way out")
+            except PlanningTimeout as exc:
+                self._perform(seq.leave_late(sysid, str(exc), self.clock.now()))
+                return
+            except GroundctlError as exc:
+                self._perform(seq.leave_failed(sysid, str(exc), self.clock.now()))
+                return
+            self._perform(seq.set_leave(sysid, leave, self.clock.now()))
+        finally:
+            self._leave_tasks.pop(sysid, None)
+
+    def _not_on_plan(self, seq: ShowSequence, leaving: int
+                     ) -> tuple[list[int], NDArray[np.float64]]:
+        """Tracks nobody flies (excluded, down, descending, killed) and the columns where
+        those drones really are, from telemetry (or their slot, for one never airborne)."""
+        absent: list[int] = []
+        columns: list[NDArray[np.float64]] = []
+        for track in self._excluded_tracks():
+            absent.append(track)
+            columns.append(column(self.plan.home[track]))
+        positions = show_positions(self.plan.origin, self.link.vehicles)
+        now = self.clock.now()
+        for sysid, v in seq.vehicles.items():
+            phase = seq.streamed_as(v)  # a lost one is still streamed what it was
+            if sysid == leaving:
+                continue
+            path = seq.path(sysid, now)
+            if path is not None and path.kind is PathKind.HOLD:
+                assert path.point is not None
+                absent.append(v.track)  # hovering where it was heard again, not on its plan
+                columns.append(np.array([path.point]))
+            elif phase not in (VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
+                               VehiclePhase.RETURNING):
+                absent.append(v.track)  # down, descending, killed, or never airborne
+                pos = positions.get(sysid)
+                columns.append(column(self.plan.home[v.track] if pos is None else pos))
+        static = np.concatenate(columns) if columns else np.empty((0, 3))
+        return absent, static

@@ -1,0 +1,290 @@
+"""The ground part, before anything flies: the link up, the pre-flight checks
+until every vehicle passes, the operator's go gate and exclusions, the
+vehicles' settings and parameters, and the sequence built from the
+assignment."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from dataclasses import replace
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from groundctl.errors import FlightError, LinkError, NoGo, PreflightFailed
+from groundctl.execute.frames import show_positions
+from groundctl.execute.lead import LeadEstimator
+from groundctl.execute.leds import LedSchedule
+from groundctl.execute.mapping import Assignment, auto_assign, explicit_assign
+from groundctl.execute.preflight import PreflightReport, remaining_plan_conflicts, run_preflight
+from groundctl.execute.sequence import ShowSequence
+from groundctl.execute.setpoints import SetpointStream, StreamTarget
+from groundctl.flight.monitor import FlightMonitor
+from groundctl.flight.runner.config import PERMANENT_CHECKS, _ids, log
+from groundctl.flight.runner.state import RunnerState
+from groundctl.link.flavours import Flavour
+from groundctl.record.logstreams import request_log_extras
+
+
+class Preflight(RunnerState):
+    """The ground part (a layer of :class:`ShowRunner`)."""
+
+    # -- phase 1: connect -----------------------------------------------------------
+    async def connect(self) -> None:
+        """Wait until every expected vehicle (or as many as the plan has) sent a HEARTBEAT."""
+        want: list[int] | int = self.expected_ids if self.expected_ids is not None \
+            else self.plan.drones
+        self._say(f"waiting for {want if isinstance(want, int) else len(want)} vehicle(s)",
+                  "connecting")
+        await self.link.wait_for_vehicles(want, timeout=self.config.connect_timeout_s)
+        self._say(f"{len(self.link.vehicles)} vehicle(s) heard", "connected",
+                  system_ids=sorted(self.link.vehicles))
+
+    # -- phase 2: pre-flight --------------------------------------------------------
+    def _fleet(self) -> dict[int, Any]:
+        ids = self.expected_ids if self.expected_ids is not None else sorted(self.link.vehicles)
+        return {s: self.link.vehicles[s] for s in ids if s in self.link.vehicles}
+
+    def _assign(self) -> Assignment:
+        positions = show_positions(self.plan.origin, self._fleet())
+        tol = self.config.thresholds.slot_tolerance_m
+        if self.config.tracks is not None:
+            return explicit_assign(self.config.tracks, self.plan.home, positions, tol)
+        return auto_assign(self.plan.home, positions, tol)
+
+    async def _ask(self, sysid: int, what: str, call: Any) -> None:
+        try:
+            await call
+        except LinkError as exc:
+            log.debug("vehicle %s: %s not answered yet: %s", sysid, what, exc)
+
+    async def preflight(self) -> PreflightReport:
+        """Streams, EKF origins, assignment and checks; raises PreflightFailed or FlightError."""
+        cfg = self.config
+        start = self.clock.now()
+        streams_ok: set[int] = set()
+        asked: dict[tuple[int, str], float] = {}
+        failing_since: dict[tuple[int, str], float] = {}
+        last_lines: list[str] = []
+        next_progress = start + cfg.progress_every_s
+        while True:
+            cfg = self.config  # the operator may exclude a vehicle meanwhile (the console)
+            now = self.clock.now()
+            fleet = self._fleet()
+            def due(sysid: int, what: str, every: float, now: float = now) -> bool:
+                key = (sysid, what)
+                if now - asked.get(key, -math.inf) < every:
+                    return False
+                asked[key] = now
+                return True
+
+            for sysid, state in fleet.items():
+                if sysid not in streams_ok and due(sysid, "streams", 3.0):
+                    self._spawn(self._request_streams(sysid, streams_ok))
+                if state.ekf_origin is None and due(sysid, "origin", 2.0):
+                    self._spawn(self._ask(sysid, "GPS_GLOBAL_ORIGIN", self.link.request_message(
+                        sysid, mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, retries=0)))
+                if state.home is None and due(sysid, "home", 2.0):
+                    self._spawn(self._ask(sysid, "HOME_POSITION", self.link.request_message(
+                        sysid, mavlink.MAVLINK_MSG_ID_HOME_POSITION, retries=0)))
+            self.assignment = self._assign()
+            report = run_preflight(fleet, self.assignment, now, cfg.thresholds)
+            self.preflight_report = report
+            failures = report.failures(cfg.excluded)
+            lines = report.lines(cfg.excluded) + self.assignment.problems()
+            if lines != last_lines:
+                if self.events is not None:
+                    self.events.emit("preflight", lines=lines)
+                last_lines = lines
+            missing = [t for t in self.assignment.unassigned_tracks
+                       if t not in self._excluded_tracks()]
+            if not failures and not missing:
+                break
+            # Give up early on what waiting cannot fix.
+            permanent: dict[int, list[str]] = {}
+            for sysid, results in report.results.items():
+                if sysid in cfg.excluded:
+                    continue
+                for r in results:
+                    key = (sysid, r.name)
+                    if r.ok or r.name not in PERMANENT_CHECKS or not self._known(sysid, r.name):
+                        failing_since.pop(key, None)
+                        continue
+                    since = failing_since.setdefault(key, now)
+                    if now - since >= cfg.settle_s:
+                        permanent.setdefault(sysid, []).append(str(r))
+            if permanent:
+                self._say("pre-flight refused: " + report.summary(cfg.excluded) + "\n"
+                          + "\n".join(report.failing_by_check(cfg.excluded)), "preflight_failed",
+                          failures=permanent)
+                raise PreflightFailed(permanent)
+            if now - start >= cfg.preflight_timeout_s:
+                if failures:
+                    self._say("pre-flight timed out: " + report.summary(cfg.excluded) + "\n"
+                              + "\n".join(report.failing_by_check(cfg.excluded)),
+                              "preflight_failed", failures=failures)
+                    raise PreflightFailed(failures)
+                raise FlightError(f"pre-flight: no vehicle for track(s) {missing} after "
+                                  f"{cfg.preflight_timeout_s:.0f} s; exclude or add vehicles")
+            if now >= next_progress:
+                next_progress = now + cfg.progress_every_s
+                self._say("pre-flight: " + report.summary(cfg.excluded), "progress")
+            await asyncio.sleep(max(self.clock.wall_interval(0.5), 0.001))
+        grounded = self._excluded_tracks()
+        conflicts = remaining_plan_conflicts(self.plan, grounded) if grounded else []
+        if conflicts:
+            raise FlightError(f"excluding vehicle(s) {sorted(cfg.excluded)} leaves the show "
+                              f"unsafe: {conflicts[0]}")
+        self._say("pre-flight passed: " + report.summary(cfg.excluded), "preflight_passed",
+                  tracks={str(k): v for k, v in self._tracks().items()},
+                  lines=report.lines(cfg.excluded))
+        return report
+
+    def _known(self, sysid: int, check: str) -> bool:
+        state = self.link.vehicles.get(sysid)
+        if state is None:
+            return False
+        if check == "battery":
+            return state.battery_remaining_pct is not None
+        return state.ekf_origin is not None and state.position_ned is not None
+
+    async def _request_streams(self, sysid: int, done: set[int]) -> None:
+        try:
+            await self.link.request_streams(sysid)
+        except LinkError as exc:
+            log.debug("vehicle %s: streams not set yet: %s", sysid, exc)
+        else:
+            done.add(sysid)
+            self._spawn(request_log_extras(self.link, sysid))  # the tlog's extras, once
+
+    def _tracks(self) -> dict[int, int]:
+        assert self.assignment is not None
+        return {s: t for s, t in self.assignment.tracks.items() if s not in self.config.excluded}
+
+    def _excluded_tracks(self) -> set[int]:
+        if self.assignment is None:
+            return set()
+        excluded = {t for s, t in self.assignment.tracks.items() if s in self.config.excluded}
+        if self.config.tracks is not None:
+            excluded |= {t for s, t in self.config.tracks.items() if s in self.config.excluded}
+        return excluded
+
+    # -- phase 3: fly ---------------------------------------------------------------
+    def _build(self) -> ShowSequence:
+        tracks = self._tracks()
+        states = self.link.vehicles
+        flavours: dict[int, Flavour] = {}
+        targets = []
+        for sysid, track in sorted(tracks.items()):
+            state = states[sysid]
+            assert state.flavour is not None and state.ekf_origin is not None  # pre-flight
+            flavours[sysid] = state.flavour
+            targets.append(StreamTarget(sysid, track, state.ekf_origin))
+            self._record(sysid)
+        self._stream = SetpointStream(self.plan, targets, self.config.initial_lead_s)
+        self.leads = LeadEstimator([t.sysid for t in targets], self.config.lead) \
+            if self.config.lead_s is None else None
+        self._led_schedule = LedSchedule.from_targets(self.plan, targets)
+        self.monitor = FlightMonitor(self.plan, tracks)
+        self.sequence = ShowSequence(self.plan, tracks, flavours, self.config.sequence,
+                                     grounded_tracks=self._excluded_tracks())
+        return self.sequence
+
+    async def _vehicle_settings(self) -> None:
+        """The show's ``[vehicle]`` table on every vehicle, before arming; PreflightFailed
+        with each refused vehicle's reasons."""
+        if self.config.vehicle is None:
+            return
+        from groundctl.execute.vehset import enforce
+        flavours: dict[int, Flavour] = {}
+        for sysid in self._tracks():
+            flavour = self.link.vehicles[sysid].flavour
+            assert flavour is not None  # the pre-flight's autopilot check
+            flavours[sysid] = flavour
+        self._say(f"vehicle settings: checking {len(flavours)} vehicle(s)", "vehicle_settings")
+        outcomes = await enforce(self.link, self.clock, flavours, self.config.vehicle,
+                                 self.plan.origin, self.plan.limits)
+        for sysid, out in sorted(outcomes.items()):
+            if out.changed or out.fence:
+                self._say(f"vehicle {sysid}: " + ", ".join(
+                    [*(["fence uploaded"] if out.fence else []), *out.changed]),
+                    "vehicle_settings_set", system_id=sysid, changed=out.changed,
+                    fence=out.fence)
+        failures = {s: o.problems for s, o in outcomes.items() if o.problems}
+        if failures:
+            self._say("pre-flight refused: vehicle settings\n" + "\n".join(
+                f"vehicle {s}: " + "; ".join(why) for s, why in sorted(failures.items())),
+                "preflight_failed", failures=failures)
+            raise PreflightFailed(failures)
+
+    async def _configure(self, seq: ShowSequence) -> None:
+        """Parameters the show relies on, set before arming (ArduPilot GUID_TIMEOUT)."""
+        timeout = self.config.guided_timeout_s
+        if timeout is None:
+            return
+        ardu = [s for s, v in seq.vehicles.items() if v.flavour is Flavour.ARDUPILOT]
+        if not ardu:
+            return
+        done = await asyncio.gather(*(self.link.set_param(s, "GUID_TIMEOUT", timeout)
+                                      for s in ardu), return_exceptions=True)
+        failed = [s for s, ok in zip(ardu, done, strict=True) if ok is not True]
+        if failed:
+            self._say(f"GUID_TIMEOUT {timeout:g} s not confirmed by vehicle(s) {_ids(failed)}: "
+                      "through a link drop they fly on along their last setpoint for up to "
+                      "their own GUID_TIMEOUT (3 s by default)", "param_not_set",
+                      system_ids=failed, name="GUID_TIMEOUT")
+
+    # -- the operator's go gate and pre-flight exclusion (the console) -----------------
+    async def _go_gate(self) -> None:
+        """Wait for the operator's go (:attr:`confirm_go`), keeping the pre-flight report
+        fresh meanwhile; then the checks once more, as they stand now, before arming."""
+        assert self.confirm_go is not None and self.preflight_report is not None
+        self._say("pre-flight passed: waiting for the operator's go", "go_waiting")
+        decision = asyncio.ensure_future(self.confirm_go(self.preflight_report))
+        self.awaiting_go = True
+        try:
+            while not decision.done():
+                await asyncio.wait([decision], timeout=max(self.clock.wall_interval(0.5),
+                                                           0.001))
+                if not decision.done() and self.assignment is not None:
+                    self.assignment = self._assign()
+                    self.preflight_report = run_preflight(self._fleet(), self.assignment,
+                                                          self.clock.now(),
+                                                          self.config.thresholds)
+        finally:
+            self.awaiting_go = False
+            if not decision.done():
+                decision.cancel()
+        if not decision.result():
+            if self.events is not None:
+                self.events.emit("operator", command="no-go")
+            raise NoGo()
+        if self.events is not None:
+            self.events.emit("operator", command="go")
+        # What was shown may be a moment old, and exclusions may have changed: the checks
+        # (and the exclusion safety check) once more, as they stand now.
+        await self.preflight()
+
+    def exclude(self, sysid: int) -> None:
+        """Keep ``sysid`` on the ground (before arming only).  Refused with a FlightError
+        when the show is already flying, the vehicle is not in it, or the others would
+        pass too close to it on its slot (:func:`remaining_plan_conflicts`)."""
+        if self.sequence is not None:
+            raise FlightError(f"exclude {sysid}: the show is already armed; land it instead")
+        if self.assignment is None or sysid not in self.assignment.tracks:
+            heard = sysid in self.link.vehicles
+            raise FlightError(f"exclude {sysid}: " + (
+                "no track assigned to it yet (it is not known on a takeoff slot); wait for "
+                "its position" if heard else "not a vehicle of this show"))
+        if sysid in self.config.excluded:
+            raise FlightError(f"exclude {sysid}: already excluded")
+        excluded = self.config.excluded | {sysid}
+        tracks = {t for s, t in self.assignment.tracks.items() if s in excluded}
+        conflicts = remaining_plan_conflicts(self.plan, tracks)
+        if conflicts:
+            raise FlightError(f"exclude {sysid}: the rest of the show would be unsafe: "
+                              f"{conflicts[0]}")
+        self.config = replace(self.config, excluded=frozenset(excluded))
+        self._say(f"vehicle {sysid} excluded by the operator: it stays on the ground",
+                  "operator", command=f"exclude {sysid}", system_id=sysid)
