@@ -18,6 +18,7 @@ The tree::
     ├── PreflightFailed                 pre-flight checks did not pass (failures)
     ├── FlightError                     the flight could not go on (reason)
     │   ├── PlanningTimeout             a plan not ready by its deadline (what, deadline_s)
+    │   ├── LifecycleError              a phase change its table does not list (phase, event)
     │   └── NoGo                        the operator did not give the go (the console)
     ├── SimulatorError                  the built-in simulator was misused
     ├── ConsoleUnavailable              --console without a terminal (or with --json)
@@ -278,6 +279,17 @@ class PlanningTimeout(FlightError):
         self.deadline_s = deadline_s
         shown = f"{deadline_s:.1f}" if deadline_s >= 0.1 else f"{deadline_s:.1g}"
         super().__init__(f"{what} took longer than its {shown} s deadline")
+
+
+class LifecycleError(FlightError):
+    """A vehicle was moved in a way its lifecycle table does not list: a bug in the
+    sequence, stopped where it happens (:mod:`groundctl.execute.sequence.lifecycle`)."""
+
+    def __init__(self, phase: str, event: str, detail: str = "") -> None:
+        self.phase = phase
+        self.event = event
+        super().__init__(f"internal error: a vehicle in phase {phase} cannot take event "
+                         f"{event}" + (f" ({detail})" if detail else ""))
 
 
 class NoGo(FlightError):

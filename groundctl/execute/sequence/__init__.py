@@ -73,6 +73,7 @@ The sequence is one class, :class:`ShowSequence`, built in layers, one module ea
 (each layer derives from the one before it)::
 
     types      the actions, phases, constants, SequenceConfig, VehicleRun, StreamRequest
+    lifecycle  the table (phase, event) -> phase every phase change goes through
     state      SequenceState: the fields, the show clock and its holds, the show's phase
     spots      who is streamed, the one path each follows, where each lands
     returns    the land-all return

@@ -8,6 +8,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from groundctl.execute.sequence.lifecycle import Event
 from groundctl.execute.sequence.returns import Returns
 from groundctl.execute.sequence.types import (
     _DONE,
@@ -56,9 +57,9 @@ class Columns(Returns):
             v.column_since = now
             v.leave, v.leave_at, v.before_return = None, None, None
             if v.phase is VehiclePhase.LOST:
-                v.lost_from = VehiclePhase.LEAVING
+                self._lost_to(v, Event.LAST_RESORT)
             else:
-                v.phase = VehiclePhase.LEAVING
+                self._to(v, Event.LAST_RESORT)
         actions: list[Action] = [Notice(
             None, f"no collision-free return could be planned ({reason}) and "
                   f"{'vehicles' if len(off) != 1 else 'vehicle'} "
@@ -125,7 +126,8 @@ class Columns(Returns):
                         "column_blocked", "waiting to descend: a drone below it"))
                 continue
             v.column = True
-            v.phase, v.reason = VehiclePhase.LANDING, "landed by the last resort (columns)"
+            self._to(v, Event.LAND)
+            v.reason = "landed by the last resort (columns)"
             actions += [Notice(v.sysid, f"vehicle {v.sysid}: its column is clear: landing "
                                         "straight down", "column_landing",
                                "landing straight down (last resort)"),

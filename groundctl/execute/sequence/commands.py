@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from groundctl.execute.leaving import leave_time
 from groundctl.execute.sequence.leaves import WaysOut
+from groundctl.execute.sequence.lifecycle import Event
 from groundctl.execute.sequence.types import _DONE, Action, Kill, Land, Notice, VehiclePhase
 
 
@@ -100,7 +101,7 @@ class OperatorCommands(WaysOut):
             return [Notice(sysid, f"vehicle {sysid} is already {v.phase}")]
         if v.phase in (VehiclePhase.PREFLIGHT, VehiclePhase.ARMING):
             return [Notice(sysid, f"landing vehicle {sysid} here"), *self._land(v, now)]
-        v.phase = VehiclePhase.LANDING
+        self._to(v, Event.LAND)
         return [Notice(sysid, f"landing vehicle {sysid} where it is"),
                 self._send(v, Land(sysid), now)]
 
@@ -112,5 +113,6 @@ class OperatorCommands(WaysOut):
         if not confirm:
             return [Notice(sysid, f"kill vehicle {sysid} not sent: it stops the motors and "
                                   "the drone falls; confirm to kill")]
-        v.phase, v.pending = VehiclePhase.KILLED, None
+        self._to(v, Event.KILL)
+        v.pending = None
         return [Kill(sysid), Notice(sysid, f"vehicle {sysid} killed by the operator")]

@@ -11,6 +11,7 @@ import numpy as np
 
 from groundctl.execute.frames import show_positions
 from groundctl.execute.sequence.failsafes import Failsafes
+from groundctl.execute.sequence.lifecycle import Event
 from groundctl.execute.sequence.types import (
     _FLIGHT_MODE,
     _IDLE,
@@ -43,7 +44,7 @@ class ShowSequence(Failsafes):
         self._started = True
         actions: list[Action] = []
         for v in self.vehicles.values():
-            v.phase = VehiclePhase.ARMING
+            self._to(v, Event.START)
             first: Command = SetMode(v.sysid, "GUIDED") if v.flavour is Flavour.ARDUPILOT \
                 else Arm(v.sysid)
             actions.append(self._send(v, first, now))
@@ -82,10 +83,11 @@ class ShowSequence(Failsafes):
             for v in self.vehicles.values():
                 if v.phase is VehiclePhase.SHOW or (v.phase is VehiclePhase.LEAVING
                                                     and v.leave is None):
-                    v.phase, v.returning_since = VehiclePhase.RETURNING, now
+                    self._to(v, Event.SHOW_ENDS)
+                    v.returning_since = now
                 if v.lost_from is VehiclePhase.SHOW or (v.lost_from is VehiclePhase.LEAVING
                                                          and v.leave is None):
-                    v.lost_from = VehiclePhase.RETURNING
+                    self._lost_to(v, Event.SHOW_ENDS)
             actions.append(Notice(None, "show finished: returning to the landing slots"))
         return actions
 
@@ -111,7 +113,8 @@ class ShowSequence(Failsafes):
             # kill switch.  It is down where it fell: out of the show at once, and an
             # obstacle for every landing from now on (down_positions).
             was = v.phase
-            v.phase, v.pending, v.leave_at = VehiclePhase.FAILED, None, None
+            self._to(v, Event.FELL)
+            v.pending, v.leave_at = None, None
             v.reason, v.fell = f"disarmed during {was} (crash or motor failure)", True
             text = state.last_statustext.text if state.last_statustext is not None else ""
             return [Notice(v.sysid, f"vehicle {v.sysid} disarmed in the air during {was}"
@@ -143,7 +146,8 @@ class ShowSequence(Failsafes):
                 return [self._send(v, Arm(v.sysid), now)]
         elif isinstance(cmd, Arm):
             if state.armed:
-                v.phase, v.takeoff_from = VehiclePhase.TAKEOFF, v.altitude
+                self._to(v, Event.ARMED)
+                v.takeoff_from = v.altitude
                 return [self._send(v, Takeoff(v.sysid, self.plan.takeoff_altitude), now)]
         elif isinstance(cmd, Takeoff):
             alt = v.altitude
@@ -153,7 +157,7 @@ class ShowSequence(Failsafes):
                 v.stream_since = now
                 v.pending = None
                 if v.flavour is Flavour.ARDUPILOT:
-                    v.phase = VehiclePhase.READY  # already in GUIDED since before arming
+                    self._to(v, Event.UP)  # already in GUIDED since before arming
                     v.ready_at = now
                 return notices
             if now - v.sent_at >= cfg.takeoff_timeout_s:
@@ -167,7 +171,8 @@ class ShowSequence(Failsafes):
             return []
         elif isinstance(cmd, SetMode) and cmd.mode == "OFFBOARD":
             if state.mode == "OFFBOARD":
-                v.phase, v.pending, v.ready_at = VehiclePhase.READY, None, now
+                self._to(v, Event.UP)
+                v.pending, v.ready_at = None, now
                 return []
         elif v.phase is VehiclePhase.RETURNING:
             return self._returning(v, state, now)
@@ -175,7 +180,8 @@ class ShowSequence(Failsafes):
             return self._leaving(v, state, now)
         elif isinstance(cmd, Land) or v.phase is VehiclePhase.LANDING:
             if not state.armed:
-                v.phase, v.pending = VehiclePhase.LANDED, None
+                self._to(v, Event.DISARMED)
+                v.pending = None
                 return [Notice(v.sysid, f"vehicle {v.sysid} landed", "landed", "landed")]
             if state.mode in _LAND_MODES:
                 return []  # descending: that takes as long as it takes
@@ -219,7 +225,8 @@ class ShowSequence(Failsafes):
                 f"{self.config.exclude_tolerance_m:.1f} m)")
             # Back over its own takeoff slot, then down there (the exclusion check below
             # says whether the others can fly the show with it standing on it).
-            v.phase, v.pending, v.returning_since = VehiclePhase.RETURNING, None, now
+            self._to(v, Event.NOT_AT_START)
+            v.pending, v.returning_since = None, now
             v.landing_point = tuple(float(x) for x in self._home_hover[v.track])  # type: ignore[assignment]
             actions += [Notice(v.sysid, f"vehicle {v.sysid} is {v.reason}: landing it on its "
                                         "slot instead of starting it", "start_excluded",
@@ -232,7 +239,7 @@ class ShowSequence(Failsafes):
             return actions
         self.clock.start(now)
         for v in ready:
-            v.phase = VehiclePhase.SHOW
+            self._to(v, Event.SHOW_STARTS)
         return [*actions, Notice(None, f"show started with {len(ready)} vehicle(s)")]
 
     def _start_distance(self, v: VehicleRun) -> float:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 
+from groundctl.execute.sequence.lifecycle import Event
 from groundctl.execute.sequence.lost import OffPlan
 from groundctl.execute.sequence.types import (
     _FLIGHT_MODE,
@@ -76,7 +77,8 @@ class Failsafes(OffPlan):
         fight its autopilot for it: no more setpoints, and it counts as down once it has
         disarmed wherever its own mode brings it."""
         was = v.phase
-        v.phase, v.pending, v.leave_at = VehiclePhase.LANDING, None, None
+        self._to(v, Event.TAKEN_OVER)
+        v.pending, v.leave_at = None, None
         v.retaking = None
         v.reason = f"left {_FLIGHT_MODE[v.flavour]} for {state.mode} during {was}"
         return [Notice(v.sysid, f"vehicle {v.sysid} switched to {state.mode} by itself "
@@ -191,7 +193,8 @@ class Failsafes(OffPlan):
                     *self.land_all(now)]
         if pct < self._battery / 2 and self._column_clear(v):
             v.battery_critical = True
-            v.phase, v.reason = VehiclePhase.LANDING, f"battery {pct:.0f} % (critical)"
+            self._to(v, Event.LAND)
+            v.reason = f"battery {pct:.0f} % (critical)"
             v.leave_at = None
             return [Notice(v.sysid, f"vehicle {v.sysid}: battery {pct:.0f} % is below half "
                                     f"the show's {self._battery:.0f} %: landing where it is "

@@ -7,6 +7,7 @@ import numpy as np
 
 from groundctl.execute.leaving import LEAVE_LEAD_S, Leave, leave_duration, leave_time
 from groundctl.execute.sequence.columns import Columns
+from groundctl.execute.sequence.lifecycle import Event
 from groundctl.execute.sequence.types import (
     MAX_LATE_LEAVES,
     Action,
@@ -84,7 +85,7 @@ class WaysOut(Columns):
             return []
         v.leave_at = None
         if v.hold_point is not None and v.phase is VehiclePhase.LEAVING:
-            v.phase = VehiclePhase.LANDING
+            self._to(v, Event.LAND)
             return [Notice(sysid, f"no safe way out of the show for vehicle {sysid} ({reason}); "
                                   "landing it where it holds"),
                     self._send(v, Land(sysid), now)]
@@ -119,8 +120,8 @@ class WaysOut(Columns):
             if v.leave is None or t < v.leave.at:
                 continue
             if v.phase is VehiclePhase.SHOW:
-                v.phase = VehiclePhase.LEAVING
+                self._to(v, Event.LEAVES)
                 actions.append(Notice(v.sysid, f"vehicle {v.sysid} leaves the show"))
             elif v.phase is VehiclePhase.LOST and v.lost_from is VehiclePhase.SHOW:
-                v.lost_from = VehiclePhase.LEAVING
+                self._lost_to(v, Event.LEAVES)
         return actions

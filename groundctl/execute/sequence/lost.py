@@ -8,6 +8,7 @@ import numpy as np
 
 from groundctl.execute.preflight import remaining_plan_conflicts
 from groundctl.execute.sequence.commands import OperatorCommands
+from groundctl.execute.sequence.lifecycle import Event
 from groundctl.execute.sequence.types import (
     _DONE,
     _FLIGHT_MODE,
@@ -32,7 +33,8 @@ class OffPlan(OperatorCommands):
     def _lose(self, v: VehicleRun, now: float, state: VehicleState | None) -> list[Action]:
         silent = "never heard" if state is None else f"silent for {state.silent_for(now):.1f} s"
         was = v.phase
-        v.phase, v.pending, v.reason = VehiclePhase.LOST, None, f"link lost ({silent})"
+        self._to(v, Event.LOST)
+        v.pending, v.reason = None, f"link lost ({silent})"
         v.lost_from, v.retaking = was, None
         still = ("still streamed its plan in case it hears us, otherwise its failsafe is in "
                  "charge" if was in _STREAMED else "its failsafe is in charge")
@@ -49,7 +51,8 @@ class OffPlan(OperatorCommands):
         if v.lost_from in (VehiclePhase.ARMING, VehiclePhase.TAKEOFF):
             # Lost before the show and counted as standing on its slot meanwhile: it
             # does not join a show planned without it; it stands down.
-            v.phase, v.lost_from = v.lost_from, None
+            self._to(v, Event.HEARD_AGAIN, v.lost_from)
+            v.lost_from = None
             return [Notice(v.sysid, f"vehicle {v.sysid} heard again before the show: "
                                     "standing it down", "heard_again", "heard again: "
                                     "standing down"), *self._land(v, now)]
@@ -57,9 +60,11 @@ class OffPlan(OperatorCommands):
         if off is not None and v.lost_from is VehiclePhase.SHOW:
             v.lost_from = None
             return self._strand(v, off, now, "heard again")
-        v.phase, v.lost_from, v.reason = v.lost_from, None, None
+        self._to(v, Event.HEARD_AGAIN, v.lost_from)
+        v.lost_from, v.reason = None, None
         if v.phase is VehiclePhase.READY and self.started_at is not None:
-            v.phase = VehiclePhase.SHOW if not self._ended else VehiclePhase.RETURNING
+            # Ready but silent when the show started (or ended): it catches up.
+            self._to(v, Event.SHOW_STARTS if not self._ended else Event.SHOW_ENDS)
         if v.phase is VehiclePhase.LANDING:
             return self._rejoin_landing(v, state, now)
         return [Notice(v.sysid, f"vehicle {v.sysid} heard again: back in the sequence "
@@ -107,7 +112,8 @@ class OffPlan(OperatorCommands):
         say): snapping back would be a dash across the formation.  Hold where it is,
         then leave the show on a way out planned from there."""
         distance, here = off
-        v.phase, v.reason = VehiclePhase.LEAVING, f"{how} {distance:.1f} m off its plan"
+        self._to(v, Event.STRANDED)
+        v.reason = f"{how} {distance:.1f} m off its plan"
         v.hold_point, v.leave = self._held_apart({v.sysid: here}, now)[v.sysid], None
         v.leave_at = self._hold_leave_time(v, now)
         if v.leave_at is None:
@@ -133,12 +139,12 @@ class OffPlan(OperatorCommands):
         v.fell, v.reason = False, None
         pos = self._positions.get(v.sysid)
         if self._ended or self.started_at is None or pos is None:
-            v.phase = VehiclePhase.LANDING
+            self._to(v, Event.LAND)
             return [Notice(v.sysid, f"vehicle {v.sysid} is armed in the air after all: "
                                     "landing it where it is"), self._send(v, Land(v.sysid), now)]
         off = self._off_plan(v, now)
         if off is None:
-            v.phase = VehiclePhase.SHOW
+            self._to(v, Event.ALIVE)
             return [Notice(v.sysid, f"vehicle {v.sysid} is armed in the air after all, on its "
                                     "plan: back in the show")]
         return self._strand(v, off, now, "armed in the air after all,")
@@ -171,13 +177,13 @@ class OffPlan(OperatorCommands):
 
     def _give_up(self, v: VehicleRun, why: str, now: float) -> list[Action]:
         was, v.reason, v.pending = v.phase, why, None
-        v.phase = VehiclePhase.FAILED
+        self._to(v, Event.GIVE_UP)
         if was is VehiclePhase.LANDING:
             return [Notice(v.sysid, f"vehicle {v.sysid}: {why}; land it by hand")]
         actions: list[Action] = [Notice(v.sysid, f"vehicle {v.sysid}: {why}")]
         if was is not VehiclePhase.ARMING:
             # In the air (or may be): bring it down where it is, straight below.
-            v.phase = VehiclePhase.LANDING
+            self._to(v, Event.LAND)
             actions.append(self._send(v, Land(v.sysid), now))
             if was is VehiclePhase.TAKEOFF:
                 # Straight below is its own takeoff spot, which may be where another

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from groundctl.execute.paths import position_on_show_clock
+from groundctl.execute.sequence.lifecycle import Event
 from groundctl.execute.sequence.spots import PathsAndSpots
 from groundctl.execute.sequence.types import (
     FLEET_HOLDS,
@@ -99,12 +100,12 @@ class Returns(PathsAndSpots):
         self._ended, self._stopped_at = False, None
         for v in self.vehicles.values():
             if v.phase is VehiclePhase.RETURNING and v.before_return is not None:
-                v.phase = v.before_return
+                self._to(v, Event.RETURN_FAILED, v.before_return)
                 if v.phase is VehiclePhase.READY:
-                    v.phase = VehiclePhase.SHOW
+                    self._to(v, Event.SHOW_STARTS)
             elif v.phase is VehiclePhase.LOST and v.lost_from is VehiclePhase.RETURNING \
                     and v.before_return is not None:
-                v.lost_from = v.before_return
+                self._lost_to(v, Event.RETURN_FAILED, v.before_return)
             v.before_return = None
         self.release("land-all", now)
         return [Notice(None, f"no collision-free return could be planned ({reason}): the "
@@ -113,23 +114,25 @@ class Returns(PathsAndSpots):
 
     def _land(self, v: VehicleRun, now: float) -> list[Action]:
         if v.phase is VehiclePhase.PREFLIGHT:
-            v.phase = VehiclePhase.LANDED
+            self._to(v, Event.STAND_DOWN)
             return []
         if v.phase is VehiclePhase.ARMING:
             # Still on the ground (takeoff was never sent): nothing to land, but
             # it may already be armed.
-            v.phase, v.pending = VehiclePhase.LANDED, None
+            self._to(v, Event.STAND_DOWN)
+            v.pending = None
             return [Disarm(v.sysid), Notice(v.sysid, f"vehicle {v.sysid} stood down on the ground")]
         if v.phase in (VehiclePhase.ARMING, VehiclePhase.TAKEOFF):
-            v.phase = VehiclePhase.LANDING
+            self._to(v, Event.LAND)
             return [self._send(v, Land(v.sysid), now)]
         if v.leave is None:
             v.leave_at = None  # a way out not planned yet: the landing replaces it
         if v.phase in (VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING):
             v.before_return = v.phase
-            v.phase, v.pending = VehiclePhase.RETURNING, None
+            self._to(v, Event.RETURN)
+            v.pending = None
         if v.phase is VehiclePhase.LOST and v.lost_from in (
                 VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING):
             v.before_return = v.lost_from
-            v.lost_from = VehiclePhase.RETURNING
+            self._lost_to(v, Event.RETURN)
         return []

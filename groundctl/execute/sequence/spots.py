@@ -10,6 +10,7 @@ import numpy as np
 
 from groundctl.execute.leaving import free_spots, landing_candidates
 from groundctl.execute.paths import Path, PathKind
+from groundctl.execute.sequence.lifecycle import Event
 from groundctl.execute.sequence.state import SequenceState
 from groundctl.execute.sequence.types import (
     _STREAMED,
@@ -190,10 +191,11 @@ class PathsAndSpots(SequenceState):
         if np.linalg.norm(pos - self._landing_point(v)) <= self.config.arrive_tolerance_m:
             if self._ended and self.spot_blocked(v):
                 return self._blocked(v, now)
-            v.phase = VehiclePhase.LANDING
+            self._to(v, Event.ARRIVED)
             return [self._send(v, Land(v.sysid), now)]
         if now - v.returning_since > self.config.return_timeout_s:
-            v.phase, v.reason = VehiclePhase.LANDING, (
+            self._to(v, Event.LAND)
+            v.reason = (
                 f"did not reach its landing point within {self.config.return_timeout_s:.0f} s "
                 f"({float(np.linalg.norm(pos - self._landing_point(v))):.1f} m away)")
             return [Notice(v.sysid, f"vehicle {v.sysid} {v.reason}: landing where it is",
@@ -216,7 +218,8 @@ class PathsAndSpots(SequenceState):
                            "landing spot taken by a drone that is down: planning new spots")]
         spot = self.nearest_free_spot(v)
         if spot is None:
-            v.phase, v.reason = VehiclePhase.LANDING, "no free landing spot left"
+            self._to(v, Event.LAND)
+            v.reason = "no free landing spot left"
             return [Notice(v.sysid, f"vehicle {v.sysid}: no free landing spot left: landing "
                                     "where it is; watch it"), self._send(v, Land(v.sysid), now)]
         v.landing_point, v.returning_since = spot, now

@@ -9,6 +9,7 @@ from collections.abc import Collection, Mapping
 import numpy as np
 
 from groundctl.execute.paths import sample_paths
+from groundctl.execute.sequence.lifecycle import Event, step
 from groundctl.execute.sequence.types import (
     _DONE,
     Action,
@@ -215,6 +216,19 @@ class SequenceState:
         v.pending, v.sent_at, v.retry_at = command, now, None
         v.attempts += 1
         return command
+
+    @staticmethod
+    def _to(v: VehicleRun, event: Event, previous: VehiclePhase | None = None) -> None:
+        """Move ``v`` on ``event`` through the lifecycle table
+        (:mod:`~groundctl.execute.sequence.lifecycle`)."""
+        v.phase = step(v.phase, event, previous)
+
+    @staticmethod
+    def _lost_to(v: VehicleRun, event: Event, previous: VehiclePhase | None = None) -> None:
+        """Move the phase a LOST vehicle was lost in (what it is streamed as) on
+        ``event``, by the same table."""
+        assert v.lost_from is not None
+        v.lost_from = step(v.lost_from, event, previous)
 
     @staticmethod
     def streamed_as(v: VehicleRun) -> VehiclePhase:
