@@ -21,6 +21,7 @@ The tree::
     │   ├── LifecycleError              a phase change its table does not list (phase, event)
     │   └── NoGo                        the operator did not give the go (the console)
     ├── SimulatorError                  the built-in simulator was misused
+    ├── UsageError                      arguments that cannot be used together
     ├── ConsoleUnavailable              --console without a terminal (or with --json)
     ├── ClusterError                    --ray: no ray extra, or the cluster unreachable (address)
     └── RecordingError                  a recording that cannot be read (path, message)
@@ -304,6 +305,12 @@ class NoGo(FlightError):
 
 class SimulatorError(GroundctlError):
     """The built-in simulator was given something it cannot do."""
+
+    exit_code = EXIT_USAGE
+
+
+class UsageError(GroundctlError):
+    """Command-line arguments that cannot be used together (two --connect the same)."""
 
     exit_code = EXIT_USAGE
 

@@ -207,3 +207,71 @@ def test_sigterm_or_sighup_mid_show_lands_everyone_and_flushes(
     assert [(e["signal"], e["count"]) for e in signals] == [(label, 1)]
     assert [e["command"] for e in events if e["event"] == "operator"] == ["land all"]
     assert events[-1]["event"] == "report"
+
+
+def _two_network_fleet(tmp_path: Path, ports: tuple[int, int]) -> Path:
+    fleet = tmp_path / "fleet.toml"
+    fleet.write_text("".join(
+        f'[[network]]\nname = "{name}"\nconnection = "udp:127.0.0.1:{port}"\n'
+        for name, port in zip(("north", "south"), ports, strict=True))
+        + "".join(f'[[vehicle]]\nnetwork = "{net}"\nsystem_id = {sysid}\n'
+                  for net, sysid in (("north", 1), ("north", 2), ("south", 1), ("south", 2))))
+    return fleet
+
+
+def test_fly_two_networks_from_a_fleet_file_against_groundctl_sim(tmp_path: Path) -> None:
+    """Issue 34, as an operator runs it: `groundctl sim` with one --gcs per network and
+    `groundctl fly --fleet` whose [[network]] tables name the two links; the operator's
+    `land 2:1` names network 2's system id 1; Ctrl-C lands the rest."""
+    show = tmp_path / "four.toml"
+    show.write_text(FLY_SHOW)
+    ports = (_free_udp_port(), _free_udp_port())
+    fleet = _two_network_fleet(tmp_path, ports)
+    sim = subprocess.Popen([*GROUNDCTL, "sim", "--count", "4", "--gcs", f"127.0.0.1:{ports[0]}",
+                            "--gcs", f"127.0.0.1:{ports[1]}", "--ekf-delay", "1",
+                            "--ready-delay", "2"],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO)
+    fly = subprocess.Popen([*GROUNDCTL, "fly", str(show), "--fleet", str(fleet),
+                            "--record", str(tmp_path / "rec"), "--json"],
+                           stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                           text=True, cwd=REPO, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        assert fly.stderr is not None and fly.stdin is not None
+        deadline = time.monotonic() + 90
+        before = []
+        for line in fly.stderr:
+            before.append(line)
+            if "show started" in line:
+                break
+            assert time.monotonic() < deadline, "the show never started"
+        fly.stdin.write("land 2:1\n")
+        fly.stdin.flush()
+        time.sleep(2.0)
+        fly.send_signal(signal.SIGINT)
+        stdout, stderr = fly.communicate(timeout=120)
+    finally:
+        if fly.poll() is None:
+            fly.kill()
+        sim.send_signal(signal.SIGINT)
+        sim.wait(timeout=20)
+    assert fly.returncode == EXIT_ABORTED, stderr
+    assert f"listening on 127.0.0.1:{ports[0]} (network 1), 127.0.0.1:{ports[1]} " \
+           "(network 2) for 4 vehicle(s)\n" in before
+    report = json.loads(stdout)
+    assert [(v["vehicle"], v["phase"]) for v in report["vehicles"]] == \
+        [("1", "landed"), ("2", "landed"), ("2:1", "landed"), ("2:2", "landed")]
+    assert report["min_separation_m"] >= 1.5
+    events = read_events(tmp_path / "rec" / "events.jsonl")
+    assert next(e["command"] for e in events if e["event"] == "operator") == "land 2:1"
+    assert (tmp_path / "rec" / "flight-net2.tlog").stat().st_size > 0
+
+
+def test_fly_refuses_connections_said_twice(tmp_path: Path) -> None:
+    show = tmp_path / "four.toml"
+    show.write_text(FLY_SHOW)
+    fleet = _two_network_fleet(tmp_path, (_free_udp_port(), _free_udp_port()))
+    out = _run("fly", str(show), "--fleet", str(fleet), "--connect", "udp:127.0.0.1:14551",
+               "--record", str(tmp_path / "rec"))
+    assert out.returncode == EXIT_USAGE
+    assert "--connect conflicts with the [[network]] tables of" in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1

@@ -407,3 +407,33 @@ def test_asked_for_more_pace_than_the_machine_has_the_clock_waits_and_the_show_i
     # Setpoints on time on the flight's clock: a tick is never more than the clock's
     # slack (50 ms) late, however slowly the machine ran it.
     assert report["setpoint_lateness_ms"]["max"] <= 60.0
+
+
+def test_a_show_flown_across_two_networks(tmp_path: Path) -> None:
+    """Issue 34: the quick show spread over two MAVLink networks (two ground-station
+    ports; system ids 1-5 on the first, 1-4 on the second), an operator's land-one naming
+    a vehicle of the second network, one tlog per network."""
+    from groundctl.vehicleid import parse_vehicle
+
+    async def land_one_on_network_two(runner: ShowRunner, _: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 6.0)
+        runner.land_one(parse_vehicle("2:3"))
+
+    result = dry_run(tmp_path, networks=2, during=land_one_on_network_two)
+    report = result.report
+    _assert_flown_safely(report)
+    assert [v["vehicle"] for v in report["vehicles"]] == \
+        ["1", "2", "3", "4", "5", "2:1", "2:2", "2:3", "2:4"]
+    assert [v["network"] for v in report["vehicles"]] == [1] * 5 + [2] * 4
+    assert report["vehicles"][7]["system_id"] == 1003
+    events = read_events(tmp_path / "events.jsonl")
+    assert any(e.get("vehicle") == "2:3" for e in events)
+    texts = [e.get("text", "") for e in events]
+    assert any("vehicle 2:3 leaves the show at show time" in t for t in texts), texts
+    # One tlog per network, each a plain tlog with its own network's system ids.
+    for name, ids in (("flight.tlog", {1, 2, 3, 4, 5}), ("flight-net2.tlog", {1, 2, 3, 4})):
+        log = mavutil.mavlink_connection(str(tmp_path / name), dialect="ardupilotmega")
+        seen: set[int] = set()
+        while (msg := log.recv_match(type="LOCAL_POSITION_NED")) is not None:
+            seen.add(msg.get_srcSystem())
+        assert seen == ids, name

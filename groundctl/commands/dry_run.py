@@ -74,6 +74,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                         "up with (by default it waits for a late simulator or ground-station "
                         "loop, so a busy machine slows the rehearsal instead of flying it on "
                         "stale setpoints): rehearses the ground station's own load")
+    p.add_argument("--networks", type=int, default=0, metavar="K",
+                   help="spread the simulated fleet over K MAVLink networks (one UDP port "
+                        "of the ground station each, 254 vehicles at most per network; "
+                        "default: as many as the show needs); their vehicles are named "
+                        "2:17 (network 2, system id 17), network 1's plainly 17")
     p.add_argument("--no-record", action="store_true", help="record nothing")
     add_plan_options(p)
     add_import_options(p)
@@ -97,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
         ready_delay_s=args.ready_delay, runner=runner_config(args), record_dir=record,
         pushes=tuple(Push(s, t, v) for s, t, v in args.push),
         weak=tuple(w for group in args.weak for w in group), profile=args.profile,
-        rtk=args.rtk, gcs_sysid=args.gcs_sysid, paced=args.paced)
+        rtk=args.rtk, gcs_sysid=args.gcs_sysid, paced=args.paced, networks=args.networks)
     notify = say(args.quiet)
     interrupts = Interrupts(notify)
     live = start_live_rerun(args, plan, record)

@@ -30,12 +30,13 @@ from groundctl.commands.flying import (
     say,
     start_live_rerun,
 )
-from groundctl.errors import GroundctlError
+from groundctl.errors import GroundctlError, UsageError
 from groundctl.flight.report import flight_report
 from groundctl.flight.runner import ShowRunner
 from groundctl.link.fleet import FleetLink
 from groundctl.link.fleetfile import FleetFile, FleetFileError, load_fleet_file, parse_address
 from groundctl.record.recording import Recording, default_directory
+from groundctl.vehicleid import MAX_NETWORKS
 
 
 def endpoint(text: str) -> tuple[str, int]:
@@ -63,8 +64,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                     "SIGTERM, SIGHUP) once lands every vehicle; twice abandons the flight "
                     "to the vehicles' failsafes.")
     p.add_argument("show", type=Path, help="show file (TOML) or plan file (.npz)")
-    p.add_argument("--connect", type=endpoint, default=("0.0.0.0", 14550), metavar="ENDPOINT",
-                   help="UDP address to listen on, udp:HOST:PORT (default udp:0.0.0.0:14550)")
+    p.add_argument("--connect", type=endpoint, action="append", default=None,
+                   metavar="ENDPOINT",
+                   help="UDP address to listen on, udp:HOST:PORT (default udp:0.0.0.0:14550); "
+                        "repeat it for several MAVLink networks, one per --connect in order, "
+                        "each with its own system ids 1..254 (network 2's system id 17 is "
+                        "named 2:17)")
     p.add_argument("--fleet", type=Path, default=None, metavar="FILE",
                    help="fleet file: system ids, addresses, tracks")
     p.add_argument("--connect-timeout", type=float, default=30.0, metavar="S",
@@ -78,6 +83,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 def run(args: argparse.Namespace) -> int:
     console = console_wanted(args)
     fleet: FleetFile | None = load_fleet_file(args.fleet) if args.fleet is not None else None
+    connects: list[tuple[str, int]] = args.connect or [("0.0.0.0", 14550)]
+    keys: list[bytes | None] | None = None
+    if fleet is not None and fleet.networks:
+        if args.connect:
+            raise UsageError(f"--connect conflicts with the [[network]] tables of {args.fleet}: "
+                             "say the connections in one place")
+        connects = [n.listen for n in fleet.networks]
+        keys = [n.signing_key or args.signing_key for n in fleet.networks]
+    if len(connects) > MAX_NETWORKS:
+        raise UsageError(f"--connect: at most {MAX_NETWORKS} networks, got {len(connects)}")
+    if len(set(connects)) != len(connects):
+        raise UsageError("--connect: the same endpoint twice")
+
     plan = plan_for(args)
     if fleet is not None and fleet.tracks:
         bad = sorted(t for t in fleet.tracks.values() if t >= plan.drones)
@@ -108,10 +126,11 @@ def run(args: argparse.Namespace) -> int:
 
     async def main() -> tuple[dict[str, Any], GroundctlError | None, bool]:
         events = recording.events
-        link = FleetLink(args.connect, clock=clock,
+        link = FleetLink(connects, clock=clock,
                          endpoints=fleet.endpoints if fleet is not None else (),
-                         expected_ids=ids, signing_key=args.signing_key,
-                         tlog=recording.tlog, events=events, system_id=args.gcs_sysid)
+                         expected_ids=ids, signing_key=args.signing_key, signing_keys=keys,
+                         tlog=recording.network_tlogs(len(connects)), events=events,
+                         system_id=args.gcs_sysid)
         runner = ShowRunner(plan, link, clock, config, events=events, notify=notify,
                             expected_ids=ids)
         recording.follow(runner)  # the show clock, for a replay
@@ -136,8 +155,9 @@ def run(args: argparse.Namespace) -> int:
             await link.start()
             if rtk is not None:
                 rtk.start()
-            notify(f"listening on {args.connect[0]}:{args.connect[1]} for "
-                   f"{len(ids) if ids else plan.drones} vehicle(s)")
+            where = ", ".join(f"{h}:{p}" + (f" (network {k + 1})" if len(connects) > 1 else "")
+                              for k, (h, p) in enumerate(connects))
+            notify(f"listening on {where} for {len(ids) if ids else plan.drones} vehicle(s)")
             await runner.run()
         except GroundctlError as exc:
             error = exc

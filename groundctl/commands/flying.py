@@ -21,6 +21,7 @@ from groundctl.commands.options import (
     positive,
     rerun_target,
     signing_key,
+    vehicle,
 )
 from groundctl.commands.progress import ProgressBar
 from groundctl.errors import EXIT_ABORTED, EXIT_OK, EXIT_UNSAFE, GroundctlError, UnsafePlan
@@ -30,6 +31,7 @@ from groundctl.flight.runner import RunnerConfig, ShowRunner
 from groundctl.plan.plan import Plan
 from groundctl.rtk.options import REQUIRE_RTK, add_rtk_options
 from groundctl.show.model import VehicleSettings
+from groundctl.vehicleid import parse_vehicle
 
 if TYPE_CHECKING:
     from groundctl.viz.live import LiveRerun
@@ -44,9 +46,9 @@ def add_runner_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--record", type=Path, default=None, metavar="DIR",
                    help="write flight.tlog, events.jsonl and report.json here "
                         "(default recordings/<show>-<command>-<UTC time>)")
-    p.add_argument("--exclude", type=int, action="append", default=[], metavar="SYSID",
-                   help="keep this vehicle on the ground (repeatable); the rest must still "
-                        "be safe without it")
+    p.add_argument("--exclude", type=vehicle, action="append", default=[], metavar="SYSID",
+                   help="keep this vehicle on the ground (repeatable; 2:17 is network 2's "
+                        "system id 17); the rest must still be safe without it")
     p.add_argument("--rate", type=positive, default=10.0, metavar="HZ",
                    help="setpoint rate per vehicle (default 10)")
     p.add_argument("--lead", type=lead_ms, default=None, metavar="MS|auto",
@@ -278,7 +280,8 @@ class Interrupts:
 
 
 OPERATOR_HELP = ("commands: hold | resume | land (all) | land SYSID (to its landing spot) | "
-                 "land-here SYSID | kill SYSID confirm | status | help")
+                 "land-here SYSID | kill SYSID confirm | status | help (SYSID 2:17: network 2's "
+                 "system id 17)")
 
 
 class OperatorTarget(Protocol):
@@ -307,12 +310,10 @@ class _BadArguments(Exception):
 
 def _sysid(verb: str, word: str) -> int:
     try:
-        sysid = int(word)
+        return parse_vehicle(word)
     except ValueError:
-        sysid = -1
-    if not 1 <= sysid <= 255:
-        raise _BadArguments(f"{verb}: {word!r} is not a system id (1-255): {_USAGE[verb]}")
-    return sysid
+        raise _BadArguments(f"{verb}: {word!r} is not a system id (1-255): "
+                            f"{_USAGE[verb]}") from None
 
 
 def _at_most(verb: str, rest: list[str], n: int) -> None:

@@ -7,6 +7,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+from groundctl.vehicleid import parse_vehicle
+
 
 def _number(text: str) -> float:
     try:
@@ -66,32 +68,42 @@ def wind(text: str) -> tuple[float, float, float]:
     return (parts[0], parts[1], parts[2] if len(parts) == 3 else 0.0)
 
 
+def vehicle(text: str) -> int:
+    """A vehicle on the command line: ``17``, or ``2:17`` for network 2's system id 17
+    (:func:`~groundctl.vehicleid.parse_vehicle`)."""
+    try:
+        return parse_vehicle(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def push(text: str) -> tuple[int, float, tuple[float, float, float]]:
-    """``--push SYSID@T:E,N,U``: (system id, time s, offset m)."""
-    usage = f"--push must be SYSID@T:E,N,U (e.g. 5@20:3,0,0), not {text!r}"
+    """``--push SYSID@T:E,N,U``: (vehicle id, time s, offset m)."""
+    usage = (f"--push must be SYSID@T:E,N,U (e.g. 5@20:3,0,0), not {text!r} (SYSID 2:5 is "
+             "network 2's system id 5)")
     who, at, rest = text.partition("@")
     when, colon, vec = rest.partition(":")
     try:
-        sysid, t = int(who), float(when)
+        sysid, t = parse_vehicle(who), float(when)
         offset = tuple(float(x) for x in vec.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(usage) from None
-    if not at or not colon or len(offset) != 3 or not 1 <= sysid <= 255 or t < 0 \
+    if not at or not colon or len(offset) != 3 or t < 0 \
             or not all(math.isfinite(x) for x in (t, *offset)):
         raise argparse.ArgumentTypeError(usage)
     return sysid, t, (offset[0], offset[1], offset[2])
 
 
 def weak(text: str) -> list[tuple[int, float]]:
-    """``--weak SYSID[,SYSID...]:FACTOR``: [(system id, factor in (0, 1])]."""
+    """``--weak SYSID[,SYSID...]:FACTOR``: [(vehicle id, factor in (0, 1])]."""
     usage = f"--weak must be SYSID[,SYSID...]:FACTOR with FACTOR in (0, 1], not {text!r}"
-    who, colon, factor_text = text.partition(":")
+    who, colon, factor_text = text.rpartition(":")  # the ids may be 2:17
     try:
-        ids = [int(x) for x in who.split(",")]
+        ids = [parse_vehicle(x) for x in who.split(",")]
         factor = float(factor_text)
     except ValueError:
         raise argparse.ArgumentTypeError(usage) from None
-    if not colon or not 0 < factor <= 1 or not all(1 <= s <= 255 for s in ids):
+    if not colon or not 0 < factor <= 1:
         raise argparse.ArgumentTypeError(usage)
     return [(s, factor) for s in ids]
 

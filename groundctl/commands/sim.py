@@ -30,6 +30,7 @@ from groundctl.link.flavours import Flavour
 from groundctl.show.model import GeoOrigin
 from groundctl.sim import LinkFaults, SimConfig, SimFleet, grid_layout
 from groundctl.sim.config import PROFILE_NAMES, profile_for
+from groundctl.vehicleid import VehicleId, network_layout, networks_for
 
 #: Grid spacing of the homes when neither ``--layout`` nor ``--show`` places them, m.
 DEFAULT_SPACING = 3.0
@@ -131,8 +132,14 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="number of vehicles (default 1, or the show's drone count)")
     p.add_argument("--autopilot", choices=[f.value for f in Flavour], default="ardupilot",
                    help="autopilot flavour (default ardupilot)")
-    p.add_argument("--gcs", type=_endpoint, default=("127.0.0.1", 14550),
-                   help="ground station HOST:PORT (default 127.0.0.1:14550)")
+    p.add_argument("--gcs", type=_endpoint, action="append", default=None,
+                   help="ground station HOST:PORT (default 127.0.0.1:14550); repeat it for "
+                        "several MAVLink networks, one per --gcs in order (as many as "
+                        "--networks)")
+    p.add_argument("--networks", type=int, default=0, metavar="K",
+                   help="spread the fleet over K MAVLink networks, system ids from 1 on "
+                        "each (default: one per --gcs, or as many as the fleet needs at 254 "
+                        "vehicles each); network n's vehicles send to the n-th --gcs")
     p.add_argument("--origin", type=_origin, default=None,
                    help="show origin LAT,LON,ALT (default ArduPilot SITL's home; not with "
                         "--show)")
@@ -218,18 +225,36 @@ def build_config(args: argparse.Namespace, slots: TakeoffSlots | None = None) ->
             raise SimulatorError(f"--param {item!r}: expected NAME=NUMBER") from None
         if not sep:
             raise SimulatorError(f"--param {item!r}: expected NAME=NUMBER")
+    gcs: list[tuple[str, int]] = args.gcs or [("127.0.0.1", 14550)]
     try:
-        ids = [args.sysid_base + i for i in range(count)] if count > 0 else None
+        networks = networks_for(count, args.networks or (len(gcs) if len(gcs) > 1 else 0))
+    except ValueError as exc:
+        raise SimulatorError(str(exc)) from None
+    spread: dict[str, object] = {}
+    if networks > 1:
+        if len(gcs) != networks:
+            raise SimulatorError(f"{networks} networks need {networks} --gcs addresses (one "
+                                 f"ground-station port each), got {len(gcs)}")
+        if args.sysid_base != 1:
+            raise SimulatorError("--sysid-base is for one network: with several, each "
+                                 "numbers its vehicles from 1")
+        nets, ids = network_layout(count, networks)
+        spread = {"networks": nets, "gcs_networks": gcs}
+    else:
+        if len(gcs) > 1:
+            raise SimulatorError(f"{len(gcs)} --gcs addresses for one network")
+        ids = [args.sysid_base + i for i in range(count)] if count > 0 else []
+    try:
         return SimConfig(
-            count=count, flavour=Flavour(args.autopilot), gcs=args.gcs,
-            system_ids=ids, bind_host=args.bind, base_port=args.base_port,
+            count=count, flavour=Flavour(args.autopilot), gcs=gcs[0],
+            system_ids=ids or None, bind_host=args.bind, base_port=args.base_port,
             physics_rate_hz=args.rate, ekf_origin_delay_s=args.ekf_delay,
             ready_delay_s=args.ready_delay, wind=args.wind, gust_std=args.gust,
             gps_noise_m=args.gps_noise, seed=args.seed, signing_key=args.signing_key,
             link_faults=LinkFaults(args.loss, args.latency, args.jitter, args.duplicate),
             params=params, boot_text=args.boot_text,
             dynamics=profile_for(Flavour(args.autopilot), args.profile),
-            **place)  # type: ignore[arg-type]
+            **place, **spread)  # type: ignore[arg-type]
     except ValueError as exc:
         raise SimulatorError(str(exc)) from exc
 
@@ -260,9 +285,12 @@ def run(args: argparse.Namespace) -> int:
         f"{ports[0]},{ports[1]},...,{ports[-1]}"
     where = "" if slots is None else \
         f" on the takeoff slots of show {slots.name!r} ({slots.source})"
-    print(f"groundctl sim: {config.count} {config.flavour.value} vehicles{where}, sysid "
-          f"{config.sysids()[0]}..{config.sysids()[-1]}, sending to "
-          f"{config.gcs[0]}:{config.gcs[1]}, ports {port_text}, "
+    ids = [VehicleId(s) for s in config.sysids()]
+    gcs = config.gcs_networks or [config.gcs]
+    sending = ", ".join(f"{h}:{p}" for h, p in gcs)
+    nets = f" over {len(gcs)} networks" if len(gcs) > 1 else ""
+    print(f"groundctl sim: {config.count} {config.flavour.value} vehicles{where}{nets}, "
+          f"sysid {ids[0]}..{ids[-1]}, sending to {sending}, ports {port_text}, "
           f"speed x{args.speed:g}", flush=True)
     # A service manager stops us with SIGTERM: the same clean stop as Ctrl-C.
     previous = signal.signal(signal.SIGTERM, _interrupt)

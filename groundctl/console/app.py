@@ -49,6 +49,7 @@ from groundctl.console.model import (
 )
 from groundctl.console.table import FleetTable
 from groundctl.console.terminal import TerminalWriter
+from groundctl.vehicleid import parse_vehicle
 
 #: Refreshes per second at most: an operator reads no faster, and every refresh is
 #: time the control loop's interpreter is not ticking.
@@ -381,7 +382,7 @@ class ConsoleApp(App[None]):
             by_id = {row.sysid: row for row in pre.rows}
             with contextlib.suppress(CellDoesNotExist, ValueError, KeyError, IndexError):
                 cell_key = table.coordinate_to_cell_key(table.cursor_coordinate)
-                row = by_id[int(str(cell_key.row_key.value))]
+                row = by_id[parse_vehicle(str(cell_key.row_key.value))]
                 col = str(cell_key.column_key.value)
                 if col in pre.checks:
                     cell = row.cells[pre.checks.index(col)]
@@ -426,7 +427,7 @@ class ConsoleApp(App[None]):
             if not table.row_count:
                 return None
             key = table.coordinate_to_cell_key(table.cursor_coordinate)
-            return int(str(key.row_key.value))
+            return parse_vehicle(str(key.row_key.value))
         except Exception:  # no table yet, an empty one, a row just removed
             return None
 

@@ -22,6 +22,7 @@ from groundctl.commands.flying import OperatorTarget
 from groundctl.console.feed import EventFeed
 from groundctl.errors import GroundctlError
 from groundctl.execute.preflight import PreflightReport
+from groundctl.vehicleid import parse_vehicle
 
 
 class ConsoleTarget(OperatorTarget, Protocol):
@@ -263,10 +264,10 @@ class Controller:
         sysid: int | None = None
         if rest and not (verb == "log" and rest[0].lower() == "all"):
             try:
-                sysid = int(rest[0])
+                sysid = parse_vehicle(rest[0])
             except ValueError:
                 sysid = -1
-            if not 1 <= sysid <= 255:
+            if sysid < 1:
                 self.say(f"{verb}: {rest[0]!r} is not a system id (1-255)", step="bad_input",
                          action=verb)
                 return

@@ -26,7 +26,7 @@ import asyncio
 import contextlib
 import math
 import time
-from collections.abc import Callable, Coroutine
+from collections.abc import Callable, Coroutine, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,6 +47,13 @@ from groundctl.rtk.sources import RtkSource, SourceSpec
 from groundctl.sim import LinkFaults, SimConfig
 from groundctl.sim.config import profile_for
 from groundctl.sim.process import SimProcess
+from groundctl.vehicleid import (
+    MAX_NETWORKS,
+    VehicleId,
+    network_layout,
+    networks_for,
+    vehicle_id,
+)
 
 #: Loopback only: the dry-run never sends a packet off this machine.
 LOOPBACK = "127.0.0.1"
@@ -109,6 +116,9 @@ class DryRunOptions:
     gcs_sysid: int = 255
     """The ground station's system id (``--gcs-sysid``); the simulated ArduPilots'
     SYSID_MYGCS follows it."""
+    networks: int = 0
+    """MAVLink networks to spread the simulated fleet over (``--networks``; one UDP port
+    of the ground station each); 0: as many as its size needs (254 vehicles each)."""
     paced: bool = True
     """The clock waits for a late simulator or ground-station loop (a
     :class:`~groundctl.clock.PacedClock`); False (``--no-pace``): it runs on at
@@ -121,6 +131,9 @@ class DryRunOptions:
             raise SimulatorError(f"--loss must be in [0, 1), got {self.loss}")
         if self.latency_ms < 0 or self.jitter_ms < 0:
             raise SimulatorError("--latency and --jitter must be non-negative")
+        if not 0 <= self.networks <= MAX_NETWORKS:
+            raise SimulatorError(f"--networks must be in 1..{MAX_NETWORKS}, got "
+                                 f"{self.networks}")
         try:
             profile_for(self.flavour, self.profile)
         except ValueError as exc:
@@ -139,22 +152,34 @@ class DryRunResult:
     """True once the sequence started (arming was commanded)."""
 
 
-def sim_config(plan: Plan, options: DryRunOptions, gcs: tuple[str, int]) -> SimConfig:
-    """A simulated fleet standing on the plan's takeoff slots, talking to ``gcs``."""
-    if plan.drones > 254:
-        raise SimulatorError(f"the dry-run simulates at most 254 vehicles (one system id "
-                             f"each); the plan has {plan.drones}")
-    if 1 <= options.gcs_sysid <= plan.drones:
+def network_count(drones: int, asked: int = 0) -> int:
+    """How many MAVLink networks a simulated fleet of ``drones`` is spread over (see
+    :func:`groundctl.vehicleid.networks_for`)."""
+    try:
+        return networks_for(drones, asked)
+    except ValueError as exc:
+        raise SimulatorError(str(exc)) from None
+
+
+def sim_config(plan: Plan, options: DryRunOptions,
+               gcs: tuple[str, int] | Sequence[tuple[str, int]]) -> SimConfig:
+    """A simulated fleet standing on the plan's takeoff slots, talking to ``gcs`` (one
+    address per network: see :func:`network_layout`)."""
+    addresses = [gcs] if isinstance(gcs, tuple) else list(gcs)
+    nets, local = network_layout(plan.drones, len(addresses))
+    if 1 <= options.gcs_sysid <= max(local):
         raise SimulatorError(f"--gcs-sysid {options.gcs_sysid} is a simulated vehicle's "
-                             f"system id (they are 1..{plan.drones})")
+                             f"system id (they are 1..{max(local)})")
     params = {"SYSID_MYGCS": float(options.gcs_sysid)} \
         if options.flavour is Flavour.ARDUPILOT and options.gcs_sysid != 255 else {}
     o = plan.origin
     return SimConfig(
         params=params, rtk_noise=options.rtk is not None,
         count=plan.drones, flavour=options.flavour, origin=(o.lat, o.lon, o.alt),
-        positions=show_to_enu(o, plan.home), system_ids=list(range(1, plan.drones + 1)),
-        gcs=gcs, bind_host=LOOPBACK, ekf_origin_delay_s=options.ekf_origin_delay_s,
+        positions=show_to_enu(o, plan.home), system_ids=local,
+        gcs=addresses[0], networks=nets if len(addresses) > 1 else None,
+        gcs_networks=addresses if len(addresses) > 1 else None, bind_host=LOOPBACK,
+        ekf_origin_delay_s=options.ekf_origin_delay_s,
         ready_delay_s=options.ready_delay_s, wind=options.wind,
         gust_std=options.gust_std, seed=options.seed, signing_key=options.signing_key,
         link_faults=LinkFaults(options.loss, options.latency_ms, options.jitter_ms, 0.0),
@@ -188,10 +213,13 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
     record = options.record_dir
     recording = None if record is None else Recording(record, clock.now, plan,
                                                       wall=_recording_wall(clock, paced))
-    tlog = None if recording is None else recording.tlog
+    networks = network_count(plan.drones, options.networks)
+    tlogs = None if recording is None else recording.network_tlogs(networks)
     events = None if recording is None else recording.events
-    link = FleetLink((LOOPBACK, 0), clock=clock, expected_ids=range(1, plan.drones + 1),
-                     signing_key=options.signing_key, tlog=tlog, events=events,
+    nets, local = network_layout(plan.drones, networks)
+    link = FleetLink([(LOOPBACK, 0)] * networks, clock=clock,
+                     expected_ids=[vehicle_id(n, s) for n, s in zip(nets, local, strict=True)],
+                     signing_key=options.signing_key, tlog=tlogs, events=events,
                      system_id=options.gcs_sysid)
     rtk: RtkForwarder | None = None
     fleet: SimProcess | None = None
@@ -202,12 +230,12 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
     try:
         await link.start()
         assert link.local_address is not None
-        config = sim_config(plan, options, link.local_address)
+        config = sim_config(plan, options, link.local_addresses)
         if customise is not None:
             config = customise(config)
         fleet = await asyncio.to_thread(SimProcess, config, sim_clock)  # starts flying now
         runner = ShowRunner(plan, link, clock, options.runner, events=events, notify=notify,
-                            expected_ids=config.sysids())
+                            expected_ids=[VehicleId(s) for s in config.sysids()])
         runner.on_tick = _truth_probe(runner, fleet)
         if options.rtk is not None:
             field = (plan.origin.lat, plan.origin.lon, plan.origin.alt)  # for a caster's GGA
@@ -224,7 +252,9 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
                         autopilot=str(options.flavour), speed=options.speed,
                         loss=options.loss, latency_ms=options.latency_ms, seed=options.seed,
                         wind=list(options.wind), gcs=f"{link.local_address[0]}:"
-                                                     f"{link.local_address[1]}")
+                                                     f"{link.local_address[1]}",
+                        **({"networks": [f"{h}:{p}" for h, p in link.local_addresses]}
+                           if networks > 1 else {}))
         for sysid, factor in options.weak:
             fleet.call("weaken", factor, sysid)
         if during is not None or options.pushes:

@@ -24,6 +24,7 @@ from groundctl.execute.sequence import VehiclePhase
 from groundctl.flight.monitor import FormationError
 from groundctl.flight.replanning import Replanner
 from groundctl.flight.runner import ShowRunner
+from groundctl.vehicleid import network_of, spell
 
 
 def _r(x: float | None, nd: int = 3) -> float | None:
@@ -60,7 +61,9 @@ def flight_report(runner: ShowRunner, error: str | None = None,
         track = mon.vehicles.get(sysid) if mon is not None else None
         leds = track.led_errors_s if track is not None else []
         vehicles.append({
-            "system_id": sysid,
+            "system_id": sysid,  # the vehicle id: its system id on network 1, 1017 for 2:17
+            "vehicle": spell(sysid),
+            "network": network_of(sysid),
             "track": run.track if run is not None else None,
             "phase": str(run.phase) if run is not None else
             ("excluded" if sysid in runner.config.excluded else "not flown"),

@@ -25,6 +25,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from groundctl.errors import CommandRefused, CommandTimeout, LinkError
 from groundctl.link.messages import command_long, command_name, result_name
+from groundctl.vehicleid import sysid_of
 
 
 class CommandExchange:
@@ -127,7 +128,9 @@ class CommandExchange:
         COMMAND_ACK names the command, not the request, and is sent to every
         GCS on a shared link: ignore ACKs explicitly addressed to someone else.
         """
-        if ack.get_srcSystem() != self.target_system or ack.command != self.command:
+        # target_system is the vehicle id (its network's system id plus the network's
+        # offset); the ACK comes from the system id alone.
+        if ack.get_srcSystem() != sysid_of(self.target_system) or ack.command != self.command:
             return False
         target = getattr(ack, "target_system", 0)
         return target in (0, our_system)

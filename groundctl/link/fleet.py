@@ -1,10 +1,14 @@
 """FleetLink: the asyncio MAVLink endpoint for a whole fleet.
 
-One UDP socket serves every vehicle.  Vehicles are told apart by system id;
-each one's address is learnt from its first packet (or given by a fleet
-file).  The protocol logic lives in pure modules (:mod:`.state`,
-:mod:`.command`, :mod:`.timesync`, :mod:`.messages`); this module only routes
-bytes between them and the socket, and runs the periodic duties: ground
+One UDP socket per MAVLink network serves every vehicle of that network (one network,
+one socket, unless several are given: :mod:`groundctl.vehicleid`).  Vehicles are
+told apart by vehicle id, their system id on their network's socket; each one's
+address is learnt from its first packet (or given by a fleet file).  Everything above
+the wire (the vehicles' states, commands, listeners, events) is keyed by vehicle id;
+only the packets carry the system id, translated here on the way in and out.  The
+protocol logic lives in pure modules (:mod:`.state`, :mod:`.command`,
+:mod:`.timesync`, :mod:`.messages`); this module only routes bytes between them and
+the sockets, and runs the periodic duties: ground
 station HEARTBEAT, TIMESYNC requests, lost-vehicle detection.
 
 Anything odd on the wire (garbage, a truncated or badly signed packet, an
@@ -18,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import ipaddress
 import logging
 import math
@@ -51,6 +56,13 @@ from groundctl.link.transport import UdpTransport
 from groundctl.link.trust import EXPECT_S, Trust
 from groundctl.record.events import EventSink
 from groundctl.record.tlog import TlogWriter
+from groundctl.vehicleid import (
+    MAX_NETWORKS,
+    NETWORK_STRIDE,
+    VehicleId,
+    network_index,
+    sysid_of,
+)
 
 log = logging.getLogger(__name__)
 
@@ -127,7 +139,7 @@ class FleetLink:
 
     def __init__(
         self,
-        listen: Address = ("0.0.0.0", 14550),
+        listen: Address | Sequence[Address] = ("0.0.0.0", 14550),
         *,
         clock: Clock,
         endpoints: Iterable[Endpoint] = (),
@@ -135,9 +147,10 @@ class FleetLink:
         system_id: int = GCS_SYSTEM_ID,
         component_id: int = GCS_COMPONENT_ID,
         signing_key: bytes | None = None,
+        signing_keys: Sequence[bytes | None] | None = None,
         signing_link_id: int = 0,
         allow_unsigned: bool = False,
-        tlog: TlogWriter | None = None,
+        tlog: TlogWriter | Sequence[TlogWriter | None] | None = None,
         events: EventSink | None = None,
         lost_timeout: float = 3.0,
         fleet_silence: float = 1.0,
@@ -156,7 +169,14 @@ class FleetLink:
             raise ValueError(f"`timesync_period` must be non-negative, got {timesync_period}")
         if not tick > 0:
             raise ValueError(f"`tick` must be positive, got {tick}")
-        self.listen = listen
+        listens: list[Address] = ([listen] if _is_address(listen)  # type: ignore[list-item]
+                                  else list(listen))  # type: ignore[arg-type]
+        if not 1 <= len(listens) <= MAX_NETWORKS:
+            raise ValueError(f"`listen` must name 1..{MAX_NETWORKS} networks, got "
+                             f"{len(listens)}")
+        self.listens = listens
+        """Where each network's socket binds, in network order."""
+        self.listen = listens[0]
         self.clock = clock
         self.endpoints = list(endpoints)
         self.expected_ids = None if expected_ids is None else frozenset(expected_ids)
@@ -166,7 +186,13 @@ class FleetLink:
             None if signing_key is None
             else SigningConfig(signing_key, signing_link_id, allow_unsigned)
         )  # fmt: skip
-        self.tlog = tlog
+        tlogs = list(tlog) if isinstance(tlog, Sequence) else [tlog]
+        if len(tlogs) == 1:
+            tlogs *= len(listens)
+        elif len(tlogs) != len(listens):
+            raise ValueError(f"{len(tlogs)} tlogs for {len(listens)} networks")
+        self._tlogs: list[TlogWriter | None] = tlogs
+        self.tlog = tlogs[0]
         self.events = events
         self.lost_timeout = lost_timeout
         self.fleet_silence = fleet_silence
@@ -185,9 +211,16 @@ class FleetLink:
             e.system_id: e.address for e in self.endpoints if e.address is not None}
         self._pins: dict[int, tuple[str, int | None]] = {
             e.system_id: (_resolve(e.host), e.port) for e in self.endpoints}
-        self._guard = None if self.signing is None else new_guard(self.signing, wall)
+        if signing_keys is not None and len(signing_keys) != len(listens):
+            raise ValueError(f"{len(signing_keys)} signing keys for {len(listens)} networks")
+        self._signings: list[SigningConfig | None] = (
+            [self.signing] * len(listens) if signing_keys is None
+            else [None if k is None else SigningConfig(k, signing_link_id, allow_unsigned)
+                  for k in signing_keys])
+        """Each network's signing (its own key, or ``signing_key`` for all)."""
+        self._guards = [None if s is None else new_guard(s, wall) for s in self._signings]
         self._bad_signatures: dict[int, int] = {}
-        self._parsers: dict[Address, DatagramParser] = {}
+        self._parsers: dict[tuple[int, Address], DatagramParser] = {}
         self._encoders: dict[int, Encoder] = {}
         self._bad_by_address: dict[Address, int] = {}
         self._conflicts_by_id: dict[int, int] = {}
@@ -205,21 +238,37 @@ class FleetLink:
         """The vehicles a fleet-wide silence is judged over (the executor sets those in
         the air: a drone on the ground still talking must not hide a cut of the rest);
         None: every vehicle."""
-        self._transport: UdpTransport | None = None
+        self._transports: list[UdpTransport] = []
         self._task: asyncio.Task[None] | None = None
         self.local_address: Address | None = None
-        """The bound (host, port), once started."""
+        """The first network's bound (host, port), once started."""
+        self.local_addresses: list[Address] = []
+        """Every network's bound (host, port), in network order, once started."""
+        self._last_by_network: list[float | None] = [None] * len(listens)
+        self._back_by_network: list[float] = [-math.inf] * len(listens)
 
     # -- lifecycle -------------------------------------------------------
 
     async def start(self) -> None:
         """Bind the socket and start the periodic duties."""
-        if self._transport is not None:
+        if self._transports:
             raise LinkError("link already started")
-        self._transport = UdpTransport(self._on_datagram, self._on_socket_error)
-        self.local_address = await self._transport.open(self.listen)
+        try:
+            for k, listen in enumerate(self.listens):
+                transport = UdpTransport(functools.partial(self._on_datagram, network=k),
+                                         self._on_socket_error)
+                self._transports.append(transport)
+                self.local_addresses.append(await transport.open(listen))
+        except BaseException:
+            for transport in self._transports:
+                transport.close()
+            self._transports, self.local_addresses = [], []
+            raise
+        self.local_address = self.local_addresses[0]
         self._task = asyncio.create_task(self._run_periodic(), name="fleetlink-periodic")
-        self._emit("link_started", address=f"{self.local_address[0]}:{self.local_address[1]}")
+        for k, (host, port) in enumerate(self.local_addresses):
+            extra = {"network": k + 1} if len(self.local_addresses) > 1 else {}
+            self._emit("link_started", address=f"{host}:{port}", **extra)
 
     async def close(self) -> None:
         """Stop, close the socket, flush the tlog and the event sink (the caller closes them)."""
@@ -228,12 +277,14 @@ class FleetLink:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._task
             self._task = None
-        if self._transport is not None:
-            self._transport.close()
-            self._transport = None
+        if self._transports:
+            for transport in self._transports:
+                transport.close()
+            self._transports = []
             self._emit("link_closed", **{k: v for k, v in vars(self.stats).items()})
-        if self.tlog is not None:
-            self.tlog.flush()
+        for tlog in self._tlogs:
+            if tlog is not None:
+                tlog.flush()
         flush = getattr(self.events, "flush", None)
         if callable(flush):
             flush()
@@ -248,37 +299,40 @@ class FleetLink:
 
     # -- receive path ----------------------------------------------------
 
-    def _parser(self, addr: Address) -> DatagramParser:
-        parser = self._parsers.get(addr)
+    def _parser(self, addr: Address, network: int = 0) -> DatagramParser:
+        parser = self._parsers.get((network, addr))
         if parser is None:
             parser = DatagramParser(
-                new_codec(self.system_id, self.component_id, self.signing, self._wall,
-                          self._guard)
+                new_codec(self.system_id, self.component_id, self._signings[network],
+                          self._wall, self._guards[network])
             )
-            self._parsers[addr] = parser
+            self._parsers[(network, addr)] = parser
         return parser
 
     def _on_socket_error(self, exc: Exception) -> None:
         self.stats.socket_errors += 1
         log.debug("socket error: %s", exc)
 
-    def _on_datagram(self, data: bytes, addr: Address, age_s: float = 0.0) -> None:
+    def _on_datagram(self, data: bytes, addr: Address, age_s: float = 0.0,
+                     network: int = 0) -> None:
         now = self.clock.now()
         if age_s > 0.0:
             now -= self.clock.ago(age_s)  # when it arrived, not when our busy loop read it
         self.stats.datagrams += 1
-        result = self._parser(addr).feed(data)
+        result = self._parser(addr, network).feed(data)
         for reason in result.bad:
             self._bad_packet(addr, reason)
+        offset = network * NETWORK_STRIDE
         for sysid in result.refused_signatures:
-            self._bad_signature(sysid, addr)
+            self._bad_signature(VehicleId(offset + sysid), addr)
         self.stats.unknown_messages += result.unknown
+        tlog = self._tlogs[network]
         for msg in result.messages:
             self.stats.packets += 1
-            if self.tlog is not None:
-                self.tlog.write(msg.get_msgbuf())
+            if tlog is not None:
+                tlog.write(msg.get_msgbuf())
             try:
-                self._handle(msg, addr, now)
+                self._handle(msg, addr, now, network)
             except Exception:  # a bug here must cost one packet, not the link
                 log.exception("error handling %s from %s:%s", msg.get_type(), *addr)
 
@@ -306,13 +360,15 @@ class FleetLink:
             self._emit("bad_signature", system_id=sysid, address=f"{addr[0]}:{addr[1]}",
                        count=n)
 
-    def _handle(self, msg: mavlink.MAVLink_message, addr: Address, now: float) -> None:
-        sysid = msg.get_srcSystem()
-        if sysid == self.system_id or (
+    def _handle(self, msg: mavlink.MAVLink_message, addr: Address, now: float,
+                network: int = 0) -> None:
+        src = msg.get_srcSystem()
+        if src == self.system_id or (
             msg.get_type() == "HEARTBEAT" and msg.type == mavlink.MAV_TYPE_GCS
         ):
             self.stats.foreign_packets += 1
             return
+        sysid = VehicleId(network * NETWORK_STRIDE + src)
         if self.expected_ids is not None and sysid not in self.expected_ids:
             self.stats.unknown_system_packets += 1
             n = self._unknown_ids.get(sysid, 0) + 1
@@ -335,6 +391,7 @@ class FleetLink:
             self._emit("vehicle_found", system_id=sysid,
                        silent_for_s=round(state.silent_for(now), 3))
         self.last_packet_at = now
+        self._last_by_network[network] = now
         changes = apply(state, msg, now)
         for change in changes:
             if change.event == "link_conflict":
@@ -413,7 +470,8 @@ class FleetLink:
     def _encoder(self, sysid: int) -> Encoder:
         enc = self._encoders.get(sysid)
         if enc is None:
-            enc = Encoder(new_codec(self.system_id, self.component_id, self.signing, self._wall))
+            enc = Encoder(new_codec(self.system_id, self.component_id,
+                                    self._signings[network_index(sysid)], self._wall))
             self._encoders[sysid] = enc
         return enc
 
@@ -421,13 +479,17 @@ class FleetLink:
         addr = self._addresses.get(sysid)
         if addr is None:
             raise LinkError(f"vehicle {sysid}: address unknown (never heard from it)")
-        if self._transport is None:
+        if not self._transports:
             raise LinkError("link is not open: call `await link.start()` first")
+        network = network_index(sysid)
+        if network and getattr(msg, "target_system", 0) == sysid:
+            msg.target_system = sysid_of(sysid)  # on the wire: its network's system id
         data = self._encoder(sysid).encode(msg)
-        self._transport.send(data, addr)
+        self._transports[network].send(data, addr)
         self.stats.sent += 1
-        if self.tlog is not None:
-            self.tlog.write(data)
+        tlog = self._tlogs[network]
+        if tlog is not None:
+            tlog.write(data)
 
     def address_of(self, sysid: int) -> Address | None:
         """Where packets for vehicle ``sysid`` go, if known."""
@@ -465,21 +527,32 @@ class FleetLink:
         Called before anything is decided from the vehicles' states: after a stall
         of our own loop the socket holds their packets, and they are not silent.
         """
-        return self._transport.drain() if self._transport is not None else 0
+        return sum(t.drain() for t in self._transports)
 
     def fleet_silent_for(self, now: float) -> float:
         """Seconds since any vehicle of :attr:`silence_ids` (default: any) was heard
         (infinite before the first packet).  Vehicles already marked lost do not count:
         their silence is their own, judged one by one (one drone lost for good, the last
-        still streamed after the others landed, read as the whole fleet silent)."""
+        still streamed after the others landed, read as the whole fleet silent).
+
+        With several networks, the longest of their silences: a network whose link is
+        cut (a radio, a cable) is silent however well the others are heard, and that
+        says nothing about any one of its vehicles."""
+        if len(self.listens) == 1:
+            return self._network_silent_for(0, now)
+        known = {network_index(s) for s in self.vehicles}
+        return max((self._network_silent_for(k, now) for k in sorted(known)), default=0.0)
+
+    def _network_silent_for(self, network: int, now: float) -> float:
         if self.silence_ids is not None:
             judged = [v for s, v in self.vehicles.items() if s in self.silence_ids
-                      and not v.lost]
+                      and not v.lost and network_index(s) == network]
             if not judged:
                 return 0.0  # nobody to judge a fleet-wide silence by
             heard = [v.last_heard for v in judged if v.last_heard is not None]
             return now - max(heard) if heard else math.inf
-        return math.inf if self.last_packet_at is None else now - self.last_packet_at
+        last = self._last_by_network[network]
+        return math.inf if last is None else now - last
 
     def check_lost(self, now: float) -> list[int]:
         """Mark vehicles silent for longer than ``lost_timeout``; returns newly lost ids.
@@ -488,7 +561,9 @@ class FleetLink:
         leaves its packets waiting there), and while the whole fleet is silent (a cut
         of the whole link, the receive path stopped) nobody is marked lost, since
         that says nothing about any one vehicle: the ``fleet_silent`` flag is set
-        instead and the executor holds the show.
+        instead and the executor holds the show.  With several networks the same holds
+        network by network: the vehicles of a silent network (or one just heard again)
+        are not marked lost, and ``fleet_silent`` is set while any network is silent.
         """
         self.drain()
         for sysid, state in self.vehicles.items():
@@ -504,9 +579,20 @@ class FleetLink:
         if silent or now - self._fleet_back_at < self.fleet_silence:
             # Silent, or just back: the rest of the fleet's packets are on their way.
             return []
+        quiet: set[int] = set()
+        if len(self.listens) > 1:
+            for k in range(len(self.listens)):
+                if self._network_silent_for(k, now) > self.fleet_silence:
+                    quiet.add(k)
+                    self._back_by_network[k] = math.inf
+                elif self._back_by_network[k] == math.inf:
+                    self._back_by_network[k] = now
+                if now - self._back_by_network[k] < self.fleet_silence:
+                    quiet.add(k)
         newly = []
         for sysid, state in self.vehicles.items():
-            if not state.lost and state.silent_for(now) > self.lost_timeout:
+            if not state.lost and state.silent_for(now) > self.lost_timeout \
+                    and network_index(sysid) not in quiet:
                 state.lost = True
                 newly.append(sysid)
                 self._emit("vehicle_lost", system_id=sysid,
@@ -787,6 +873,11 @@ class FleetLink:
     def send_message(self, sysid: int, msg: mavlink.MAVLink_message) -> None:
         """Send any message object to vehicle ``sysid`` (escape hatch)."""
         self._send(sysid, msg)
+
+
+def _is_address(value: object) -> bool:
+    """Whether ``value`` is one (host, port) rather than a list of them."""
+    return isinstance(value, tuple) and len(value) == 2 and isinstance(value[0], str)
 
 
 def _resolve(host: str) -> str:

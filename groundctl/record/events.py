@@ -15,6 +15,7 @@ from types import TracebackType
 from typing import Any, Protocol, TextIO
 
 from groundctl.errors import GroundctlError
+from groundctl.vehicleid import NETWORK_STRIDE, spell
 
 
 class EventSink(Protocol):
@@ -42,6 +43,9 @@ class EventLog:
         """Write one event line now (``t`` and ``event`` cannot be overridden by fields)."""
         record: dict[str, Any] = {"t": round(self._now(), 6), "event": event}
         record.update({k: v for k, v in fields.items() if k not in record})
+        sysid = fields.get("system_id")
+        if isinstance(sysid, int) and sysid >= NETWORK_STRIDE and "vehicle" not in record:
+            record["vehicle"] = spell(sysid)  # 2:17 beside its vehicle id 1017
         line = json.dumps(record, default=str, separators=(",", ":"))
         with self._lock:
             if self._file is None:

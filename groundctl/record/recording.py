@@ -33,6 +33,11 @@ TLOG, EVENTS, SHOW_CLOCK, PLAN, REPORT = ("flight.tlog", "events.jsonl", "showcl
 MAX_NAME_PART = 64
 
 
+def network_tlog_name(network: int) -> str:
+    """The tlog file of MAVLink network ``network`` (from 1)."""
+    return TLOG if network == 1 else f"flight-net{network}.tlog"
+
+
 def safe_name(name: str, fallback: str = "show") -> str:
     """``name`` as one safe path component: letters, digits, ``.``, ``-`` and ``_``.
 
@@ -79,8 +84,21 @@ class Recording:
         # ``wall`` stamps the tlog and the show clock log (Unix time); a paced dry-run
         # passes its clock made Unix time, so its waits leave no gaps in the recording.
         self.tlog = TlogWriter(directory / TLOG, wall=wall)
+        self._tlogs = [self.tlog]
+        self._wall = wall
         self.events = EventLog(directory / EVENTS, now)
         self.show_clock = ShowClockLog(directory / SHOW_CLOCK, wall=wall)
+
+    def network_tlogs(self, count: int) -> list[TlogWriter]:
+        """One tlog per MAVLink network: network 1's is ``flight.tlog``, network n's
+        ``flight-net<n>.tlog``.  One each, because a packet carries only its system id:
+        two networks' vehicle 17 in one log could not be told apart, whereas each of
+        these is a plain tlog any MAVLink tool reads."""
+        while len(self._tlogs) < count:
+            n = len(self._tlogs) + 1
+            self._tlogs.append(TlogWriter(self.directory / network_tlog_name(n),
+                                          wall=self._wall))
+        return self._tlogs[:count]
 
     def follow(self, runner: ShowRunner) -> None:
         """Log the show clock on every tick of ``runner``, chained before any
@@ -110,4 +128,5 @@ class Recording:
         finally:
             self.show_clock.close()
             self.events.close()
-            self.tlog.close()
+            for tlog in self._tlogs:
+                tlog.close()

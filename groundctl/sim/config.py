@@ -16,6 +16,7 @@ import numpy as np
 
 from groundctl.link.flavours import Flavour
 from groundctl.sim.faults import LinkFaults
+from groundctl.vehicleid import vehicle_id
 
 #: Default show origin: ArduPilot SITL's default home (Canberra Model Aircraft Club).
 DEFAULT_ORIGIN = (-35.363261, 149.165230, 584.0)
@@ -333,6 +334,12 @@ class SimConfig:
     """MAVLink system ids; None: 1..count."""
     gcs: tuple[str, int] = ("127.0.0.1", 14550)
     """Where vehicles send until they hear from a ground station (then they reply to it)."""
+    networks: Sequence[int] | None = None
+    """Each vehicle's MAVLink network, from 1 (None: all on network 1): a vehicle of
+    network n sends to ``gcs_networks[n - 1]`` and is named by its vehicle id
+    (:mod:`groundctl.vehicleid`: ``2:17`` is 1017) in every call of the fleet."""
+    gcs_networks: Sequence[tuple[str, int]] | None = None
+    """Each network's ground-station address, in network order (None: ``gcs`` alone)."""
     bind_host: str = "127.0.0.1"
     """Address the vehicles' sockets bind to."""
     base_port: int = 0
@@ -389,6 +396,17 @@ class SimConfig:
         elif self.count > 255:
             raise ValueError(
                 "`count` above 255 needs explicit `system_ids` (MAVLink ids are 8 bit)")
+        if self.networks is not None:
+            nets = list(self.networks)
+            gcs = self.gcs_networks if self.gcs_networks is not None else [self.gcs]
+            if len(nets) != self.count or not all(1 <= n <= len(gcs) for n in nets):
+                raise ValueError(f"`networks` must give each of the {self.count} vehicles a "
+                                 f"network in 1..{len(gcs)}")
+            local = self.local_ids()
+            ids = self.sysids()
+            if len(set(ids)) != len(ids) or max(local) > 254:
+                raise ValueError("every vehicle needs its own system id (1..254) on its "
+                                 "network")
         if self.signing_key is not None and len(self.signing_key) != 32:
             raise ValueError("`signing_key` must be 32 bytes")
 
@@ -405,10 +423,24 @@ class SimConfig:
             homes = np.hstack([homes, np.zeros((self.count, 1))])
         return homes
 
-    def sysids(self) -> list[int]:
-        """System ids of the vehicles in order."""
+    def local_ids(self) -> list[int]:
+        """MAVLink system ids of the vehicles in order (on their own networks)."""
         return list(self.system_ids) if self.system_ids is not None else list(
             range(1, self.count + 1))
+
+    def sysids(self) -> list[int]:
+        """Vehicle ids in order: the system ids on network 1, ``vehicle_id(n, sysid)``
+        on the others (what the ground station names them by)."""
+        local = self.local_ids()
+        if self.networks is None:
+            return local
+        return [int(vehicle_id(n, s)) for n, s in zip(self.networks, local, strict=True)]
+
+    def gcs_of(self, index: int) -> tuple[str, int]:
+        """Where vehicle ``index`` (in order) sends before it hears a ground station."""
+        if self.networks is None or self.gcs_networks is None:
+            return self.gcs
+        return tuple(self.gcs_networks[self.networks[index] - 1])  # type: ignore[return-value]
 
     def resolved_dynamics(self) -> Dynamics:
         """``dynamics`` or the flavour's default."""

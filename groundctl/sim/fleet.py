@@ -89,14 +89,15 @@ class SimFleet:
         unix = time.time()
         cls: type[Vehicle] = (ArduPilotVehicle if config.flavour is Flavour.ARDUPILOT
                               else PX4Vehicle)
+        local = config.local_ids()  # on the wire; self.sysids names them (vehicle ids)
         self.vehicles: list[Vehicle] = [
             cls(i, sid, config, self.physics, self.frames, self.boot_time, unix)
-            for i, sid in enumerate(self.sysids)]
-        self.codecs = [VehicleCodec(sid, config.signing_key) for sid in self.sysids]
+            for i, sid in enumerate(local)]
+        self.codecs = [VehicleCodec(sid, config.signing_key) for sid in local]
         self._links: list[LinkFaults] = [config.link_faults] * config.count
         # Each link direction's wandering queueing delay: (to the vehicle, from it).
         self._jitter = [(Jitter(), Jitter()) for _ in range(config.count)]
-        self._gcs: list[tuple[str, int]] = [config.gcs] * config.count
+        self._gcs: list[tuple[str, int]] = [config.gcs_of(i) for i in range(config.count)]
         self._lock = threading.RLock()
         self._inbox: list[tuple[float, int, int, bytes, tuple[str, int]]] = []
         self._outbox: list[tuple[float, int, int, bytes]] = []
@@ -153,7 +154,8 @@ class SimFleet:
             for i, v in enumerate(self.vehicles):
                 c = self.codecs[i].counters
                 out.append(VehicleState(
-                    sysid=v.sysid, port=self._sockets[i].getsockname()[1], time=self.time,
+                    sysid=self.sysids[i], port=self._sockets[i].getsockname()[1],
+                    time=self.time,
                     position=_t3(ph.pos[i]), velocity=_t3(ph.ground_vel[i]),
                     estimated_position=_t3(ph.est_pos[i]), armed=v.armed, mode=v.mode,
                     landed=bool(ph.on_ground[i]), crashed=bool(ph.crashed[i]), led=v.led,
@@ -178,8 +180,8 @@ class SimFleet:
     def rtk_stats(self) -> dict[int, dict[str, int]]:
         """System id -> RTCM frames received intact / bad, distinct frames, fix type now."""
         with self._lock:
-            return {v.sysid: {**v.rtk.stats(), "fix_type": v.gps_fix(self.t)}
-                    for v in self.vehicles}
+            return {sid: {**v.rtk.stats(), "fix_type": v.gps_fix(self.t)}
+                    for sid, v in zip(self.sysids, self.vehicles, strict=True)}
 
     def state(self, sysid: int) -> VehicleState:
         """Snapshot of the (first) vehicle with system id ``sysid``."""
