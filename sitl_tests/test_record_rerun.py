@@ -400,12 +400,12 @@ def test_tlog_decoding_stops_at_the_first_bad_record(tmp_path: Path) -> None:
     gcs = Encoder(new_codec(255, 190))
     veh = mavlink.MAVLink(None, srcSystem=7, srcComponent=1)
     t0 = 1_700_000_000.0
+    first = [veh.gps_global_origin_encode(473977000, 85456000, 488000).pack(veh),
+             veh.local_position_ned_encode(1000, 1.0, 2.0, -3.0, 0.1, 0.0, 0.0).pack(veh)]
     with TlogWriter(path, flush_interval=10.0) as tlog:
-        tlog.write(veh.gps_global_origin_encode(473977000, 85456000, 488000).pack(veh), t0)
-        tlog.write(veh.local_position_ned_encode(1000, 1.0, 2.0, -3.0, 0.1, 0.0, 0.0)
-                   .pack(veh), t0 + 0.1)
-        tlog.flush()
-        before_led = path.stat().st_size
+        tlog.write(first[0], t0)
+        tlog.write(first[1], t0 + 0.1)
+        before_led = sum(8 + len(p) for p in first)  # each record: its stamp, its packet
         tlog.write(gcs.encode(messages.led_rgb(7, 10, 20, 30)), t0 + 0.2)
     good = path.read_bytes()
     bad_crc = bytearray(good[before_led:])  # the LED_CONTROL record again, its CRC off

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 from pymavlink import mavutil
@@ -37,10 +38,12 @@ def test_periodic_flush_and_close_is_idempotent(tmp_path: Path) -> None:
     tlog = TlogWriter(path, wall=lambda: t[0], flush_interval=1.0)
     pkt = Encoder(new_codec()).encode(messages.gcs_heartbeat())
     tlog.write(pkt)
-    assert path.stat().st_size == 0  # buffered
     t[0] = 101.5
-    tlog.write(pkt)
-    assert path.stat().st_size == 2 * (8 + len(pkt))  # flushed by the timer
+    tlog.write(pkt)  # a second past the last flush: a flush is asked for
+    deadline = time.monotonic() + 10.0  # by the writer thread, off the caller's loop
+    while path.stat().st_size < 2 * (8 + len(pkt)) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert path.stat().st_size == 2 * (8 + len(pkt))
     tlog.close()
     tlog.close()
     tlog.write(pkt)  # after close: dropped, no error

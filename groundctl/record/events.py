@@ -12,9 +12,9 @@ import threading
 from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Protocol, TextIO
+from typing import Any, Protocol
 
-from groundctl.errors import GroundctlError
+from groundctl.record.background import BackgroundFile
 from groundctl.vehicleid import NETWORK_STRIDE, spell
 
 
@@ -31,13 +31,12 @@ class EventLog:
         self.path = Path(path)
         self._now = now
         self._lock = threading.Lock()
-        try:
-            self._file: TextIO | None = open(self.path, "w", encoding="utf-8")  # noqa: SIM115
-        except OSError as exc:
-            raise GroundctlError(
-                f"{self.path}: cannot write event log: {exc.strerror or exc}"
-            ) from exc
+        # Written by a thread of its own: an event costs a JSON line, never a system call
+        # on the control loop, and a stalled disk never reaches it.
+        self._file: BackgroundFile | None = BackgroundFile(self.path, "event log",
+                                                            flush_interval=0.0)
         self.count = 0
+        self._complete = True
 
     def emit(self, event: str, /, **fields: Any) -> None:
         """Write one event line now (``t`` and ``event`` cannot be overridden by fields)."""
@@ -50,19 +49,17 @@ class EventLog:
         with self._lock:
             if self._file is None:
                 return
-            self._file.write(line + "\n")
-            self._file.flush()
+            self._file.write((line + "\n").encode("utf-8"))
             self.count += 1
 
-    def close(self) -> None:
-        """Flush and close; idempotent."""
+    def close(self) -> bool:
+        """Write out, flush and close; idempotent.  False if events were lost on the way
+        to the disk."""
         with self._lock:
             if self._file is not None:
-                try:
-                    self._file.flush()
-                finally:
-                    self._file.close()
-                    self._file = None
+                self._complete = self._file.close()
+                self._file = None
+            return self._complete
 
     def __enter__(self) -> EventLog:
         return self

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import logging
 import re
 import time
 from collections.abc import Callable
@@ -26,6 +27,8 @@ if TYPE_CHECKING:
     from groundctl.plan.plan import Plan
 
 #: The files of a recording directory.
+log = logging.getLogger(__name__)
+
 TLOG, EVENTS, SHOW_CLOCK, PLAN, REPORT = ("flight.tlog", "events.jsonl", "showclock.csv",
                                           "plan.npz", "report.json")
 
@@ -126,7 +129,9 @@ class Recording:
                              min_separation_m=report.get("min_separation_m"),
                              max_tracking_error_m=report.get("max_tracking_error_m"))
         finally:
-            self.show_clock.close()
-            self.events.close()
-            for tlog in self._tlogs:
-                tlog.close()
+            whole = [self.show_clock.close(), self.events.close()]
+            whole += [tlog.close() for tlog in self._tlogs]
+            if not all(whole):
+                log.warning("%s: the recording is not whole: the disk fell too far behind "
+                            "(or failed) and some of it was dropped rather than wait on it",
+                            self.directory)

@@ -17,12 +17,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TextIO
 
 import numpy as np
 from numpy.typing import NDArray
 
-from groundctl.errors import GroundctlError, RecordingError
+from groundctl.errors import RecordingError
+from groundctl.record.background import BackgroundFile
 
 FloatArray = NDArray[np.float64]
 
@@ -30,21 +30,19 @@ HEADER = "wall_unix_s,now_s,show_time_s,lateness_ms"
 
 
 class ShowClockLog:
-    """Appends one line per tick; buffered (flushed every ``flush_every`` lines) and on
-    close, so a tick costs a formatted write, not a system call."""
+    """Appends one line per tick, written by a thread of its own
+    (:class:`~groundctl.record.background.BackgroundFile`): a tick costs a formatted
+    string, never a system call, and a stalled disk never reaches the loop."""
 
     def __init__(self, path: str | Path, *, wall: Callable[[], float] = time.time,
                  flush_every: int = 50) -> None:
         self.path = Path(path)
         self._wall = wall
         self._flush_every = max(int(flush_every), 1)
-        try:
-            self._file: TextIO | None = open(self.path, "w", encoding="ascii")  # noqa: SIM115
-        except OSError as exc:
-            raise GroundctlError(f"{self.path}: cannot write the show clock log: "
-                                 f"{exc.strerror or exc}") from exc
-        self._file.write(HEADER + "\n")
+        self._file: BackgroundFile | None = BackgroundFile(self.path, "the show clock log")
+        self._file.write((HEADER + "\n").encode("ascii"))
         self.lines = 0
+        self._complete = True
 
     def tick(self, now: float, show_time: float | None, lateness_s: float | None,
              behind_s: float = 0.0) -> None:
@@ -56,19 +54,18 @@ class ShowClockLog:
             return
         st = "nan" if show_time is None else f"{show_time:.4f}"
         late = "nan" if lateness_s is None else f"{lateness_s * 1000.0:.3f}"
-        self._file.write(f"{self._wall() - behind_s:.6f},{now:.6f},{st},{late}\n")
+        self._file.write(f"{self._wall() - behind_s:.6f},{now:.6f},{st},{late}\n".encode())
         self.lines += 1
         if self.lines % self._flush_every == 0:
             self._file.flush()
 
-    def close(self) -> None:
-        """Flush and close; idempotent."""
+    def close(self) -> bool:
+        """Write out, flush and close; idempotent.  False if lines were lost on the way to
+        the disk."""
         if self._file is not None:
-            try:
-                self._file.flush()
-            finally:
-                self._file.close()
-                self._file = None
+            self._complete = self._file.close()
+            self._file = None
+        return self._complete
 
 
 @dataclass(frozen=True)

@@ -13,15 +13,16 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
-from typing import BinaryIO
 
-from groundctl.errors import GroundctlError
+from groundctl.record.background import BackgroundFile
 
 _STAMP = struct.Struct(">Q")
 
 
 class TlogWriter:
-    """Appends timestamped packets to a .tlog; flushes every ``flush_interval`` s and on close."""
+    """Appends timestamped packets to a .tlog, written by a thread of its own
+    (:class:`~groundctl.record.background.BackgroundFile`: the control loop never waits
+    on the disk); flushed every ``flush_interval`` s and on close."""
 
     def __init__(
         self,
@@ -36,11 +37,9 @@ class TlogWriter:
         # Wall time on purpose: tlog timestamps are absolute Unix times, not show time.
         self._wall = wall
         self._flush_interval = flush_interval
-        try:
-            self._file: BinaryIO | None = open(self.path, "wb")  # noqa: SIM115 - closed in close()
-        except OSError as exc:
-            raise GroundctlError(f"{self.path}: cannot write tlog: {exc.strerror or exc}") from exc
+        self._file: BackgroundFile | None = BackgroundFile(self.path, "tlog")
         self._last_flush = wall()
+        self._complete = True
         self.packets = 0
 
     def write(self, packet: bytes, unix_s: float | None = None) -> None:
@@ -58,14 +57,13 @@ class TlogWriter:
             self._file.flush()
             self._last_flush = self._wall()
 
-    def close(self) -> None:
-        """Flush and close; idempotent."""
+    def close(self) -> bool:
+        """Write out, flush and close; idempotent.  False if packets were lost on the way
+        to the disk (it fell too far behind, or failed)."""
         if self._file is not None:
-            try:
-                self._file.flush()
-            finally:
-                self._file.close()
-                self._file = None
+            self._complete = self._file.close()
+            self._file = None
+        return self._complete
 
     @property
     def closed(self) -> bool:
