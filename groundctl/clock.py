@@ -307,6 +307,16 @@ class PacedClock:
             now = self._read()
             return now - self._dated(time.monotonic() - wall_seconds, now)
 
+    def ago_many(self, wall_seconds: list[float]) -> list[float]:
+        """:meth:`ago` of each of ``wall_seconds``, with one look at the lock (a receive
+        worker's batch of datagrams)."""
+        with self._locked() as ok:
+            if not ok:
+                return [self.speed * w for w in wall_seconds]
+            now = self._read()
+            wall = time.monotonic()
+            return [now - self._dated(wall - w, now) for w in wall_seconds]
+
     # -- taking part -------------------------------------------------------------------
 
     def idle_until(self, t: float) -> None:

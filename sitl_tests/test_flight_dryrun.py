@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import signal
 import socket
 from dataclasses import replace
 from pathlib import Path
@@ -411,15 +413,21 @@ def test_asked_for_more_pace_than_the_machine_has_the_clock_waits_and_the_show_i
 
 def test_a_show_flown_across_two_networks(tmp_path: Path) -> None:
     """Issue 34: the quick show spread over two MAVLink networks (two ground-station
-    ports; system ids 1-5 on the first, 1-4 on the second), an operator's land-one naming
-    a vehicle of the second network, one tlog per network."""
+    ports; system ids 1-5 on the first, 1-4 on the second), each read by a receive worker
+    of its own; network 2's worker killed mid-show (the show holds, a new worker takes
+    the same socket, the show goes on); an operator's land-one naming a vehicle of the
+    second network; one tlog per network."""
     from groundctl.vehicleid import parse_vehicle
 
-    async def land_one_on_network_two(runner: ShowRunner, _: SimProcess) -> None:
+    async def kill_a_worker_then_land_one(runner: ShowRunner, _: SimProcess) -> None:
+        await until(runner, lambda: show_time(runner) > 3.0)
+        assert len(runner.link.worker_pids) == 2
+        os.kill(runner.link.worker_pids[1], signal.SIGKILL)
         await until(runner, lambda: show_time(runner) > 6.0)
         runner.land_one(parse_vehicle("2:3"))
 
-    result = dry_run(tmp_path, networks=2, during=land_one_on_network_two)
+    result = dry_run(tmp_path, networks=2, link_workers="on",
+                     during=kill_a_worker_then_land_one)
     report = result.report
     _assert_flown_safely(report)
     assert [v["vehicle"] for v in report["vehicles"]] == \
@@ -430,6 +438,10 @@ def test_a_show_flown_across_two_networks(tmp_path: Path) -> None:
     assert any(e.get("vehicle") == "2:3" for e in events)
     texts = [e.get("text", "") for e in events]
     assert any("vehicle 2:3 leaves the show at show time" in t for t in texts), texts
+    names = [e["event"] for e in events]
+    assert names.count("link_worker_died") == names.count("link_worker_restarted") == 1
+    assert "silence" in {e.get("reason") for e in events if e["event"] == "show_held"}
+    assert "vehicle_lost" not in names
     # One tlog per network, each a plain tlog with its own network's system ids.
     for name, ids in (("flight.tlog", {1, 2, 3, 4, 5}), ("flight-net2.tlog", {1, 2, 3, 4})):
         log = mavutil.mavlink_connection(str(tmp_path / name), dialect="ardupilotmega")

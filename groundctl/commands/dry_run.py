@@ -102,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
         ready_delay_s=args.ready_delay, runner=runner_config(args), record_dir=record,
         pushes=tuple(Push(s, t, v) for s, t, v in args.push),
         weak=tuple(w for group in args.weak for w in group), profile=args.profile,
-        rtk=args.rtk, gcs_sysid=args.gcs_sysid, paced=args.paced, networks=args.networks)
+        rtk=args.rtk, gcs_sysid=args.gcs_sysid, paced=args.paced, networks=args.networks,
+        link_workers=args.link_workers)
     notify = say(args.quiet)
     interrupts = Interrupts(notify)
     live = start_live_rerun(args, plan, record)

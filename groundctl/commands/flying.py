@@ -51,6 +51,10 @@ def add_runner_options(p: argparse.ArgumentParser) -> None:
                         "system id 17); the rest must still be safe without it")
     p.add_argument("--rate", type=positive, default=10.0, metavar="HZ",
                    help="setpoint rate per vehicle (default 10)")
+    p.add_argument("--link-workers", choices=("auto", "on", "off"), default="auto",
+                   help="read and parse each MAVLink network's telemetry in a worker "
+                        "process of its own, off the control loop (auto: for fleets of 100 "
+                        "vehicles or more)")
     p.add_argument("--lead", type=lead_ms, default=None, metavar="MS|auto",
                    help="setpoints are taken this far ahead of the show clock, to cover the "
                         "link delay and the vehicle's response; 'auto' (the default) "

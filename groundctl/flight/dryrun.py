@@ -40,6 +40,7 @@ from groundctl.flight.report import flight_report
 from groundctl.flight.runner import RunnerConfig, ShowRunner
 from groundctl.link.flavours import Flavour
 from groundctl.link.fleet import FleetLink
+from groundctl.link.rxworker import LINK_WORKER_MODES, use_workers
 from groundctl.plan.plan import Plan
 from groundctl.record.recording import Recording
 from groundctl.rtk.forwarder import RtkForwarder
@@ -119,6 +120,9 @@ class DryRunOptions:
     networks: int = 0
     """MAVLink networks to spread the simulated fleet over (``--networks``; one UDP port
     of the ground station each); 0: as many as its size needs (254 vehicles each)."""
+    link_workers: str = "auto"
+    """``--link-workers``: each network's receive path in a worker process (``on``,
+    ``off``, ``auto``: from :data:`~groundctl.link.rxworker.WORKERS_FROM` vehicles)."""
     paced: bool = True
     """The clock waits for a late simulator or ground-station loop (a
     :class:`~groundctl.clock.PacedClock`); False (``--no-pace``): it runs on at
@@ -134,6 +138,9 @@ class DryRunOptions:
         if not 0 <= self.networks <= MAX_NETWORKS:
             raise SimulatorError(f"--networks must be in 1..{MAX_NETWORKS}, got "
                                  f"{self.networks}")
+        if self.link_workers not in LINK_WORKER_MODES:
+            raise SimulatorError(f"--link-workers must be one of "
+                                 f"{', '.join(LINK_WORKER_MODES)}, got {self.link_workers!r}")
         try:
             profile_for(self.flavour, self.profile)
         except ValueError as exc:
@@ -193,13 +200,15 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
                       customise: Callable[[SimConfig], SimConfig] | None = None,
                       during: During | None = None,
                       notify: Callable[[str], None] | None = None,
-                      on_runner: Callable[[ShowRunner], None] | None = None) -> DryRunResult:
+                      on_runner: Callable[[ShowRunner], None] | None = None,
+                      on_simulator: Callable[[int], None] | None = None) -> DryRunResult:
     """Fly ``plan`` against a simulated fleet; always returns the report (and recordings).
 
     ``customise`` may change the simulator's configuration (a vehicle off its
     slot, other EKF origins); ``during`` runs alongside the flight (faults,
     operator commands) and is cancelled when the flight ends; ``on_runner``
-    gets the runner before it starts (the CLI hooks Ctrl-C to it).
+    gets the runner before it starts (the CLI hooks Ctrl-C to it), ``on_simulator``
+    the simulator's process id (a benchmark counts its CPU).
     """
     paced = PacedClock(options.speed, participants=2) if options.paced else None
     # The ground station's clock, and the simulator's.
@@ -220,7 +229,8 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
     link = FleetLink([(LOOPBACK, 0)] * networks, clock=clock,
                      expected_ids=[vehicle_id(n, s) for n, s in zip(nets, local, strict=True)],
                      signing_key=options.signing_key, tlog=tlogs, events=events,
-                     system_id=options.gcs_sysid)
+                     system_id=options.gcs_sysid,
+                     receive_workers=use_workers(options.link_workers, plan.drones))
     rtk: RtkForwarder | None = None
     fleet: SimProcess | None = None
     runner: ShowRunner | None = None
@@ -247,6 +257,8 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
             recording.follow(runner)  # the show clock, for a replay
         if on_runner is not None:
             on_runner(runner)
+        if on_simulator is not None:
+            on_simulator(fleet.pid)
         if events is not None:
             events.emit("dry_run", show=plan.show_name, vehicles=plan.drones,
                         autopilot=str(options.flavour), speed=options.speed,

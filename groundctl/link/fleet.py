@@ -26,6 +26,7 @@ import functools
 import ipaddress
 import logging
 import math
+import os
 import socket
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -49,6 +50,7 @@ from groundctl.link.command import CommandExchange
 from groundctl.link.flavours import Flavour, mode_from_set_mode, mode_request
 from groundctl.link.fleetfile import Endpoint
 from groundctl.link.messages import FORCE_MAGIC
+from groundctl.link.rxworker import Datagram, ReceiveWorker, WorkerSetup, unpack_message
 from groundctl.link.signing import SigningConfig, new_guard
 from groundctl.link.state import VehicleState, apply, expect, expire_chunks, unexpect
 from groundctl.link.timesync import answer as timesync_answer
@@ -68,6 +70,9 @@ log = logging.getLogger(__name__)
 
 Address = tuple[str, int]
 Vec3 = Sequence[float]
+
+#: A receive worker that died again is restarted after this, s (real time).
+WORKER_RESTART_S = 1.0
 
 #: Telemetry a show needs, in Hz, for :meth:`FleetLink.request_streams`.
 DEFAULT_STREAMS: dict[int, float] = {
@@ -116,6 +121,8 @@ class LinkStats:
     event; pre-flight requests included)."""
     commands_timed_out: int = 0
     """COMMAND_LONG exchanges never answered after every retry (``command_timeout`` events)."""
+    worker_deaths: int = 0
+    """Receive workers that died (each restarted; ``link_worker_died`` events)."""
 
 
 def _log_worthy(count: int) -> bool:
@@ -160,6 +167,7 @@ class FleetLink:
         allow_address_change: bool = False,
         command_reason_grace: float = 0.2,
         wall: Callable[[], float] = time.time,
+        receive_workers: bool = False,
     ) -> None:
         if not lost_timeout > 0:
             raise ValueError(f"`lost_timeout` must be positive, got {lost_timeout}")
@@ -246,6 +254,12 @@ class FleetLink:
         """Every network's bound (host, port), in network order, once started."""
         self._last_by_network: list[float | None] = [None] * len(listens)
         self._back_by_network: list[float] = [-math.inf] * len(listens)
+        self.receive_workers = receive_workers
+        """Each network's receive path (socket reads, parsing, signatures) runs in a
+        process of its own (:mod:`groundctl.link.rxworker`); False: in this one."""
+        self._workers: list[ReceiveWorker] = []
+        self._worker_down: list[bool] = [False] * len(listens)
+        self._restarts: list[asyncio.TimerHandle | None] = [None] * len(listens)
 
     # -- lifecycle -------------------------------------------------------
 
@@ -265,6 +279,8 @@ class FleetLink:
             self._transports, self.local_addresses = [], []
             raise
         self.local_address = self.local_addresses[0]
+        if self.receive_workers:
+            self._start_workers()
         self._task = asyncio.create_task(self._run_periodic(), name="fleetlink-periodic")
         for k, (host, port) in enumerate(self.local_addresses):
             extra = {"network": k + 1} if len(self.local_addresses) > 1 else {}
@@ -277,6 +293,12 @@ class FleetLink:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._task
             self._task = None
+        for handle in self._restarts:
+            if handle is not None:
+                handle.cancel()
+        for worker in self._workers:
+            worker.close()
+        self._workers = []
         if self._transports:
             for transport in self._transports:
                 transport.close()
@@ -318,16 +340,23 @@ class FleetLink:
         now = self.clock.now()
         if age_s > 0.0:
             now -= self.clock.ago(age_s)  # when it arrived, not when our busy loop read it
-        self.stats.datagrams += 1
         result = self._parser(addr, network).feed(data)
-        for reason in result.bad:
+        self._on_parsed(addr, now, network, result.messages, result.bad,
+                        result.refused_signatures, result.unknown)
+
+    def _on_parsed(self, addr: Address, now: float, network: int,
+                   messages: Iterable[mavlink.MAVLink_message], bad: Iterable[str],
+                   refused_signatures: Iterable[int], unknown: int) -> None:
+        """One datagram's content, parsed here or by the network's receive worker."""
+        self.stats.datagrams += 1
+        for reason in bad:
             self._bad_packet(addr, reason)
         offset = network * NETWORK_STRIDE
-        for sysid in result.refused_signatures:
+        for sysid in refused_signatures:
             self._bad_signature(VehicleId(offset + sysid), addr)
-        self.stats.unknown_messages += result.unknown
+        self.stats.unknown_messages += unknown
         tlog = self._tlogs[network]
-        for msg in result.messages:
+        for msg in messages:
             self.stats.packets += 1
             if tlog is not None:
                 tlog.write(msg.get_msgbuf())
@@ -335,6 +364,74 @@ class FleetLink:
                 self._handle(msg, addr, now, network)
             except Exception:  # a bug here must cost one packet, not the link
                 log.exception("error handling %s from %s:%s", msg.get_type(), *addr)
+
+    # -- receive workers ---------------------------------------------------
+
+    @property
+    def worker_pids(self) -> list[int]:
+        """The running receive workers' process ids (none without workers)."""
+        return [w.pid for w in self._workers if w.pid is not None]
+
+    def _start_workers(self) -> None:
+        for k, transport in enumerate(self._transports):
+            sock = transport.pause_reading()
+            setup = WorkerSetup(k, self.system_id, self.component_id, self._signings[k],
+                                transport.stamped, os.getpid())
+            worker = ReceiveWorker(sock, setup, functools.partial(self._on_batch, k),
+                                   functools.partial(self._worker_died, k))
+            self._workers.append(worker)
+            worker.start()
+
+    def _on_batch(self, network: int, batch: list[Datagram]) -> None:
+        """A receive worker's batch: each datagram dated on our clock as it arrived, then
+        handled as if read here.  A restarted worker's first batch ends its network's
+        silence (then heard again as any silent network is)."""
+        self._worker_down[network] = False
+        clock = self.clock
+        now = clock.now()
+        wall = time.monotonic()
+        ago_many = getattr(clock, "ago_many", None)
+        ages = [max(wall - d.arrived, 0.0) for d in batch]
+        agos = ago_many(ages) if ago_many is not None else [clock.ago(a) for a in ages]
+        for datagram, ago in zip(batch, agos, strict=True):
+            try:
+                messages = [unpack_message(m) for m in datagram.messages]
+            except Exception as exc:  # a worker of another version, a bug: one datagram
+                self._bad_packet(datagram.address, f"unreadable from the worker: {exc}")
+                continue
+            self._on_parsed(datagram.address, now - ago, network, messages, datagram.bad,
+                            datagram.refused_signatures, datagram.unknown)
+
+    def _worker_died(self, network: int, exitcode: int | None) -> None:
+        """Seen at once: the network counts as silent (``fleet_silent`` at once: the show
+        holds) until a new worker on the same socket passes its vehicles on again;
+        restarted at once, then after WORKER_RESTART_S if it keeps dying."""
+        self.stats.worker_deaths += 1
+        self._worker_down[network] = True
+        self._emit("link_worker_died", network=network + 1, exit_code=exitcode)
+        log.warning("network %d: the receive worker died (exit code %s); restarting it",
+                    network + 1, exitcode)
+        self.check_lost(self.clock.now())  # fleet_silent now, not at the next check
+        worker = self._workers[network]
+        delay = 0.0 if worker.starts <= 1 else WORKER_RESTART_S
+        self._restarts[network] = asyncio.get_running_loop().call_later(
+            delay, self._restart_worker, network)
+
+    def _restart_worker(self, network: int) -> None:
+        self._restarts[network] = None
+        worker = self._workers[network]
+        if worker.closed:
+            return
+        try:
+            worker.start()
+        except Exception as exc:  # cannot fork: the network stays silent, say so
+            log.error("network %d: cannot restart the receive worker: %s", network + 1, exc)
+            self._emit("link_worker_failed", network=network + 1, reason=str(exc))
+            self._restarts[network] = asyncio.get_running_loop().call_later(
+                WORKER_RESTART_S, self._restart_worker, network)
+            return
+        self._emit("link_worker_restarted", network=network + 1, pid=worker.pid,
+                   starts=worker.starts)
 
     def _bad_packet(self, addr: Address, reason: str) -> None:
         self.stats.bad_packets += 1
@@ -527,6 +624,8 @@ class FleetLink:
         Called before anything is decided from the vehicles' states: after a stall
         of our own loop the socket holds their packets, and they are not silent.
         """
+        if self._workers:
+            return sum(w.drain() for w in self._workers)
         return sum(t.drain() for t in self._transports)
 
     def fleet_silent_for(self, now: float) -> float:
@@ -544,6 +643,8 @@ class FleetLink:
         return max((self._network_silent_for(k, now) for k in sorted(known)), default=0.0)
 
     def _network_silent_for(self, network: int, now: float) -> float:
+        if self._worker_down[network]:
+            return math.inf  # its receive worker died: nothing of it is heard
         if self.silence_ids is not None:
             judged = [v for s, v in self.vehicles.items() if s in self.silence_ids
                       and not v.lost and network_index(s) == network]

@@ -36,7 +36,7 @@ MAX_READS = 4096
 SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35 if sys.platform.startswith("linux")
                          else None)
 _TIMESPEC = struct.Struct("@qq")
-_ANCILLARY = socket.CMSG_SPACE(_TIMESPEC.size)
+ANCILLARY = socket.CMSG_SPACE(_TIMESPEC.size)
 #: An arrival stamp further back than this is not believed (the wall clock was stepped):
 #: the datagram is taken as arrived when it is read, s.
 MAX_AGE_S = 2.0
@@ -98,8 +98,8 @@ class UdpTransport:
             age = 0.0
             try:
                 if self._stamped:
-                    data, ancillary, _, addr = sock.recvmsg(65535, _ANCILLARY)
-                    age = _age(ancillary)
+                    data, ancillary, _, addr = sock.recvmsg(65535, ANCILLARY)
+                    age = arrival_age(ancillary)
                 else:
                     data, addr = sock.recvfrom(65535)
             except (BlockingIOError, InterruptedError):
@@ -121,6 +121,21 @@ class UdpTransport:
             sock = self._sock  # the handler may have closed us
         return count
 
+    @property
+    def stamped(self) -> bool:
+        """The kernel stamps each datagram's arrival (SO_TIMESTAMPNS is on)."""
+        return self._stamped
+
+    def pause_reading(self) -> socket.socket:
+        """Stop reading the socket here (a receive worker reads it instead); returns the
+        socket, still open for :meth:`send`."""
+        if self._sock is None:
+            raise LinkError("link is not open")
+        if self._loop is not None and not self._loop.is_closed():
+            with contextlib.suppress(Exception):
+                self._loop.remove_reader(self._sock.fileno())
+        return self._sock
+
     def send(self, data: bytes, addr: Address) -> None:
         """Send ``data`` to ``addr``; never blocks, never raises for a send failure (UDP:
         a full send buffer drops the datagram, as the network would)."""
@@ -138,14 +153,12 @@ class UdpTransport:
 
     def close(self) -> None:
         if self._sock is not None:
-            if self._loop is not None and not self._loop.is_closed():
-                with contextlib.suppress(Exception):
-                    self._loop.remove_reader(self._sock.fileno())
+            self.pause_reading()
             self._sock.close()
             self._sock = None
 
 
-def _age(ancillary: list[tuple[int, int, bytes]]) -> float:
+def arrival_age(ancillary: list[tuple[int, int, bytes]]) -> float:
     """Wall seconds since the kernel stamped the datagram (0 without a believable stamp)."""
     for level, kind, data in ancillary:
         if level == socket.SOL_SOCKET and kind == SO_TIMESTAMPNS and \

@@ -19,6 +19,10 @@ from groundctl.execute.sequence import FLEET_HOLDS, ShowSequence, StreamRequest,
 from groundctl.execute.setpoints import Setpoints
 from groundctl.flight.runner.planning import Planning
 
+#: LED changes due within this much real time of one another leave together (sent at
+#: the earliest one's instant), s.
+LED_SEND_QUANTUM_S = 0.001
+
 
 class LinkTiming(Planning):
     """Leads, LED sends and late vehicles (a layer of :class:`ShowRunner`)."""
@@ -92,14 +96,25 @@ class LinkTiming(Planning):
         batch = schedule.window(min(start, t + period), t + period, delays)
         self._led_window_end = t + period
         loop = asyncio.get_running_loop()
+        # Grouped by send instant (LED_SEND_QUANTUM_S of real time, never later): one
+        # timer and one look at the clock per group, not per vehicle.
+        groups: dict[float, tuple[list[float], list[tuple[int, tuple[int, int, int]]]]] = {}
+        per_second = self.clock.wall_interval(1.0)  # 0: a clock real time does not move
+        quantum = LED_SEND_QUANTUM_S / per_second if per_second > 0 else 0.0
         for k in range(len(batch.sysids)):
             sysid = int(batch.sysids[k])
             if sysid not in wanted:
                 continue
             colour = (int(batch.rgb[k][0]), int(batch.rgb[k][1]), int(batch.rgb[k][2]))
             wait = max(float(batch.send_at[k]) - t, 0.0)
+            key = math.floor(wait / quantum) if quantum > 0 else wait
+            waits, items = groups.setdefault(key, ([], []))
+            waits.append(wait)
+            items.append((sysid, colour))
+        for waits, items in groups.values():
+            wait = min(waits)
             handle = loop.call_later(self.clock.wall_interval(wait), self._send_led_at,
-                                     sysid, colour, now + wait)
+                                     items, now + wait)
             self._led_handles.append(handle)
             self._led_dues.append(now + wait)
         self._led_handles = [h for h in self._led_handles if not h.cancelled()
@@ -121,17 +136,20 @@ class LinkTiming(Planning):
             out[i] = 0.0 if rtt is None else min(max(rtt / 2.0, 0.0), 1.0)
         return out
 
-    def _send_led_at(self, sysid: int, colour: tuple[int, int, int], due: float) -> None:
-        """Send at clock time ``due``: again later if the clock is not there yet (a paced
-        dry-run clock that waited for a late loop runs slower than real time)."""
+    def _send_led_at(self, items: list[tuple[int, tuple[int, int, int]]], due: float
+                     ) -> None:
+        """Send ``items`` (system id, colour) at clock time ``due``: again later if the
+        clock is not there yet (a paced dry-run clock that waited for a late loop runs
+        slower than real time)."""
         wait = due - self.clock.now()
         if wait > 1e-3:
             handle = asyncio.get_running_loop().call_later(
-                max(self.clock.wall_interval(wait), HELD_POLL_S), self._send_led_at, sysid,
-                colour, due)
+                max(self.clock.wall_interval(wait), HELD_POLL_S), self._send_led_at, items,
+                due)
             self._led_handles.append(handle)
             return
-        self._send_led(sysid, colour)
+        for sysid, colour in items:
+            self._send_led(sysid, colour)
         with contextlib.suppress(ValueError):
             self._led_dues.remove(due)
         self.clock.idle_until(self._idle_due())

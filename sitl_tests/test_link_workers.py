@@ -1,0 +1,244 @@
+"""The receive path in worker processes (issue 34, groundctl/link/rxworker.py): the
+worker protocol (messages packed and rebuilt unchanged, batches), the worker's reads of
+a real loopback socket (garbage, truncation, signatures), FleetLink with workers
+against the simulator over UDP on two networks, and a worker that dies (seen at once,
+the network silent meanwhile, restarted on the same socket, its vehicles heard again)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import time
+
+import pytest
+from link_fixtures import EventList, eventually, run
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from groundctl.clock import ManualClock, PacedClock, ScaledClock
+from groundctl.link import FleetLink
+from groundctl.link.codec import new_codec
+from groundctl.link.rxworker import (
+    Datagram,
+    Receiver,
+    WorkerSetup,
+    decode_batch,
+    encode_batch,
+    pack_message,
+    unpack_message,
+    use_workers,
+)
+from groundctl.link.signing import SigningConfig
+from groundctl.sim import SimConfig, SimFleet
+
+KEY = bytes(range(32))
+
+
+def _sample_messages() -> list[mavlink.MAVLink_message]:
+    return [
+        mavlink.MAVLink_heartbeat_message(2, 3, 81, 4, 4, 3),
+        mavlink.MAVLink_local_position_ned_message(1234, 1.5, -2.25, -5.0, 0.1, 0.2, -0.3),
+        mavlink.MAVLink_global_position_int_message(1000, 473977418, 85455939, 500000,
+                                                    10000, 1, 2, 3, 65535),
+        mavlink.MAVLink_statustext_message(4, b"PreArm: GPS not healthy", 7, 0),
+        mavlink.MAVLink_param_value_message(b"FENCE_ENABLE", 1.0, 9, 1200, 17),
+        mavlink.MAVLink_command_ack_message(400, 0, 0, 0, 255, 190),
+        mavlink.MAVLink_attitude_quaternion_message(10, 1.0, 0.0, 0.0, 0.0, 0.1, 0.2, 0.3,
+                                                    [0.0, 0.0, 0.0, 0.0]),
+    ]
+
+
+def _wire(msgs: list[mavlink.MAVLink_message], sysid: int = 7,
+          key: bytes | None = None) -> list[bytes]:
+    mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
+    if key is not None:
+        mav.signing.secret_key = key
+        mav.signing.sign_outgoing = True
+        mav.signing.link_id = 0
+        mav.signing.timestamp = int((time.time() - 1420070400) * 100000)
+    return [m.pack(mav) for m in msgs]
+
+
+def _parsed(wire: list[bytes]) -> list[mavlink.MAVLink_message]:
+    rx = new_codec()
+    return [m for data in wire for m in rx.parse_buffer(data) or []]
+
+
+def test_a_message_rebuilt_from_its_packed_form_is_the_message_parsed() -> None:
+    for msg in _parsed(_wire(_sample_messages())):
+        back = unpack_message(pack_message(msg))
+        assert type(back) is type(msg) and back.get_type() == msg.get_type()
+        assert back.to_dict() == msg.to_dict()
+        assert bytes(back.get_msgbuf()) == bytes(msg.get_msgbuf())
+        assert (back.get_srcSystem(), back.get_srcComponent(), back.get_seq()) == \
+            (msg.get_srcSystem(), msg.get_srcComponent(), msg.get_seq())
+        assert back.get_header().__dict__ == msg.get_header().__dict__
+    text = unpack_message(pack_message(_parsed(_wire(_sample_messages()))[3]))
+    assert text.text == "PreArm: GPS not healthy"  # decoded, as a parsed one is
+
+
+def test_a_batch_crosses_the_pipe_unchanged() -> None:
+    packed = tuple(pack_message(m) for m in _parsed(_wire(_sample_messages())))
+    batch = [Datagram(("127.0.0.1", 14551), 12.5, packed),
+             Datagram(("127.0.0.2", 9), 12.75, (), ("bad CRC", "truncated packet (3 bytes)"),
+                      (5,), 2)]
+    assert decode_batch(encode_batch(batch)) == batch
+    assert decode_batch(encode_batch([])) == []
+
+
+@pytest.mark.parametrize(("mode", "vehicles", "want"), [
+    ("off", 1000, False), ("on", 2, True), ("auto", 99, False), ("auto", 100, True)])
+def test_link_workers_modes(mode: str, vehicles: int, want: bool) -> None:
+    assert use_workers(mode, vehicles) is want
+
+
+def test_an_unknown_link_workers_mode_is_one_line() -> None:
+    with pytest.raises(ValueError, match="--link-workers must be one of auto, on, off"):
+        use_workers("sometimes", 10)
+
+
+def _bound() -> tuple[socket.socket, socket.socket]:
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.setblocking(False)
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    tx.bind(("127.0.0.1", 0))
+    return rx, tx
+
+
+def _read_all(receiver: Receiver, want: int) -> list[Datagram]:
+    out: list[Datagram] = []
+    deadline = time.monotonic() + 5.0
+    while len(out) < want and time.monotonic() < deadline:
+        out += receiver.read()
+        time.sleep(0.001)
+    return out
+
+
+def test_the_worker_reads_parses_and_dates_what_a_real_socket_holds() -> None:
+    rx, tx = _bound()
+    try:
+        setup = WorkerSetup(0, 255, 190, None, False, os.getpid())
+        receiver = Receiver(rx, setup)
+        good = _wire(_sample_messages()[:2])
+        before = time.monotonic()
+        for data in [good[0], b"\xfd\x09garbage-not-mavlink", good[1][:-3], good[1]]:
+            tx.sendto(data, rx.getsockname())
+        got = _read_all(receiver, 4)
+        assert len(got) == 4
+        assert all(d.address == tx.getsockname() for d in got)
+        assert all(before <= d.arrived <= time.monotonic() for d in got)
+        assert [len(d.messages) for d in got] == [1, 0, 0, 1]
+        assert got[1].bad and not got[0].bad and not got[3].bad
+        assert any("truncated" in reason for reason in got[2].bad)
+        assert unpack_message(got[3].messages[0]).x == 1.5
+    finally:
+        rx.close()
+        tx.close()
+
+
+def test_the_worker_checks_signatures_with_the_network_key() -> None:
+    rx, tx = _bound()
+    try:
+        setup = WorkerSetup(1, 255, 190, SigningConfig(KEY, 0, False), False, os.getpid())
+        receiver = Receiver(rx, setup)
+        for data in _wire(_sample_messages()[:1], sysid=9, key=KEY) + \
+                _wire(_sample_messages()[:1], sysid=12):
+            tx.sendto(data, rx.getsockname())
+        got = _read_all(receiver, 2)
+        assert [len(d.messages) for d in got] == [1, 0]
+        assert got[1].refused_signatures == (12,)
+    finally:
+        rx.close()
+        tx.close()
+
+
+def test_a_paced_clock_dates_a_batch_as_it_dates_each() -> None:
+    clock = PacedClock(4.0, participants=1)
+    ages = [0.0, 0.01, 0.05, 0.2]
+    many = clock.ago_many(ages)
+    each = [clock.ago(a) for a in ages]
+    assert many == pytest.approx(each, abs=4.0 * 0.01)  # read a moment apart, at x4
+    assert many[0] == pytest.approx(0.0, abs=0.01)
+    assert many[-1] == pytest.approx(0.8, abs=0.05)
+
+
+# -- FleetLink with receive workers, against the simulator over UDP ----------------------
+
+
+def _two_networks(link: FleetLink) -> SimConfig:
+    return SimConfig(count=4, system_ids=[1, 2, 1, 2], networks=[1, 1, 2, 2],
+                     gcs_networks=link.local_addresses, ekf_origin_delay_s=0.5,
+                     ready_delay_s=1.0)
+
+
+@run
+async def test_a_link_with_workers_hears_and_commands_two_networks() -> None:
+    events = EventList()
+    link = FleetLink([("127.0.0.1", 0), ("127.0.0.1", 0)], clock=ScaledClock(),
+                     events=events, heartbeat_period=0.1, timesync_period=0.1, tick=0.01,
+                     receive_workers=True)
+    async with link:
+        pids = link.worker_pids
+        assert len(pids) == 2 and os.getpid() not in pids
+        fleet = SimFleet(_two_networks(link), ScaledClock(4.0))
+        try:
+            fleet.start()
+            await link.wait_for_vehicles([1, 2, 1001, 1002], timeout=5.0)
+            await link.set_mode(1001, "GUIDED")  # the answer (COMMAND_ACK) via the worker
+            await eventually(lambda: fleet.state(1001).mode == "GUIDED", what="2:1 GUIDED")
+            assert fleet.state(1).mode != "GUIDED"
+            await eventually(lambda: link.vehicles[2].rtt_s is not None, timeout=3.0,
+                             what="a TIMESYNC round trip through the worker")
+            rtt = link.vehicles[2].rtt_s
+            assert rtt is not None and 0.0 < rtt < 1.0
+            assert link.stats.packets > 0 and link.stats.bad_packets == 0
+        finally:
+            fleet.stop()
+    assert link.worker_pids == []  # closed with the link
+
+
+@run
+async def test_a_worker_that_dies_holds_its_network_and_is_replaced() -> None:
+    events = EventList()
+    link = FleetLink([("127.0.0.1", 0), ("127.0.0.1", 0)], clock=ScaledClock(),
+                     events=events, heartbeat_period=0.1, timesync_period=0.1, tick=0.01,
+                     fleet_silence=0.5, lost_timeout=1.0, receive_workers=True)
+    async with link:
+        fleet = SimFleet(_two_networks(link), ScaledClock(4.0))
+        try:
+            fleet.start()
+            await link.wait_for_vehicles([1, 2, 1001, 1002], timeout=5.0)
+            old = link.worker_pids[1]
+            os.kill(old, signal.SIGKILL)  # as the kernel's OOM killer would
+            died = await eventually(lambda: events.named("link_worker_died"), timeout=3.0,
+                                    what="the death seen")
+            assert died[0]["network"] == 2 and died[0]["exit_code"] == -9
+            await eventually(lambda: link.fleet_silent, timeout=2.0, what="fleet silent")
+            restarted = await eventually(lambda: events.named("link_worker_restarted"),
+                                         timeout=3.0, what="a new worker")
+            assert restarted[0]["network"] == 2 and restarted[0]["pid"] != old
+            assert link.worker_pids[1] != old
+            await eventually(lambda: not link.fleet_silent, timeout=3.0, what="heard again")
+            assert not any(v.lost for v in link.vehicles.values())
+            assert not events.named("vehicle_lost")
+            assert link.stats.worker_deaths == 1
+        finally:
+            fleet.stop()
+
+
+@run
+async def test_workers_on_a_clock_real_time_does_not_move() -> None:
+    """A manual clock (a test's) dates every datagram at its own reading."""
+    link = FleetLink(("127.0.0.1", 0), clock=ManualClock(5.0), receive_workers=True)
+    async with link:
+        rx, tx = _bound()
+        rx.close()
+        try:
+            assert link.local_address is not None
+            for data in _wire(_sample_messages()[:2], sysid=3):
+                tx.sendto(data, link.local_address)
+            await eventually(lambda: 3 in link.vehicles, what="vehicle 3 heard")
+            assert link.vehicles[3].last_heard == 5.0
+        finally:
+            tx.close()
