@@ -139,8 +139,8 @@ class SetpointStream:
     def at(self, now: float, clock_offsets: Mapping[int, float | None], *,
            clock: ShowClock | None = None, show_time: float = 0.0, ended: bool = False,
            paths: Mapping[int, Path] | None = None, clocks: PathClocks | None = None,
-           replanned: Mapping[int, tuple[ArrayLike, ArrayLike, ArrayLike]] | None = None
-           ) -> Setpoints:
+           replanned: Mapping[int, tuple[ArrayLike, ArrayLike, ArrayLike]] | None = None,
+           delays: NDArray[np.float64] | None = None) -> Setpoints:
         """Setpoints at our time ``now``, each for the instant its vehicle's lead later.
 
         Each vehicle is sampled on its path (``paths``, system id -> Path, on ``clocks``;
@@ -150,10 +150,12 @@ class SetpointStream:
         (before the start, after the end) the plan at ``show_time`` is held with no
         feed-forward.  ``replanned`` (system id -> show-frame position, velocity,
         acceleration, already evaluated at that vehicle's instant ``now + lead``) replaces
-        the path of a vehicle under MPC.
+        the path of a vehicle under MPC.  ``delays`` (per vehicle, in stream order): how
+        long after ``now`` each vehicle's setpoint leaves (the tick spread over its
+        period): it is taken for its own sending instant, its lead after that.
         """
         duration = self.plan.duration
-        stamp_s = now + self.leads
+        stamp_s = now + self.leads if delays is None else now + self.leads + delays
         if clocks is None:
             clocks = PathClocks(self.plan, clock, show_time, ended)
         paths = paths or {}

@@ -11,7 +11,8 @@ Why these bounds:
 
 * ``MAX_DRONES`` 10,000: the largest fleet the planner is measured at
   (10,000 drones grid -> sphere planned and verified in 37 s).  One MAVLink network
-  addresses 254 vehicles, so the dry-run and a flight take at most that many; larger
+  addresses 254 vehicles and a ground station flies up to 10 networks, so the dry-run
+  and a flight take at most 2,540 (:data:`groundctl.vehicleid.MAX_NETWORKS`); larger
   shows are planned (and split over ground stations) only.
 * ``MAX_SLOTS`` 10,000 points per formation, and ``MAX_ASSIGN_CELLS`` 5,000,000: a
   formation with more slots than drones is assigned exactly on a dense drones x slots

@@ -76,6 +76,11 @@ class RunnerConfig:
     """The per-vehicle lead estimate's tuning (when ``lead_s`` is None)."""
     led_refresh_s: float = 1.0
     """An unchanged LED colour is re-sent this often (LED_CONTROL is never acknowledged)."""
+    send_slot_vehicles: int = 64
+    """A tick's setpoints leave in slots of at most this many vehicles, spread evenly
+    over the tick's period (each vehicle in the same slot every tick, its setpoint taken
+    for its own sending instant), so a large fleet's setpoints are not one burst whose
+    last leaves a burst's length late."""
     connect_timeout_s: float = 30.0
     """Every expected vehicle must send a HEARTBEAT within this."""
     preflight_timeout_s: float = 120.0
@@ -124,6 +129,9 @@ class RunnerConfig:
     def __post_init__(self) -> None:
         if not self.rate_hz >= 1.0:
             raise ValueError(f"`rate_hz` must be at least 1, got {self.rate_hz}")
+        if self.send_slot_vehicles < 1:
+            raise ValueError(f"`send_slot_vehicles` must be at least 1, got "
+                             f"{self.send_slot_vehicles}")
         if self.lead_s is not None and self.lead_s < 0:
             raise ValueError(f"`lead_s` must be non-negative, got {self.lead_s}")
 

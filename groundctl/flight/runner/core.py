@@ -142,6 +142,8 @@ class ShowRunner(Streaming):
         finally:
             self._flush_notices()
             self._cancel_led_sends()
+            if self._slots is not None:
+                self._slots.cancel()
             self._next_tick = math.inf
             self.clock.idle_until(math.inf)  # no more ticks: nobody waits for this loop
         self._say("every vehicle is down", "sequence_finished",

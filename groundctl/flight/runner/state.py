@@ -21,6 +21,7 @@ from groundctl.execute.setpoints import LedTracker, SetpointStream
 from groundctl.flight.monitor import FlightMonitor
 from groundctl.flight.replanning import Replanner
 from groundctl.flight.runner.config import RunnerConfig, VehicleRecord, log
+from groundctl.flight.runner.slots import SendSlots
 from groundctl.flight.workers import PlannerPool
 from groundctl.link.fleet import FleetLink
 from groundctl.plan.plan import Plan
@@ -72,6 +73,7 @@ class RunnerState:
         self._led_handles: list[asyncio.TimerHandle] = []
         self._led_window_end = -math.inf
         self._led_dues: list[float] = []  # clock instants of the LED sends scheduled
+        self._slots: SendSlots | None = None
         self._next_tick = math.inf
         self._leds = LedTracker(self.config.led_refresh_s)
         self._tasks: set[asyncio.Task[None]] = set()

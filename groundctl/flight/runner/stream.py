@@ -15,6 +15,7 @@ from groundctl.execute.preflight import WIND_FRESH_S
 from groundctl.execute.sequence import AIRBORNE_M, ShowSequence, StreamRequest, VehiclePhase
 from groundctl.flight.monitor import nearest_pair, telemetry_positions
 from groundctl.flight.runner.config import _AIRBORNE, _WIND_PHASES, _range_rate
+from groundctl.flight.runner.slots import Send, SendSlots, slot_delays
 from groundctl.flight.runner.timing import LinkTiming
 
 
@@ -37,18 +38,32 @@ class Streaming(LinkTiming):
             self.lateness_s.append(self.clock.now() - scheduled)
         else:
             offsets = {s: self.link.vehicles[s].clock_offset_s for s in req.sysids}
-            replanned = self.replanner.overrides(now, self._stream.lead_of) \
+            stream = self._stream
+            delays = slot_delays(len(stream.sysids), self.config.send_slot_vehicles,
+                                 1.0 / self.config.rate_hz)
+            index = {s: i for i, s in enumerate(stream.sysids)}
+
+            def lead_of(sysid: int) -> float:
+                return stream.lead_of(sysid) + float(delays[index[sysid]])
+
+            replanned = self.replanner.overrides(now, lead_of) \
                 if self.replanner is not None else None
-            sp = self._stream.at(now, offsets, paths=req.paths, clocks=req.clocks(self.plan),
-                                 replanned=replanned)
-            send = self.link.send_position_target_local_ned
+            sp = stream.at(now, offsets, paths=req.paths, clocks=req.clocks(self.plan),
+                           replanned=replanned, delays=delays)
             rows = [i for i, s in enumerate(sp.sysids) if s in req.sysids]
+            slots: dict[float, list[Send]] = {}
             for i in rows:
-                send(sp.sysids[i], int(sp.time_boot_ms[i]), sp.pos_ned[i].tolist(),
-                     sp.vel_ned[i].tolist(), sp.acc_ned[i].tolist())
+                slots.setdefault(float(delays[i]), []).append(
+                    (sp.sysids[i], int(sp.time_boot_ms[i]), sp.pos_ned[i].tolist(),
+                     sp.vel_ned[i].tolist(), sp.acc_ned[i].tolist()))
+            if self._slots is None:
+                self._slots = SendSlots(
+                    self.clock, self.link.send_position_target_local_ned,
+                    self.lateness_s.append,
+                    lambda: self.clock.idle_until(self._idle_due()))
+            # The tick's lateness: its last slot's, against that slot's own instant.
+            self._slots.start(scheduled, now, sorted(slots.items()))
             seq.streamed([sp.sysids[i] for i in rows], now)
-            # The tick's last setpoint has left: how late against its scheduled instant.
-            self.lateness_s.append(self.clock.now() - scheduled)
             self._last_show_time = (min(req.clock.show_time(now + self._stream.typical_lead),
                                         self.plan.duration)
                                     if req.clock is not None and not req.ended else None)

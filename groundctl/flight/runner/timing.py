@@ -157,7 +157,9 @@ class LinkTiming(Planning):
     def _idle_due(self) -> float:
         """The next clock instant this loop must act at: its next tick, or an LED send
         scheduled before it (a paced clock waits for us no further than that)."""
-        return min(self._next_tick, min(self._led_dues, default=math.inf))
+        slots = self._slots.dues() if self._slots is not None else []
+        return min(self._next_tick, min(self._led_dues, default=math.inf),
+                   min(slots, default=math.inf))
 
     def _send_led(self, sysid: int, colour: tuple[int, int, int]) -> None:
         self._leds.sent(sysid, colour, self.clock.now())
