@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import itertools
 import math
 import os
 import sys
@@ -117,7 +118,7 @@ def _descendants(root: int) -> list[int]:
 
 
 async def _load_run(n: int, seconds: float, console: bool = False,
-                    link_workers: str = "auto") -> dict[str, float]:
+                    link_workers: str = "auto", slot_vehicles: int = 64) -> dict[str, float]:
     plan = drift_plan(n, seconds)
     marks: dict[str, tuple[float, float, int, dict[int, float]]] = {}
     workers: list[int] = [0]
@@ -157,7 +158,8 @@ async def _load_run(n: int, seconds: float, console: bool = False,
         runner.on_tick = on_tick
 
     options = DryRunOptions(speed=1.0, ekf_origin_delay_s=1.0, ready_delay_s=2.0,
-                            runner=RunnerConfig(preflight_timeout_s=120.0),
+                            runner=RunnerConfig(preflight_timeout_s=120.0,
+                                                send_slot_vehicles=slot_vehicles),
                             link_workers=link_workers)
     flight = fly_dry_run(plan, options, on_runner=hook, on_simulator=simulator.append,
                          notify=None if session is None else session.notify)
@@ -191,7 +193,8 @@ async def _load_run(n: int, seconds: float, console: bool = False,
 
 
 def bench_load(sizes: list[int], seconds: float, consoles: list[str] | None = None,
-               repeat: int = 1, link_workers: list[str] | None = None) -> None:
+               repeat: int = 1, link_workers: list[str] | None = None,
+               slot_vehicles: list[int] | None = None) -> None:
     print(f"executor load: vehicles streamed at 10 Hz for {seconds:.0f} s of show, real time")
     modes = consoles or ["off"]
     if "on" in modes:
@@ -200,26 +203,26 @@ def bench_load(sizes: list[int], seconds: float, consoles: list[str] | None = No
                              "not written)"))
     print("CPU: the control loop's process; all: with its helpers (receive workers, "
           "planning and MPC workers), the executor's whole cost; sim: the simulator")
-    print(f"{'vehicles':>8} {'workers':>7} {'console':>7} {'CPU':>6} {'all':>6} "
+    print(f"{'vehicles':>8} {'slot':>5} {'workers':>7} {'console':>7} {'CPU':>6} {'all':>6} "
           f"{'ms/veh/s':>8} {'sim':>6} {'sim ms/veh/s':>12} {'p50 ms':>7} {'p99 ms':>7} "
           f"{'max ms':>7} {'ticks':>6} {'safe':>5} {'landed':>6} {'refresh p99 ms':>14}")
     per_vehicle = []
     for n in sizes:
         for _ in range(repeat):  # on and off alternate: the machine's load drifts
-            for workers in link_workers or ["auto"]:
-                for mode in modes:
-                    r = asyncio.run(_load_run(n, seconds, console=mode == "on",
-                                              link_workers=workers))
-                    total = r["cpu_share"] + r["helpers_share"]
-                    cost = total / n * 1000.0
-                    per_vehicle.append(r["cpu_share"] / n * 1000.0)
-                    refresh = f"{r['refresh_p99']:.2f} ({r['refreshes']})" if r["console"] \
-                        else "-"
-                    print(f"{n:>8} {r['workers']:>7} {mode:>7} {r['cpu_share']:>6.1%} "
-                          f"{total:>6.1%} {cost:>8.2f} {r['sim_share']:>6.1%} "
-                          f"{r['sim_share'] / n * 1000.0:>12.2f} {r['p50']:>7.2f} "
-                          f"{r['p99']:>7.2f} {r['max']:>7.2f} {r['ticks']:>6} "
-                          f"{r['safe']!s:>5} {r['landed']:>6} {refresh:>14}", flush=True)
+            for workers, slot, mode in itertools.product(link_workers or ["auto"],
+                                                         slot_vehicles or [64], modes):
+                r = asyncio.run(_load_run(n, seconds, console=mode == "on",
+                                          link_workers=workers, slot_vehicles=slot))
+                total = r["cpu_share"] + r["helpers_share"]
+                cost = total / n * 1000.0
+                per_vehicle.append(r["cpu_share"] / n * 1000.0)
+                refresh = f"{r['refresh_p99']:.2f} ({r['refreshes']})" if r["console"] \
+                    else "-"
+                print(f"{n:>8} {slot:>5} {r['workers']:>7} {mode:>7} {r['cpu_share']:>6.1%} "
+                      f"{total:>6.1%} {cost:>8.2f} {r['sim_share']:>6.1%} "
+                      f"{r['sim_share'] / n * 1000.0:>12.2f} {r['p50']:>7.2f} "
+                      f"{r['p99']:>7.2f} {r['max']:>7.2f} {r['ticks']:>6} "
+                      f"{r['safe']!s:>5} {r['landed']:>6} {refresh:>14}", flush=True)
     cost = per_vehicle[-1]
     print(f"largest fleet the control loop's core sustains (extrapolated from {sizes[-1]} "
           f"vehicles): ~{int(1000.0 / cost)} vehicles at 10 Hz")
@@ -351,6 +354,10 @@ def main() -> None:
     ld.add_argument("--link-workers", nargs="+", choices=["auto", "on", "off"],
                     default=["auto"], help="the receive path in worker processes (each "
                     "size flown once per mode)")
+    ld.add_argument("--slot-vehicles", type=int, nargs="+", default=[64],
+                    help="setpoints sent in slots of at most this many vehicles spread over "
+                         "the tick (a number >= the fleet: one burst); each size flown once "
+                         "per value")
     o = sub.add_parser("overload")
     o.add_argument("--speeds", type=float, nargs="*", default=[2.0, 4.0, 6.0])
     o.add_argument("--hog-speeds", type=float, nargs="*", default=[2.0],
@@ -375,7 +382,8 @@ def main() -> None:
         flavours = list(Flavour) if args.autopilot == "both" else [Flavour(args.autopilot)]
         bench_demo(args.speed, flavours)
     else:
-        bench_load(args.sizes, args.seconds, args.console, args.repeat, args.link_workers)
+        bench_load(args.sizes, args.seconds, args.console, args.repeat, args.link_workers,
+                   args.slot_vehicles)
 
 
 if __name__ == "__main__":

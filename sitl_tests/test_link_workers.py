@@ -1,4 +1,4 @@
-"""The receive path in worker processes (issue 34, groundctl/link/rxworker.py): the
+"""The receive path in worker processes (issue 34, groundctl/link/worker.py): the
 worker protocol (messages packed and rebuilt unchanged, batches), the worker's reads of
 a real loopback socket (garbage, truncation, signatures), FleetLink with workers
 against the simulator over UDP on two networks, and a worker that dies (seen at once,
@@ -6,6 +6,8 @@ the network silent meanwhile, restarted on the same socket, its vehicles heard a
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import os
 import signal
 import socket
@@ -18,17 +20,20 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from groundctl.clock import ManualClock, PacedClock, ScaledClock
 from groundctl.link import FleetLink
 from groundctl.link.codec import new_codec
-from groundctl.link.rxworker import (
+from groundctl.link.signing import SigningConfig
+from groundctl.link.worker import (
+    MAX_BACKLOG_BYTES,
     Datagram,
+    FrameReader,
     Receiver,
     WorkerSetup,
     decode_batch,
     encode_batch,
+    encode_sends,
     pack_message,
     unpack_message,
     use_workers,
 )
-from groundctl.link.signing import SigningConfig
 from groundctl.sim import SimConfig, SimFleet
 
 KEY = bytes(range(32))
@@ -82,8 +87,19 @@ def test_a_batch_crosses_the_pipe_unchanged() -> None:
     batch = [Datagram(("127.0.0.1", 14551), 12.5, packed),
              Datagram(("127.0.0.2", 9), 12.75, (), ("bad CRC", "truncated packet (3 bytes)"),
                       (5,), 2)]
-    assert decode_batch(encode_batch(batch)) == batch
-    assert decode_batch(encode_batch([])) == []
+    assert decode_batch(encode_batch(batch, 3)) == (3, batch)
+    assert decode_batch(encode_batch([])) == (0, [])
+
+
+def test_frames_of_sends_are_read_back_however_the_pipe_cuts_them() -> None:
+    frames = [[(b"\xfd" + bytes([i]) * 40, ("127.0.0.1", 14550 + i))] * (i + 1)
+              for i in range(5)]
+    wire = b"".join(encode_sends(f) for f in frames)
+    reader = FrameReader()
+    got = []
+    for k in range(0, len(wire), 7):  # a pipe read ends anywhere
+        got += reader.feed(wire[k:k + 7])
+    assert got == frames
 
 
 @pytest.mark.parametrize(("mode", "vehicles", "want"), [
@@ -177,7 +193,7 @@ async def test_a_link_with_workers_hears_and_commands_two_networks() -> None:
     events = EventList()
     link = FleetLink([("127.0.0.1", 0), ("127.0.0.1", 0)], clock=ScaledClock(),
                      events=events, heartbeat_period=0.1, timesync_period=0.1, tick=0.01,
-                     receive_workers=True)
+                     link_workers=True)
     async with link:
         pids = link.worker_pids
         assert len(pids) == 2 and os.getpid() not in pids
@@ -189,10 +205,11 @@ async def test_a_link_with_workers_hears_and_commands_two_networks() -> None:
             await eventually(lambda: fleet.state(1001).mode == "GUIDED", what="2:1 GUIDED")
             assert fleet.state(1).mode != "GUIDED"
             await eventually(lambda: link.vehicles[2].rtt_s is not None, timeout=3.0,
-                             what="a TIMESYNC round trip through the worker")
+                             what="a TIMESYNC round trip through the worker, both ways")
             rtt = link.vehicles[2].rtt_s
             assert rtt is not None and 0.0 < rtt < 1.0
             assert link.stats.packets > 0 and link.stats.bad_packets == 0
+            assert sum(w.direct for w in link._workers) == 0  # every send by a worker
         finally:
             fleet.stop()
     assert link.worker_pids == []  # closed with the link
@@ -203,7 +220,7 @@ async def test_a_worker_that_dies_holds_its_network_and_is_replaced() -> None:
     events = EventList()
     link = FleetLink([("127.0.0.1", 0), ("127.0.0.1", 0)], clock=ScaledClock(),
                      events=events, heartbeat_period=0.1, timesync_period=0.1, tick=0.01,
-                     fleet_silence=0.5, lost_timeout=1.0, receive_workers=True)
+                     fleet_silence=0.5, lost_timeout=1.0, link_workers=True)
     async with link:
         fleet = SimFleet(_two_networks(link), ScaledClock(4.0))
         try:
@@ -223,6 +240,9 @@ async def test_a_worker_that_dies_holds_its_network_and_is_replaced() -> None:
             assert not any(v.lost for v in link.vehicles.values())
             assert not events.named("vehicle_lost")
             assert link.stats.worker_deaths == 1
+            # A command after the restart goes through the new worker.
+            await link.set_mode(1002, "GUIDED")
+            await eventually(lambda: fleet.state(1002).mode == "GUIDED", what="2:2 GUIDED")
         finally:
             fleet.stop()
 
@@ -230,7 +250,7 @@ async def test_a_worker_that_dies_holds_its_network_and_is_replaced() -> None:
 @run
 async def test_workers_on_a_clock_real_time_does_not_move() -> None:
     """A manual clock (a test's) dates every datagram at its own reading."""
-    link = FleetLink(("127.0.0.1", 0), clock=ManualClock(5.0), receive_workers=True)
+    link = FleetLink(("127.0.0.1", 0), clock=ManualClock(5.0), link_workers=True)
     async with link:
         rx, tx = _bound()
         rx.close()
@@ -242,3 +262,43 @@ async def test_workers_on_a_clock_real_time_does_not_move() -> None:
             assert link.vehicles[3].last_heard == 5.0
         finally:
             tx.close()
+
+
+@run
+async def test_a_worker_that_takes_no_sends_never_blocks_the_loop() -> None:
+    """A worker stopped (SIGSTOP: a debugger, a machine thrashing): every send returns at
+    once, the pipe's backlog is bounded (the oldest dropped and counted), and once it
+    runs again the rest leave."""
+    link = FleetLink(("127.0.0.1", 0), clock=ScaledClock(), link_workers=True)
+    async with link:
+        rx, tx = _bound()
+        tx.close()
+        try:
+            assert link.local_address is not None
+            peer = rx.getsockname()
+            worker = link._workers[0]
+            pid = worker.pid
+            assert pid is not None
+            os.kill(pid, signal.SIGSTOP)
+            try:
+                # 100,000 sends while it is stopped: were a write to wait for it, this
+                # would never end (the test's timeout says so).
+                for k in range(200):
+                    for i in range(500):  # each its own bytes (pickle shares repeats)
+                        worker.send((k * 500 + i).to_bytes(4, "little") + bytes(57), peer)
+                    worker.flush()
+                assert worker.dropped > 0
+                assert worker._backlog_bytes <= MAX_BACKLOG_BYTES + 500 * 100
+            finally:
+                os.kill(pid, signal.SIGCONT)
+            got = 0
+            deadline = time.monotonic() + 5.0
+            while time.monotonic() < deadline and got < 1000:
+                await asyncio.sleep(0.01)
+                with contextlib.suppress(BlockingIOError):
+                    while True:
+                        rx.recv(100)
+                        got += 1
+            assert got >= 1000  # the backlog left once the worker ran again
+        finally:
+            rx.close()

@@ -35,7 +35,7 @@ from groundctl.flight.report import flight_report
 from groundctl.flight.runner import ShowRunner
 from groundctl.link.fleet import FleetLink
 from groundctl.link.fleetfile import FleetFile, FleetFileError, load_fleet_file, parse_address
-from groundctl.link.rxworker import use_workers
+from groundctl.link.worker import use_workers
 from groundctl.record.recording import Recording, default_directory
 from groundctl.vehicleid import MAX_NETWORKS
 
@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
                          expected_ids=ids, signing_key=args.signing_key, signing_keys=keys,
                          tlog=recording.network_tlogs(len(connects)), events=events,
                          system_id=args.gcs_sysid,
-                         receive_workers=use_workers(args.link_workers,
+                         link_workers=use_workers(args.link_workers,
                                                      len(ids) if ids else plan.drones))
         runner = ShowRunner(plan, link, clock, config, events=events, notify=notify,
                             expected_ids=ids)

@@ -40,7 +40,7 @@ from groundctl.flight.report import flight_report
 from groundctl.flight.runner import RunnerConfig, ShowRunner
 from groundctl.link.flavours import Flavour
 from groundctl.link.fleet import FleetLink
-from groundctl.link.rxworker import LINK_WORKER_MODES, use_workers
+from groundctl.link.worker import LINK_WORKER_MODES, use_workers
 from groundctl.plan.plan import Plan
 from groundctl.record.recording import Recording
 from groundctl.rtk.forwarder import RtkForwarder
@@ -122,7 +122,7 @@ class DryRunOptions:
     of the ground station each); 0: as many as its size needs (254 vehicles each)."""
     link_workers: str = "auto"
     """``--link-workers``: each network's receive path in a worker process (``on``,
-    ``off``, ``auto``: from :data:`~groundctl.link.rxworker.WORKERS_FROM` vehicles)."""
+    ``off``, ``auto``: from :data:`~groundctl.link.worker.WORKERS_FROM` vehicles)."""
     paced: bool = True
     """The clock waits for a late simulator or ground-station loop (a
     :class:`~groundctl.clock.PacedClock`); False (``--no-pace``): it runs on at
@@ -230,7 +230,7 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
                      expected_ids=[vehicle_id(n, s) for n, s in zip(nets, local, strict=True)],
                      signing_key=options.signing_key, tlog=tlogs, events=events,
                      system_id=options.gcs_sysid,
-                     receive_workers=use_workers(options.link_workers, plan.drones))
+                     link_workers=use_workers(options.link_workers, plan.drones))
     rtk: RtkForwarder | None = None
     fleet: SimProcess | None = None
     runner: ShowRunner | None = None

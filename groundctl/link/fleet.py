@@ -50,12 +50,12 @@ from groundctl.link.command import CommandExchange
 from groundctl.link.flavours import Flavour, mode_from_set_mode, mode_request
 from groundctl.link.fleetfile import Endpoint
 from groundctl.link.messages import FORCE_MAGIC
-from groundctl.link.rxworker import Datagram, ReceiveWorker, WorkerSetup, unpack_message
 from groundctl.link.signing import SigningConfig, new_guard
 from groundctl.link.state import VehicleState, apply, expect, expire_chunks, unexpect
 from groundctl.link.timesync import answer as timesync_answer
 from groundctl.link.transport import UdpTransport
 from groundctl.link.trust import EXPECT_S, Trust
+from groundctl.link.worker import Datagram, LinkWorker, WorkerSetup, unpack_message
 from groundctl.record.events import EventSink
 from groundctl.record.tlog import TlogWriter
 from groundctl.vehicleid import (
@@ -71,7 +71,7 @@ log = logging.getLogger(__name__)
 Address = tuple[str, int]
 Vec3 = Sequence[float]
 
-#: A receive worker that died again is restarted after this, s (real time).
+#: A link worker that died again is restarted after this, s (real time).
 WORKER_RESTART_S = 1.0
 
 #: Telemetry a show needs, in Hz, for :meth:`FleetLink.request_streams`.
@@ -167,7 +167,7 @@ class FleetLink:
         allow_address_change: bool = False,
         command_reason_grace: float = 0.2,
         wall: Callable[[], float] = time.time,
-        receive_workers: bool = False,
+        link_workers: bool = False,
     ) -> None:
         if not lost_timeout > 0:
             raise ValueError(f"`lost_timeout` must be positive, got {lost_timeout}")
@@ -254,10 +254,10 @@ class FleetLink:
         """Every network's bound (host, port), in network order, once started."""
         self._last_by_network: list[float | None] = [None] * len(listens)
         self._back_by_network: list[float] = [-math.inf] * len(listens)
-        self.receive_workers = receive_workers
-        """Each network's receive path (socket reads, parsing, signatures) runs in a
-        process of its own (:mod:`groundctl.link.rxworker`); False: in this one."""
-        self._workers: list[ReceiveWorker] = []
+        self.link_workers = link_workers
+        """Each network's socket work (reads, parsing, signatures, the send system calls)
+        runs in a process of its own (:mod:`groundctl.link.worker`); False: in this one."""
+        self._workers: list[LinkWorker] = []
         self._worker_down: list[bool] = [False] * len(listens)
         self._restarts: list[asyncio.TimerHandle | None] = [None] * len(listens)
 
@@ -279,7 +279,7 @@ class FleetLink:
             self._transports, self.local_addresses = [], []
             raise
         self.local_address = self.local_addresses[0]
-        if self.receive_workers:
+        if self.link_workers:
             self._start_workers()
         self._task = asyncio.create_task(self._run_periodic(), name="fleetlink-periodic")
         for k, (host, port) in enumerate(self.local_addresses):
@@ -347,7 +347,7 @@ class FleetLink:
     def _on_parsed(self, addr: Address, now: float, network: int,
                    messages: Iterable[mavlink.MAVLink_message], bad: Iterable[str],
                    refused_signatures: Iterable[int], unknown: int) -> None:
-        """One datagram's content, parsed here or by the network's receive worker."""
+        """One datagram's content, parsed here or by the network's link worker."""
         self.stats.datagrams += 1
         for reason in bad:
             self._bad_packet(addr, reason)
@@ -365,11 +365,11 @@ class FleetLink:
             except Exception:  # a bug here must cost one packet, not the link
                 log.exception("error handling %s from %s:%s", msg.get_type(), *addr)
 
-    # -- receive workers ---------------------------------------------------
+    # -- link workers ------------------------------------------------------
 
     @property
     def worker_pids(self) -> list[int]:
-        """The running receive workers' process ids (none without workers)."""
+        """The running link workers' process ids (none without workers)."""
         return [w.pid for w in self._workers if w.pid is not None]
 
     def _start_workers(self) -> None:
@@ -377,13 +377,14 @@ class FleetLink:
             sock = transport.pause_reading()
             setup = WorkerSetup(k, self.system_id, self.component_id, self._signings[k],
                                 transport.stamped, os.getpid())
-            worker = ReceiveWorker(sock, setup, functools.partial(self._on_batch, k),
-                                   functools.partial(self._worker_died, k))
+            worker = LinkWorker(sock, setup, functools.partial(self._on_batch, k),
+                                functools.partial(self._worker_died, k),
+                                self._on_worker_errors)
             self._workers.append(worker)
             worker.start()
 
     def _on_batch(self, network: int, batch: list[Datagram]) -> None:
-        """A receive worker's batch: each datagram dated on our clock as it arrived, then
+        """A link worker's batch: each datagram dated on our clock as it arrived, then
         handled as if read here.  A restarted worker's first batch ends its network's
         silence (then heard again as any silent network is)."""
         self._worker_down[network] = False
@@ -402,6 +403,9 @@ class FleetLink:
             self._on_parsed(datagram.address, now - ago, network, messages, datagram.bad,
                             datagram.refused_signatures, datagram.unknown)
 
+    def _on_worker_errors(self, count: int) -> None:
+        self.stats.socket_errors += count
+
     def _worker_died(self, network: int, exitcode: int | None) -> None:
         """Seen at once: the network counts as silent (``fleet_silent`` at once: the show
         holds) until a new worker on the same socket passes its vehicles on again;
@@ -409,7 +413,7 @@ class FleetLink:
         self.stats.worker_deaths += 1
         self._worker_down[network] = True
         self._emit("link_worker_died", network=network + 1, exit_code=exitcode)
-        log.warning("network %d: the receive worker died (exit code %s); restarting it",
+        log.warning("network %d: the link worker died (exit code %s); restarting it",
                     network + 1, exitcode)
         self.check_lost(self.clock.now())  # fleet_silent now, not at the next check
         worker = self._workers[network]
@@ -425,7 +429,7 @@ class FleetLink:
         try:
             worker.start()
         except Exception as exc:  # cannot fork: the network stays silent, say so
-            log.error("network %d: cannot restart the receive worker: %s", network + 1, exc)
+            log.error("network %d: cannot restart the link worker: %s", network + 1, exc)
             self._emit("link_worker_failed", network=network + 1, reason=str(exc))
             self._restarts[network] = asyncio.get_running_loop().call_later(
                 WORKER_RESTART_S, self._restart_worker, network)
@@ -582,7 +586,10 @@ class FleetLink:
         if network and getattr(msg, "target_system", 0) == sysid:
             msg.target_system = sysid_of(sysid)  # on the wire: its network's system id
         data = self._encoder(sysid).encode(msg)
-        self._transports[network].send(data, addr)
+        if self._workers:
+            self._workers[network].send(data, addr)
+        else:
+            self._transports[network].send(data, addr)
         self.stats.sent += 1
         tlog = self._tlogs[network]
         if tlog is not None:
@@ -644,7 +651,7 @@ class FleetLink:
 
     def _network_silent_for(self, network: int, now: float) -> float:
         if self._worker_down[network]:
-            return math.inf  # its receive worker died: nothing of it is heard
+            return math.inf  # its link worker died: nothing of it is heard
         if self.silence_ids is not None:
             judged = [v for s, v in self.vehicles.items() if s in self.silence_ids
                       and not v.lost and network_index(s) == network]

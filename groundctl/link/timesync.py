@@ -43,6 +43,10 @@ class TimesyncEstimator:
         self._pending: OrderedDict[int, float] = OrderedDict()
         self._max_pending = max_pending
         self._last_ts1 = 0
+        # (best, median rtt) of the window as it was, and which window that was: asked
+        # for every vehicle every tick, changed once a second.
+        self._cached: tuple[tuple[int, object, object], TimesyncSample | None,
+                            float | None] | None = None
 
     def request(self, now: float) -> int:
         """The ``ts1`` (ns) to put in a request sent at ``now``; remembered as pending."""
@@ -67,18 +71,30 @@ class TimesyncEstimator:
         self.samples.append(sample)
         return sample
 
+    def _window(self) -> tuple[TimesyncSample | None, float | None]:
+        samples = self.samples
+        # The window's ends themselves (held, so never confused with a new sample), not
+        # their ids.
+        key = (len(samples), samples[0], samples[-1]) if samples else (0, None, None)
+        cached = self._cached
+        if cached is not None and cached[0][0] == key[0] and cached[0][1] is key[1] \
+                and cached[0][2] is key[2]:
+            return cached[1], cached[2]
+        best = min(samples, key=lambda s: s.rtt_ns, default=None)
+        rtts = sorted(x.rtt_ns for x in samples)
+        median = rtts[len(rtts) // 2] / NS if rtts else None
+        self._cached = (key, best, median)
+        return best, median
+
     @property
     def best(self) -> TimesyncSample | None:
         """The lowest-RTT sample in the window."""
-        return min(self.samples, key=lambda s: s.rtt_ns, default=None)
+        return self._window()[0]
 
     @property
     def median_rtt_s(self) -> float | None:
         """Median round trip over the window, s (None before the first answer)."""
-        if not self.samples:
-            return None
-        rtts = sorted(x.rtt_ns for x in self.samples)
-        return rtts[len(rtts) // 2] / NS
+        return self._window()[1]
 
     def recent_rtt_s(self, now: float, window_s: float = 10.0) -> float | None:
         """Median round trip of the samples answered in the last ``window_s`` seconds (None

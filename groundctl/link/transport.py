@@ -127,7 +127,7 @@ class UdpTransport:
         return self._stamped
 
     def pause_reading(self) -> socket.socket:
-        """Stop reading the socket here (a receive worker reads it instead); returns the
+        """Stop reading the socket here (a link worker reads it instead); returns the
         socket, still open for :meth:`send`."""
         if self._sock is None:
             raise LinkError("link is not open")

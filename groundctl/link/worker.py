@@ -1,0 +1,517 @@
+"""A network's socket work in a process of its own: reads, MAVLink framing,
+checksums and signatures, and the send system calls, off the control loop's
+interpreter.
+
+The control loop's process binds the network's socket (an address it cannot bind is
+one line before the flight) and hands a duplicate to a :class:`LinkWorker`.  The
+worker reads every datagram, stamps when it arrived (the kernel's time stamp), parses
+it with a :class:`~groundctl.link.codec.DatagramParser` per remote address (signing
+checked there, with the network's key) and passes on, in batches, what each datagram
+held: its sender, its arrival, its messages as plain tuples (:func:`pack_message`),
+and its rejects.  The control loop rebuilds the messages (:func:`unpack_message`,
+about a microsecond each, against six to fifteen for parsing the bytes) and decides on
+them exactly as on its own reads.  The other way, the control loop encodes each
+message (its sequence numbers and signatures are its own) and queues the bytes; once
+per pass of its event loop the queue goes to the worker in one write, and the worker
+sends each datagram from the socket the vehicles know.  The worker decides nothing.
+
+Nothing of the worker can block the control loop: the pipe towards the worker is
+written without blocking (what the pipe does not take waits in memory, up to
+:data:`MAX_BACKLOG_BYTES`; past that the oldest waiting sends are dropped and counted,
+as a full socket buffer drops datagrams).  A worker that dies is seen at once (its
+process sentinel is readable in the control loop's selector): the network counts as
+silent, so the show holds; its sends go straight out of the socket from the control
+loop meanwhile (never a silent stop of a network's setpoints), a new worker is started
+on the same socket, and the datagrams that waited in the socket are read by it (the
+socket never closed: nothing between is lost but time).
+
+The wire: worker to control loop, a ``multiprocessing`` pipe carrying one pickled
+batch per message (:func:`encode_batch` / :func:`decode_batch`), sent as soon as the
+socket is empty, or :data:`BATCH_WAIT_S` after its first datagram while more keep
+coming, or at :data:`MAX_BATCH` datagrams; control loop to worker, a pipe of frames
+(a 4-byte length, then a pickled list of (bytes, address)).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import pickle
+import select
+import socket
+import struct
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from groundctl.link.codec import DatagramParser, new_codec
+from groundctl.link.signing import SigningConfig, new_guard
+from groundctl.link.transport import ANCILLARY, arrival_age
+
+log = logging.getLogger(__name__)
+
+Address = tuple[str, int]
+
+#: Datagrams per batch at most.
+MAX_BATCH = 512
+#: A batch waits for more datagrams no longer than this after its first, s.
+BATCH_WAIT_S = 0.001
+#: How often an idle worker looks whether the ground station is still there, s.
+PARENT_CHECK_S = 0.25
+#: Sends waiting for a worker that does not take them, bytes at most (a second of a
+#: 254-vehicle network's setpoints and LED colours is about 0.4 MB).
+MAX_BACKLOG_BYTES = 4 * 1024 * 1024
+_FRAME = struct.Struct("<I")
+
+#: ``--link-workers auto`` moves the receive path into workers for fleets this large:
+#: below, a worker's batching and rebuilding cost more than the parsing they save the
+#: control loop (measured: ``benchmarks/bench_flight.py load``).
+WORKERS_FROM = 100
+
+LINK_WORKER_MODES = ("auto", "on", "off")
+
+
+def use_workers(mode: str, vehicles: int) -> bool:
+    """Whether ``--link-workers MODE`` means link workers for a fleet of ``vehicles``."""
+    if mode not in LINK_WORKER_MODES:
+        raise ValueError(f"--link-workers must be one of {', '.join(LINK_WORKER_MODES)}, "
+                         f"got {mode!r}")
+    return mode == "on" or (mode == "auto" and vehicles >= WORKERS_FROM)
+
+
+_HEADER = ("msgId", "incompat_flags", "compat_flags", "mlen", "seq", "srcSystem",
+           "srcComponent")
+
+PackedMessage = tuple[int, tuple[int, ...], dict[str, Any]]
+
+
+@dataclass(frozen=True)
+class Datagram:
+    """What one datagram held, as the worker passes it on."""
+
+    address: Address
+    """Who sent it."""
+    arrived: float
+    """When it arrived, ``time.monotonic()`` seconds (the kernel's stamp where it
+    gives one)."""
+    messages: tuple[PackedMessage, ...]
+    """Its well-formed (and correctly signed) messages, packed (:func:`pack_message`)."""
+    bad: tuple[str, ...] = ()
+    """One reason per rejected piece."""
+    refused_signatures: tuple[int, ...] = ()
+    """The system id each packet refused by signing claimed."""
+    unknown: int = 0
+    """Well-formed packets of messages the dialect does not know."""
+
+
+def pack_message(msg: mavlink.MAVLink_message) -> PackedMessage:
+    """A decoded message as plain data: its id, its header, its attributes."""
+    fields = dict(vars(msg))
+    header = fields.pop("_header")
+    fields["_msgbuf"] = bytes(fields["_msgbuf"])
+    return (msg.get_msgId(), tuple(getattr(header, k) for k in _HEADER), fields)
+
+
+def unpack_message(packed: PackedMessage) -> mavlink.MAVLink_message:
+    """The message :func:`pack_message` packed, rebuilt without parsing its bytes again
+    (they were checked by the worker)."""
+    msg_id, header, fields = packed
+    cls = mavlink.mavlink_map[msg_id]
+    msg: mavlink.MAVLink_message = cls.__new__(cls)
+    vars(msg).update(fields)
+    head = mavlink.MAVLink_header.__new__(mavlink.MAVLink_header)
+    for name, value in zip(_HEADER, header, strict=True):
+        setattr(head, name, value)
+    msg._header = head
+    return msg
+
+
+def encode_batch(datagrams: list[Datagram], errors: int = 0) -> bytes:
+    """A batch as bytes for the pipe, with the socket errors the worker met since the
+    last one."""
+    return pickle.dumps((errors, [(d.address, d.arrived, d.messages, d.bad,
+                                   d.refused_signatures, d.unknown) for d in datagrams]),
+                        protocol=pickle.HIGHEST_PROTOCOL)
+
+
+def decode_batch(data: bytes) -> tuple[int, list[Datagram]]:
+    """The (socket errors, datagrams) :func:`encode_batch` encoded."""
+    errors, rows = pickle.loads(data)
+    return errors, [Datagram((a[0], a[1]), arrived, messages, bad, refused, unknown)
+                    for a, arrived, messages, bad, refused, unknown in rows]
+
+
+def encode_sends(sends: list[tuple[bytes, Address]]) -> bytes:
+    """One frame of sends for the worker."""
+    payload = pickle.dumps(sends, protocol=pickle.HIGHEST_PROTOCOL)
+    return _FRAME.pack(len(payload)) + payload
+
+
+class FrameReader:
+    """The worker's side of the sends pipe: bytes in, lists of sends out."""
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+
+    def feed(self, data: bytes) -> list[list[tuple[bytes, Address]]]:
+        self._buf += data
+        out = []
+        while len(self._buf) >= _FRAME.size:
+            (n,) = _FRAME.unpack_from(self._buf)
+            if len(self._buf) < _FRAME.size + n:
+                break
+            out.append(pickle.loads(bytes(self._buf[_FRAME.size:_FRAME.size + n])))
+            del self._buf[:_FRAME.size + n]
+        return out
+
+
+@dataclass(frozen=True)
+class WorkerSetup:
+    """What a link worker needs besides its socket and its pipes."""
+
+    network: int
+    """The network's index (0 for the first)."""
+    system_id: int
+    """The ground station's own MAVLink system id."""
+    component_id: int
+    """The ground station's component id."""
+    signing: SigningConfig | None
+    """The network's signing key and rules (None: unsigned)."""
+    stamped: bool
+    """The socket carries the kernel's arrival stamps (SO_TIMESTAMPNS is on)."""
+    parent_pid: int
+    """The ground station's process: the worker leaves once it is gone."""
+
+
+class Receiver:
+    """The worker's own loop, apart from its process (tests drive it directly): reads
+    what waits in the socket and returns it as :class:`Datagram` records."""
+
+    def __init__(self, sock: socket.socket, setup: WorkerSetup) -> None:
+        self.sock = sock
+        self.setup = setup
+        self._guard = None if setup.signing is None else new_guard(setup.signing)
+        self._parsers: dict[Address, DatagramParser] = {}
+        self.errors = 0
+
+    def _parser(self, addr: Address) -> DatagramParser:
+        parser = self._parsers.get(addr)
+        if parser is None:
+            parser = DatagramParser(new_codec(self.setup.system_id, self.setup.component_id,
+                                              self.setup.signing, guard=self._guard))
+            self._parsers[addr] = parser
+        return parser
+
+    def read(self, limit: int = MAX_BATCH) -> list[Datagram]:
+        """Every datagram waiting (at most ``limit``), parsed; never blocks."""
+        out: list[Datagram] = []
+        sock = self.sock
+        while len(out) < limit:
+            try:
+                if self.setup.stamped:
+                    data, ancillary, _, addr = sock.recvmsg(65535, ANCILLARY)
+                    age = arrival_age(ancillary)
+                else:
+                    data, addr = sock.recvfrom(65535)
+                    age = 0.0
+            except (BlockingIOError, InterruptedError):
+                break
+            except ConnectionRefusedError:
+                self.errors += 1  # ICMP from a vehicle that went away: read on
+                continue
+            except OSError:
+                self.errors += 1
+                break
+            address = (addr[0], addr[1])
+            result = self._parser(address).feed(data)
+            out.append(Datagram(address, time.monotonic() - age,
+                                tuple(pack_message(m) for m in result.messages),
+                                tuple(result.bad), tuple(result.refused_signatures),
+                                result.unknown))
+        return out
+
+    def send(self, sends: list[tuple[bytes, Address]]) -> None:
+        """Send each datagram; never blocks (a full socket buffer drops it, as the
+        network would)."""
+        for data, addr in sends:
+            try:
+                self.sock.sendto(data, addr)
+            except OSError:
+                self.errors += 1
+
+
+def serve(sock: socket.socket, conn: Any, sends: Any, setup: WorkerSetup) -> None:
+    """The worker process's body: read, batch, pass on, until the pipe or the ground
+    station goes away."""
+    from groundctl.processes import settle_helper
+
+    settle_helper()
+    sock.setblocking(False)
+    receiver = Receiver(sock, setup)
+    frames = FrameReader()
+    out_fd = sends.fileno()
+    poller = select.poll()
+    poller.register(sock.fileno(), select.POLLIN)
+    poller.register(out_fd, select.POLLIN)
+    reported = 0
+
+    def take_sends() -> bool:
+        """Send what the ground station queued; False once it closed the pipe."""
+        try:
+            data = os.read(out_fd, 1 << 20)
+        except (BlockingIOError, InterruptedError):
+            return True
+        if not data:
+            return False
+        for batch in frames.feed(data):
+            receiver.send(batch)
+        return True
+
+    try:
+        while True:
+            ready = dict(poller.poll(PARENT_CHECK_S * 1000.0))
+            if not ready:
+                if os.getppid() != setup.parent_pid:
+                    return
+                continue
+            if out_fd in ready and not take_sends():
+                return
+            if sock.fileno() not in ready:
+                continue
+            batch = receiver.read()
+            first = time.monotonic()
+            while len(batch) < MAX_BATCH:
+                left = BATCH_WAIT_S - (time.monotonic() - first)
+                if left <= 0.0:
+                    break
+                more = dict(poller.poll(left * 1000.0))
+                if not more:
+                    break
+                if out_fd in more and not take_sends():
+                    return
+                if sock.fileno() in more:
+                    batch.extend(receiver.read(MAX_BATCH - len(batch)))
+            if batch or receiver.errors != reported:
+                conn.send_bytes(encode_batch(batch, receiver.errors - reported))
+                reported = receiver.errors
+    except (BrokenPipeError, EOFError, OSError):
+        return  # the ground station closed its end
+    finally:
+        with contextlib.suppress(OSError):
+            conn.close()
+
+
+class LinkWorker:
+    """The ground station's handle on one network's worker: starts it on a duplicate of
+    the network's socket, reads its batches, queues its sends, sees it die, starts
+    another."""
+
+    def __init__(self, sock: socket.socket, setup: WorkerSetup,
+                 on_batch: Callable[[list[Datagram]], None],
+                 on_death: Callable[[int | None], None],
+                 on_errors: Callable[[int], None] = lambda n: None) -> None:
+        import asyncio
+
+        self._sock = sock
+        self.setup = setup
+        self._on_batch = on_batch
+        self._on_death = on_death
+        self._on_errors = on_errors
+        self._loop = asyncio.get_running_loop()
+        self._proc: Any = None
+        self._conn: Any = None
+        self._sends: Any = None  # our end of the sends pipe (written without blocking)
+        self._outbox: list[tuple[bytes, Address]] = []
+        self._flush_due = False
+        # Frames the pipe has not taken yet: (sends, frame); the first may be half
+        # written (``_written`` bytes of it).
+        self._backlog: deque[tuple[list[tuple[bytes, Address]], bytes]] = deque()
+        self._backlog_bytes = 0
+        self._written = 0
+        self._writing = False
+        self.starts = 0
+        """How many worker processes were started (1 + restarts)."""
+        self.batches = 0
+        """Batches read from the worker."""
+        self.dropped = 0
+        """Sends dropped because the worker did not take them (MAX_BACKLOG_BYTES)."""
+        self.direct = 0
+        """Sends that went straight out of the socket (no worker running)."""
+        self.closed = False
+
+    @property
+    def pid(self) -> int | None:
+        """The running worker's process id."""
+        return None if self._proc is None else self._proc.pid
+
+    @property
+    def alive(self) -> bool:
+        return self._proc is not None and self._proc.is_alive()
+
+    def start(self) -> None:
+        """Start a worker process (the previous one, if any, is gone)."""
+        from groundctl.processes import helper_context
+
+        ctx = helper_context()
+        parent, child = ctx.Pipe(duplex=False)
+        child_sends, parent_sends = ctx.Pipe(duplex=False)
+        proc = ctx.Process(target=serve, args=(self._sock, child, child_sends, self.setup),
+                           name=f"groundctl-link{self.setup.network + 1}", daemon=True)
+        proc.start()
+        child.close()
+        child_sends.close()
+        os.set_blocking(parent_sends.fileno(), False)
+        self._proc, self._conn, self._sends = proc, parent, parent_sends
+        self.starts += 1
+        self._loop.add_reader(parent.fileno(), self.drain)
+        self._loop.add_reader(proc.sentinel, self._died)
+
+    # -- receiving -----------------------------------------------------------------------
+
+    def drain(self) -> int:
+        """Hand on every batch waiting in the pipe; returns how many datagrams."""
+        conn = self._conn
+        count = 0
+        while conn is not None:
+            try:
+                if not conn.poll(0):
+                    break
+                data = conn.recv_bytes()
+            except (EOFError, OSError):
+                self._close_pipe()  # it died or is dying: its sentinel says so next
+                break
+            errors, batch = decode_batch(data)
+            self.batches += 1
+            count += len(batch)
+            if errors:
+                self._on_errors(errors)
+            self._on_batch(batch)
+            conn = self._conn
+        return count
+
+    # -- sending -------------------------------------------------------------------------
+
+    def send(self, data: bytes, addr: Address) -> None:
+        """Queue one datagram; it leaves with the others queued in this pass of the event
+        loop.  Straight out of the socket while no worker runs."""
+        if self._sends is None:
+            self._send_now(data, addr)
+            return
+        self._outbox.append((data, addr))
+        if not self._flush_due:
+            self._flush_due = True
+            self._loop.call_soon(self.flush)
+
+    def _send_now(self, data: bytes, addr: Address) -> None:
+        self.direct += 1
+        try:
+            self._sock.sendto(data, addr)
+        except OSError:
+            self._on_errors(1)
+
+    def flush(self) -> None:
+        """Hand the queued sends to the worker (what the pipe does not take waits)."""
+        self._flush_due = False
+        if not self._outbox:
+            return
+        sends, self._outbox = self._outbox, []
+        if self._sends is None:
+            for data, addr in sends:
+                self._send_now(data, addr)
+            return
+        frame = encode_sends(sends)
+        self._backlog.append((sends, frame))
+        self._backlog_bytes += len(frame)
+        while self._backlog_bytes > MAX_BACKLOG_BYTES and len(self._backlog) > 1:
+            # The worker takes nothing: the oldest whole frame not begun goes.
+            old_sends, old = self._backlog[1] if self._written else self._backlog[0]
+            self._backlog.remove((old_sends, old))
+            self._backlog_bytes -= len(old)
+            self.dropped += len(old_sends)
+        self._write()
+
+    def _write(self) -> None:
+        fd = None if self._sends is None else self._sends.fileno()
+        while self._backlog and fd is not None:
+            _, frame = self._backlog[0]
+            try:
+                n = os.write(fd, memoryview(frame)[self._written:])
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:
+                return  # the worker is gone: its sentinel says so; _died sends these
+            self._written += n
+            if self._written < len(frame):
+                break
+            self._backlog.popleft()
+            self._backlog_bytes -= len(frame)
+            self._written = 0
+        if fd is None:
+            return
+        if self._backlog and not self._writing:
+            self._loop.add_writer(fd, self._write)
+            self._writing = True
+        elif not self._backlog and self._writing:
+            self._loop.remove_writer(fd)
+            self._writing = False
+
+    # -- its life ------------------------------------------------------------------------
+
+    def _close_pipe(self) -> None:
+        if self._conn is not None:
+            with contextlib.suppress(Exception):
+                self._loop.remove_reader(self._conn.fileno())
+            with contextlib.suppress(OSError):
+                self._conn.close()
+            self._conn = None
+
+    def _unwatch(self) -> None:
+        self._close_pipe()
+        if self._sends is not None:
+            if self._writing:
+                with contextlib.suppress(Exception):
+                    self._loop.remove_writer(self._sends.fileno())
+                self._writing = False
+            with contextlib.suppress(OSError):
+                self._sends.close()
+            self._sends = None
+        if self._proc is not None:
+            with contextlib.suppress(Exception):
+                self._loop.remove_reader(self._proc.sentinel)
+
+    def _orphans(self) -> None:
+        """Sends the worker never took go straight out (a frame it took half of, whole:
+        a repeated setpoint or command is harmless, a missing one is not)."""
+        waiting = [send for sends, _ in self._backlog for send in sends] + self._outbox
+        self._backlog.clear()
+        self._backlog_bytes = self._written = 0
+        self._outbox = []
+        for data, addr in waiting:
+            self._send_now(data, addr)
+
+    def _died(self) -> None:
+        self.drain()  # what it passed on before it died
+        proc = self._proc
+        self._unwatch()
+        self._orphans()
+        proc.join(0.5)
+        self._proc = None
+        if not self.closed:
+            self._on_death(proc.exitcode)
+
+    def close(self) -> None:
+        """Read what is left, send what is queued, then stop the worker."""
+        self.closed = True
+        self.drain()
+        proc = self._proc
+        self._unwatch()
+        self._orphans()
+        self._proc = None
+        if proc is not None:
+            proc.kill()
+            proc.join(1.0)
