@@ -15,6 +15,7 @@ id 17 (so every one-network spelling is as it always was), ``2:17`` for network 
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Final
 
 #: Vehicle ids of network n are (n - 1) * NETWORK_STRIDE + 1 .. + 254: decimal, so a
@@ -85,6 +86,31 @@ def spell(vid: int) -> str:
     """``17`` on network 1, ``2:17`` on network 2."""
     net, sysid = divmod(int(vid), NETWORK_STRIDE)
     return str(sysid) if net == 0 else f"{net + 1}:{sysid}"
+
+
+def spell_many(ids: Iterable[int], most: int = 12) -> str:
+    """Vehicles as a short list, runs folded: ``1-4, 7, 9, 2:1-2:250``; past ``most``
+    pieces, ``... and N more`` (a line for a person, at any fleet size)."""
+    pieces: list[str] = []
+    run: list[int] = []
+
+    def close() -> None:
+        if len(run) > 2:
+            pieces.append(f"{spell(run[0])}-{spell(run[-1])}")
+        else:
+            pieces.extend(spell(v) for v in run)
+
+    for v in sorted(set(int(i) for i in ids)):
+        if run and v == run[-1] + 1:
+            run.append(v)
+            continue
+        close()
+        run = [v]
+    close()
+    if len(pieces) > most:
+        left = len(pieces) - most
+        return ", ".join(pieces[:most]) + f", ... and {left} more"
+    return ", ".join(pieces)
 
 
 def parse_vehicle(text: str) -> VehicleId:

@@ -235,8 +235,7 @@ def test_plain_preflight_refusal_is_one_line_per_check_not_per_vehicle() -> None
     refresh_preflight(runner, NOW)
     report = runner.preflight_report
     assert report is not None
-    assert report.summary() == ("52/64 ready, waiting for 12: gps (12, 40), battery (20, 21, "
-                                "22, 23, 24, 25, 26, 27, 28, 29)")
+    assert report.summary() == "52/64 ready, waiting for 12: gps (12, 40), battery (20-29)"
     lines = report.failing_by_check()
     assert lines == ["  gps: no GPS_RAW_INT yet (12, 40)",
                      "  battery: 50 % (minimum 60 %) (20); 51 % (minimum 60 %) (21); "

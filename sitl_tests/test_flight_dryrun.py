@@ -464,3 +464,11 @@ def test_a_show_flown_across_two_networks(tmp_path: Path) -> None:
         while (msg := log.recv_match(type="LOCAL_POSITION_NED")) is not None:
             seen.add(msg.get_srcSystem())
         assert seen == ids, name
+    # The replay reads both networks' tlogs: nine vehicles, network 2's by vehicle id.
+    from groundctl.viz.replay import find_source, replay
+    from groundctl.viz.scene import RerunTarget
+
+    source = find_source(tmp_path)
+    assert source.networks == ((2, tmp_path / "flight-net2.tlog"),)
+    summary = replay(source, [RerunTarget("save", str(tmp_path / "replay.rrd"))])
+    assert summary.vehicles == 9 and summary.damage is None

@@ -206,3 +206,13 @@ async def test_each_network_has_its_own_signing_key() -> None:
             assert not {1001, 1002} & set(link.vehicles)
         finally:
             fleet.stop()
+
+
+def test_a_thousand_vehicles_are_one_short_line() -> None:
+    from groundctl.vehicleid import spell_many
+
+    fleet = [vehicle_id(n, s) for n in (1, 2, 3, 4) for s in range(1, 251)]
+    assert spell_many(fleet) == "1-250, 2:1-2:250, 3:1-3:250, 4:1-4:250"
+    assert spell_many([1, 2, 4, 1007]) == "1, 2, 4, 2:7"
+    assert spell_many(range(1, 60, 2), most=3) == "1, 3, 5, ... and 27 more"
+    assert spell_many([]) == ""

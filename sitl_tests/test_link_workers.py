@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+import pickle
 import signal
 import socket
 import time
@@ -98,7 +99,7 @@ def test_frames_of_sends_are_read_back_however_the_pipe_cuts_them() -> None:
     reader = FrameReader()
     got = []
     for k in range(0, len(wire), 7):  # a pipe read ends anywhere
-        got += reader.feed(wire[k:k + 7])
+        got += [pickle.loads(p) for p in reader.feed(wire[k:k + 7])]
     assert got == frames
 
 
@@ -288,7 +289,8 @@ async def test_a_worker_that_takes_no_sends_never_blocks_the_loop() -> None:
                         worker.send((k * 500 + i).to_bytes(4, "little") + bytes(57), peer)
                     worker.flush()
                 assert worker.dropped > 0
-                assert worker._backlog_bytes <= MAX_BACKLOG_BYTES + 500 * 100
+                assert worker._writer is not None
+                assert worker._writer.waiting <= MAX_BACKLOG_BYTES + 500 * 100
             finally:
                 os.kill(pid, signal.SIGCONT)
             got = 0
@@ -302,3 +304,54 @@ async def test_a_worker_that_takes_no_sends_never_blocks_the_loop() -> None:
             assert got >= 1000  # the backlog left once the worker ran again
         finally:
             rx.close()
+
+
+@run
+async def test_a_worker_with_nothing_to_read_stays() -> None:
+    """Its parent is the fork server, not the ground station: silence before the vehicles
+    talk is no reason to leave (the first dry-run of 1,000 drones saw its workers go)."""
+    from groundctl.link.worker import PARENT_CHECK_S
+
+    events = EventList()
+    link = FleetLink(("127.0.0.1", 0), clock=ScaledClock(), events=events, link_workers=True)
+    async with link:
+        pids = link.worker_pids
+        await asyncio.sleep(3 * PARENT_CHECK_S)
+        assert link.worker_pids == pids
+        assert not events.named("link_worker_died")
+
+
+@run
+async def test_telemetry_waits_in_the_worker_while_the_control_loop_is_stalled() -> None:
+    """The control loop stalls (blocked for 2 s) while 30,000 datagrams arrive: three
+    times what the socket's buffer holds (about 10,000 small datagrams: the kernel
+    counts 830 bytes each), so only a worker that keeps reading, and keeps what it read,
+    loses none of them; afterwards they are all decided on."""
+    import threading
+
+    link = FleetLink(("127.0.0.1", 0), clock=ScaledClock(), link_workers=True)
+    async with link:
+        assert link.local_address is not None
+        target = link.local_address
+        wire = _wire(_sample_messages()[1:2], sysid=6)[0]
+        count = 30_000
+
+        def flood() -> None:
+            tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            try:
+                for k in range(count):
+                    tx.sendto(wire, target)
+                    if k % 20 == 19:
+                        time.sleep(0.001)  # about 20,000 a second: 800 vehicles' telemetry
+            finally:
+                tx.close()
+
+        sender = threading.Thread(target=flood)
+        before = link.stats.datagrams
+        sender.start()
+        time.sleep(2.0)  # the control loop stalled: nobody reads the worker's pipe
+        sender.join()
+        await eventually(lambda: link.stats.datagrams - before >= count * 0.9, timeout=10.0,
+                         what="the stalled telemetry handed on")
+        await asyncio.sleep(0.5)
+        assert link.stats.datagrams - before > count * 0.9  # the kernel alone keeps ~1/3

@@ -27,6 +27,7 @@ from groundctl.errors import PreflightFailed
 from groundctl.execute.mapping import DEFAULT_SLOT_TOLERANCE_M, Assignment
 from groundctl.link.state import VehicleState
 from groundctl.plan.plan import Plan
+from groundctl.vehicleid import spell_many
 
 
 @dataclass(frozen=True)
@@ -263,10 +264,10 @@ class PreflightReport:
             line += f" ({len(set(excluded) & set(self.results))} excluded)"
         if not_ready:
             line += f", waiting for {len(not_ready)}: " + ", ".join(
-                f"{name} ({', '.join(map(str, ids))})" for name, ids in waiting.items())
+                f"{name} ({spell_many(ids)})" for name, ids in waiting.items())
         if self.extra:
             line += (f"; {len(self.extra)} not in the show, ignored: "
-                     + ", ".join(map(str, sorted(self.extra))))
+                     + spell_many(self.extra))
         return line
 
     def failing_by_check(self, excluded: Collection[int] = (), most: int = 4) -> list[str]:

@@ -66,6 +66,10 @@ PARENT_CHECK_S = 0.25
 #: Sends waiting for a worker that does not take them, bytes at most (a second of a
 #: 254-vehicle network's setpoints and LED colours is about 0.4 MB).
 MAX_BACKLOG_BYTES = 4 * 1024 * 1024
+#: Telemetry a worker keeps for a control loop that does not read it, bytes at most:
+#: the socket's own buffer holds well under a second of a busy network (the kernel
+#: counts about a kilobyte per small datagram), this a minute.
+MAX_WORKER_BACKLOG_BYTES = 256 * 1024 * 1024
 _FRAME = struct.Struct("<I")
 
 #: ``--link-workers auto`` moves the receive path into workers for fleets this large:
@@ -146,28 +150,94 @@ def decode_batch(data: bytes) -> tuple[int, list[Datagram]]:
                     for a, arrived, messages, bad, refused, unknown in rows]
 
 
-def encode_sends(sends: list[tuple[bytes, Address]]) -> bytes:
-    """One frame of sends for the worker."""
-    payload = pickle.dumps(sends, protocol=pickle.HIGHEST_PROTOCOL)
+def encode_frame(payload: bytes) -> bytes:
+    """``payload`` framed for a pipe: its length (4 bytes), then itself."""
     return _FRAME.pack(len(payload)) + payload
 
 
+def encode_sends(sends: list[tuple[bytes, Address]]) -> bytes:
+    """One frame of sends for the worker."""
+    return encode_frame(pickle.dumps(sends, protocol=pickle.HIGHEST_PROTOCOL))
+
+
 class FrameReader:
-    """The worker's side of the sends pipe: bytes in, lists of sends out."""
+    """One end of a pipe of frames: bytes in as the pipe gives them, whole payloads out."""
 
     def __init__(self) -> None:
         self._buf = bytearray()
 
-    def feed(self, data: bytes) -> list[list[tuple[bytes, Address]]]:
+    def feed(self, data: bytes) -> list[bytes]:
         self._buf += data
         out = []
-        while len(self._buf) >= _FRAME.size:
-            (n,) = _FRAME.unpack_from(self._buf)
-            if len(self._buf) < _FRAME.size + n:
+        start = 0
+        while len(self._buf) - start >= _FRAME.size:
+            (n,) = _FRAME.unpack_from(self._buf, start)
+            if len(self._buf) - start < _FRAME.size + n:
                 break
-            out.append(pickle.loads(bytes(self._buf[_FRAME.size:_FRAME.size + n])))
-            del self._buf[:_FRAME.size + n]
+            out.append(bytes(self._buf[start + _FRAME.size:start + _FRAME.size + n]))
+            start += _FRAME.size + n
+        del self._buf[:start]
         return out
+
+
+class FrameWriter:
+    """The other end: frames queued and written without ever blocking (the pipe takes
+    what it can; the rest waits here, up to ``limit`` bytes, past which the oldest frames
+    not begun are dropped and their ``count``s returned)."""
+
+    def __init__(self, fd: int, limit: int) -> None:
+        self.fd = fd
+        self.limit = limit
+        self._frames: deque[tuple[bytes, int]] = deque()
+        self._bytes = 0
+        self._written = 0
+
+    @property
+    def waiting(self) -> int:
+        """Bytes not written yet."""
+        return self._bytes - self._written
+
+    @property
+    def frames(self) -> int:
+        """Frames not wholly written yet."""
+        return len(self._frames)
+
+    def put(self, frame: bytes, count: int = 1) -> int:
+        """Queue ``frame`` (standing for ``count`` items) and write what the pipe takes;
+        returns how many items were dropped to stay within the limit."""
+        self._frames.append((frame, count))
+        self._bytes += len(frame)
+        dropped = 0
+        while self._bytes > self.limit and len(self._frames) > 1:
+            k = 1 if self._written else 0  # never the frame half written
+            old, n = self._frames[k]
+            del self._frames[k]
+            self._bytes -= len(old)
+            dropped += n
+        self.write()
+        return dropped
+
+    def write(self) -> None:
+        """Write what the pipe takes now; raises OSError once the reader is gone."""
+        while self._frames:
+            frame, _ = self._frames[0]
+            try:
+                n = os.write(self.fd, memoryview(frame)[self._written:])
+            except (BlockingIOError, InterruptedError):
+                return
+            self._written += n
+            if self._written < len(frame):
+                return
+            self._frames.popleft()
+            self._bytes -= len(frame)
+            self._written = 0
+
+    def take(self) -> list[bytes]:
+        """Every frame not fully written, and forget them (the reader is gone)."""
+        frames = [f for f, _ in self._frames]
+        self._frames.clear()
+        self._bytes = self._written = 0
+        return frames
 
 
 @dataclass(frozen=True)
@@ -245,6 +315,18 @@ class Receiver:
                 self.errors += 1
 
 
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` is still there (the worker's parent is the fork server,
+    not the ground station: ``os.getppid`` cannot tell)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def serve(sock: socket.socket, conn: Any, sends: Any, setup: WorkerSetup) -> None:
     """The worker process's body: read, batch, pass on, until the pipe or the ground
     station goes away."""
@@ -255,9 +337,13 @@ def serve(sock: socket.socket, conn: Any, sends: Any, setup: WorkerSetup) -> Non
     receiver = Receiver(sock, setup)
     frames = FrameReader()
     out_fd = sends.fileno()
+    in_fd = conn.fileno()
+    os.set_blocking(in_fd, False)
+    towards = FrameWriter(in_fd, MAX_WORKER_BACKLOG_BYTES)
     poller = select.poll()
     poller.register(sock.fileno(), select.POLLIN)
     poller.register(out_fd, select.POLLIN)
+    watching_in = False
     reported = 0
 
     def take_sends() -> bool:
@@ -268,19 +354,28 @@ def serve(sock: socket.socket, conn: Any, sends: Any, setup: WorkerSetup) -> Non
             return True
         if not data:
             return False
-        for batch in frames.feed(data):
-            receiver.send(batch)
+        for payload in frames.feed(data):
+            receiver.send(pickle.loads(payload))
         return True
 
     try:
         while True:
+            # The pipe towards the ground station watched only while frames wait for it.
+            if towards.waiting and not watching_in:
+                poller.register(in_fd, select.POLLOUT)
+                watching_in = True
+            elif not towards.waiting and watching_in:
+                poller.unregister(in_fd)
+                watching_in = False
             ready = dict(poller.poll(PARENT_CHECK_S * 1000.0))
             if not ready:
-                if os.getppid() != setup.parent_pid:
-                    return
+                if not _alive(setup.parent_pid):
+                    return  # (its end of the sends pipe closing says so too)
                 continue
             if out_fd in ready and not take_sends():
                 return
+            if in_fd in ready:
+                towards.write()
             if sock.fileno() not in ready:
                 continue
             batch = receiver.read()
@@ -297,8 +392,11 @@ def serve(sock: socket.socket, conn: Any, sends: Any, setup: WorkerSetup) -> Non
                 if sock.fileno() in more:
                     batch.extend(receiver.read(MAX_BATCH - len(batch)))
             if batch or receiver.errors != reported:
-                conn.send_bytes(encode_batch(batch, receiver.errors - reported))
+                frame = encode_frame(encode_batch(batch, receiver.errors - reported))
                 reported = receiver.errors
+                # Never waits for the ground station: what its pipe does not take waits
+                # here (past the limit the oldest batches go, counted as errors).
+                receiver.errors += towards.put(frame, len(batch))
     except (BrokenPipeError, EOFError, OSError):
         return  # the ground station closed its end
     finally:
@@ -324,15 +422,15 @@ class LinkWorker:
         self._on_errors = on_errors
         self._loop = asyncio.get_running_loop()
         self._proc: Any = None
-        self._conn: Any = None
+        self._conn: Any = None  # the worker's batches (read without blocking)
+        self._batches = FrameReader()
         self._sends: Any = None  # our end of the sends pipe (written without blocking)
+        self._writer: FrameWriter | None = None
         self._outbox: list[tuple[bytes, Address]] = []
+        # The sends of the frames not yet wholly taken by the pipe (for a worker that
+        # dies before it takes them); cleared whenever the pipe has taken everything.
+        self._pending_sends: list[list[tuple[bytes, Address]]] = []
         self._flush_due = False
-        # Frames the pipe has not taken yet: (sends, frame); the first may be half
-        # written (``_written`` bytes of it).
-        self._backlog: deque[tuple[list[tuple[bytes, Address]], bytes]] = deque()
-        self._backlog_bytes = 0
-        self._written = 0
         self._writing = False
         self.starts = 0
         """How many worker processes were started (1 + restarts)."""
@@ -366,7 +464,10 @@ class LinkWorker:
         child.close()
         child_sends.close()
         os.set_blocking(parent_sends.fileno(), False)
+        os.set_blocking(parent.fileno(), False)
         self._proc, self._conn, self._sends = proc, parent, parent_sends
+        self._batches = FrameReader()
+        self._writer = FrameWriter(parent_sends.fileno(), MAX_BACKLOG_BYTES)
         self.starts += 1
         self._loop.add_reader(parent.fileno(), self.drain)
         self._loop.add_reader(proc.sentinel, self._died)
@@ -374,24 +475,26 @@ class LinkWorker:
     # -- receiving -----------------------------------------------------------------------
 
     def drain(self) -> int:
-        """Hand on every batch waiting in the pipe; returns how many datagrams."""
-        conn = self._conn
+        """Hand on every batch waiting in the pipe; returns how many datagrams.  Never
+        waits: a batch the pipe holds only part of is completed on the next call."""
         count = 0
-        while conn is not None:
+        while self._conn is not None:
             try:
-                if not conn.poll(0):
-                    break
-                data = conn.recv_bytes()
-            except (EOFError, OSError):
+                data = os.read(self._conn.fileno(), 1 << 20)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:
+                data = b""
+            if not data:
                 self._close_pipe()  # it died or is dying: its sentinel says so next
                 break
-            errors, batch = decode_batch(data)
-            self.batches += 1
-            count += len(batch)
-            if errors:
-                self._on_errors(errors)
-            self._on_batch(batch)
-            conn = self._conn
+            for payload in self._batches.feed(data):
+                errors, batch = decode_batch(payload)
+                self.batches += 1
+                count += len(batch)
+                if errors:
+                    self._on_errors(errors)
+                self._on_batch(batch)
         return count
 
     # -- sending -------------------------------------------------------------------------
@@ -420,45 +523,37 @@ class LinkWorker:
         if not self._outbox:
             return
         sends, self._outbox = self._outbox, []
-        if self._sends is None:
+        writer = self._writer
+        if writer is None:
             for data, addr in sends:
                 self._send_now(data, addr)
             return
-        frame = encode_sends(sends)
-        self._backlog.append((sends, frame))
-        self._backlog_bytes += len(frame)
-        while self._backlog_bytes > MAX_BACKLOG_BYTES and len(self._backlog) > 1:
-            # The worker takes nothing: the oldest whole frame not begun goes.
-            old_sends, old = self._backlog[1] if self._written else self._backlog[0]
-            self._backlog.remove((old_sends, old))
-            self._backlog_bytes -= len(old)
-            self.dropped += len(old_sends)
-        self._write()
+        self._pending_sends.append(sends)
+        try:
+            self.dropped += writer.put(encode_sends(sends), len(sends))
+        except OSError:
+            return  # the worker is gone: its sentinel says so, and _died sends these
+        del self._pending_sends[:-writer.frames or len(self._pending_sends)]
+        self._watch_writer()
 
     def _write(self) -> None:
-        fd = None if self._sends is None else self._sends.fileno()
-        while self._backlog and fd is not None:
-            _, frame = self._backlog[0]
-            try:
-                n = os.write(fd, memoryview(frame)[self._written:])
-            except (BlockingIOError, InterruptedError):
-                break
-            except OSError:
-                return  # the worker is gone: its sentinel says so; _died sends these
-            self._written += n
-            if self._written < len(frame):
-                break
-            self._backlog.popleft()
-            self._backlog_bytes -= len(frame)
-            self._written = 0
-        if fd is None:
+        if self._writer is not None:
+            with contextlib.suppress(OSError):  # gone: its sentinel says so
+                self._writer.write()
+        self._watch_writer()
+
+    def _watch_writer(self) -> None:
+        writer = self._writer
+        if writer is None:
             return
-        if self._backlog and not self._writing:
-            self._loop.add_writer(fd, self._write)
+        if writer.waiting and not self._writing:
+            self._loop.add_writer(writer.fd, self._write)
             self._writing = True
-        elif not self._backlog and self._writing:
-            self._loop.remove_writer(fd)
+        elif not writer.waiting and self._writing:
+            self._loop.remove_writer(writer.fd)
             self._writing = False
+        if not writer.waiting:
+            self._pending_sends.clear()
 
     # -- its life ------------------------------------------------------------------------
 
@@ -473,9 +568,9 @@ class LinkWorker:
     def _unwatch(self) -> None:
         self._close_pipe()
         if self._sends is not None:
-            if self._writing:
+            if self._writing and self._writer is not None:
                 with contextlib.suppress(Exception):
-                    self._loop.remove_writer(self._sends.fileno())
+                    self._loop.remove_writer(self._writer.fd)
                 self._writing = False
             with contextlib.suppress(OSError):
                 self._sends.close()
@@ -485,11 +580,13 @@ class LinkWorker:
                 self._loop.remove_reader(self._proc.sentinel)
 
     def _orphans(self) -> None:
-        """Sends the worker never took go straight out (a frame it took half of, whole:
-        a repeated setpoint or command is harmless, a missing one is not)."""
-        waiting = [send for sends, _ in self._backlog for send in sends] + self._outbox
-        self._backlog.clear()
-        self._backlog_bytes = self._written = 0
+        """Sends the worker may not have taken go straight out (those of every frame the
+        pipe held: a repeated setpoint or command is harmless, a missing one is not)."""
+        waiting = [send for sends in self._pending_sends for send in sends] + self._outbox
+        if self._writer is not None:
+            self._writer.take()
+        self._writer = None
+        self._pending_sends = []
         self._outbox = []
         for data, addr in waiting:
             self._send_now(data, addr)

@@ -9,6 +9,7 @@ itself: then what needs the missing part is left out and said once.
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,10 +21,13 @@ from groundctl.errors import DamagedTlog, RecordingError
 from groundctl.plan.plan import Plan
 from groundctl.record.recording import EVENTS, PLAN, REPORT, SHOW_CLOCK, TLOG
 from groundctl.record.showclock import ShowClockTable, read_show_clock
+from groundctl.vehicleid import NETWORK_STRIDE
 from groundctl.viz import scene
 from groundctl.viz.eventlog import LogLine, event_line, mode_line, statustext_line
 from groundctl.viz.flight import FlightArrays, flight_arrays
-from groundctl.viz.tlogread import TlogData, decode_tlog
+from groundctl.viz.tlogread import TlogData, decode_tlog, merge_tlogs
+
+_NETWORK_TLOG = re.compile(r"flight-net(\d+)\.tlog")
 
 #: A vehicle is matched to the takeoff slot it stands on within this, m (as pre-flight).
 SLOT_TOLERANCE_M = 3.0
@@ -43,6 +47,9 @@ class ReplaySource:
     """showclock.csv."""
     report: Path | None = None
     """report.json."""
+    networks: tuple[tuple[int, Path], ...] = ()
+    """The other MAVLink networks' tlogs, (network, path), network 2 on
+    (``flight-net<n>.tlog``): their vehicles are named by their vehicle ids (2:17)."""
 
 
 @dataclass
@@ -71,8 +78,10 @@ def find_source(recording: Path, plan: Path | None = None) -> ReplaySource:
             p = recording / name
             return p if p.is_file() else None
 
+        others = sorted((int(m.group(1)), p) for p in recording.glob("flight-net*.tlog")
+                        if (m := _NETWORK_TLOG.fullmatch(p.name)) and int(m.group(1)) >= 2)
         return ReplaySource(tlog, plan or there(PLAN), there(EVENTS), there(SHOW_CLOCK),
-                            there(REPORT))
+                            there(REPORT), tuple(others))
     if not recording.is_file():
         raise RecordingError(recording, "no such recording directory or tlog")
     return ReplaySource(recording, plan)
@@ -161,15 +170,20 @@ def replay(source: ReplaySource, targets: Sequence[scene.RerunTarget],
            notify: Callable[[str], None] | None = None) -> ReplaySummary:
     """Write the Rerun recording of ``source`` to ``targets``; see the module docstring."""
     summary = ReplaySummary()
-    try:
-        raw = source.tlog.read_bytes()
-    except OSError as exc:
-        raise RecordingError(source.tlog, f"cannot read: {exc.strerror or exc}") from exc
-    data = decode_tlog(raw)
-    if data.packets == 0:
-        raise RecordingError(source.tlog, "no MAVLink packet could be read: not a tlog"
-                             + (f" ({data.damage.reason} at byte {data.damage.offset})"
-                                if data.damage is not None else ""))
+    parts: list[tuple[Path, TlogData]] = []
+    for network, path in ((1, source.tlog), *source.networks):
+        try:
+            raw = path.read_bytes()
+        except OSError as exc:
+            raise RecordingError(path, f"cannot read: {exc.strerror or exc}") from exc
+        part = decode_tlog(raw, offset=(network - 1) * NETWORK_STRIDE)
+        if part.packets == 0:
+            raise RecordingError(path, "no MAVLink packet could be read: not a tlog"
+                                 + (f" ({part.damage.reason} at byte {part.damage.offset})"
+                                    if part.damage is not None else ""))
+        parts.append((path, part))
+    data = merge_tlogs([part for _, part in parts])
+    damaged = next((path for path, part in parts if part.damage is not None), source.tlog)
     plan: Plan | None = None
     if source.plan is not None:
         plan = Plan.load(source.plan)  # a PlanFileError is one line
@@ -209,7 +223,7 @@ def replay(source: ReplaySource, targets: Sequence[scene.RerunTarget],
             d = data.damage
             at = (float(fa.show_time_at(np.array([d.last_unix_s]))[0])
                   if d.last_unix_s is not None else None)
-            summary.damage = DamagedTlog(source.tlog, d.offset, d.size, data.packets, d.reason,
+            summary.damage = DamagedTlog(damaged, d.offset, d.size, data.packets, d.reason,
                                          d.last_unix_s, at)
             stop = np.array([at if at is not None else 0.0])
             scene.log_lines(rec, stop, None if d.last_unix_s is None

@@ -32,6 +32,7 @@ from numpy.typing import NDArray
 
 from groundctl.errors import GroundctlError
 from groundctl.plan.plan import Plan
+from groundctl.vehicleid import spell
 from groundctl.viz.eventlog import LogLine
 from groundctl.viz.flight import FlightArrays
 
@@ -231,7 +232,7 @@ def log_vehicles(rec: rr.RecordingStream, fa: FlightArrays, rows: slice | None =
     show, unix = fa.show_time[sl], fa.unix_s[sl]
     pos, colours = fa.positions[sl], fa.colours[sl]
     mask = np.isfinite(pos[..., 0])
-    labels = np.array([str(s) for s in fa.sysids])
+    labels = np.array([spell(int(s)) for s in fa.sysids])
     rec.send_columns("world/vehicles", indexes=_times(show, unix), columns=rr.Points3D.columns(
         positions=pos[mask], colors=colours[mask],
         labels=np.broadcast_to(labels, mask.shape)[mask]).partition(mask.sum(axis=1)))
@@ -280,7 +281,7 @@ def log_styles(rec: rr.RecordingStream, sysids: Sequence[int], limit: float | No
     rec.log("world/trails", rr.LineStrips3D.from_fields(radii=0.04), static=True)
     rec.log("world/closest_pair", rr.LineStrips3D.from_fields(radii=0.03, colors=(255, 60, 60)),
             static=True)
-    names = [f"vehicle {s}" for s in sysids]
+    names = [f"vehicle {spell(int(s))}" for s in sysids]
     rec.log("series/tracking_error", rr.SeriesLines(names=names), static=True)
     rec.log("series/battery", rr.SeriesLines(names=names), static=True)
     rec.log("series/separation/min", rr.SeriesLines(names="closest pair", colors=(0, 160, 255)),

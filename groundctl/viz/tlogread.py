@@ -15,6 +15,7 @@ arming) and STATUSTEXT, and the LED_CONTROL the ground station sent.
 from __future__ import annotations
 
 import struct
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -94,8 +95,10 @@ class TlogData:
     """System ids of the vehicles heard (autopilot HEARTBEATs or positions)."""
 
 
-def decode_tlog(data: bytes) -> TlogData:
-    """Decode a tlog's bytes (see the module docstring)."""
+def decode_tlog(data: bytes, offset: int = 0) -> TlogData:
+    """Decode a tlog's bytes (see the module docstring).  ``offset`` is added to every
+    system id (a vehicle's, and an LED_CONTROL's target but 0): network n's tlog read
+    with ``(n - 1) * NETWORK_STRIDE`` names its vehicles by their vehicle ids."""
     mav = mavlink.MAVLink(None)
     size = len(data)
     pos_rows: list[tuple[int, float, float, float, float, float, float, float, float]] = []
@@ -146,7 +149,7 @@ def decode_tlog(data: bytes) -> TlogData:
             first = t
         last = t
         kind = msg.get_type()
-        src = msg.get_srcSystem()
+        src = msg.get_srcSystem() + offset
         if kind == "LOCAL_POSITION_NED":
             senders.add(src)
             pos_rows.append((src, t, msg.time_boot_ms / 1000.0, msg.x, msg.y, msg.z,
@@ -154,7 +157,8 @@ def decode_tlog(data: bytes) -> TlogData:
         elif kind == "LED_CONTROL":
             rgb = _led_rgb(msg)
             if rgb is not None:
-                leds.setdefault(msg.target_system, []).append((t, *rgb))
+                target = msg.target_system + offset if msg.target_system else 0
+                leds.setdefault(target, []).append((t, *rgb))
         elif kind == "GPS_GLOBAL_ORIGIN":
             origins.setdefault(src, []).append(
                 (t, msg.latitude / 1e7, msg.longitude / 1e7, msg.altitude / 1000.0))
@@ -185,6 +189,41 @@ def decode_tlog(data: bytes) -> TlogData:
                   np.array([r[1:] for r in v], dtype=np.uint8).reshape(-1, 3))
               for s, v in leds.items()},
         modes=modes, texts=texts, damage=damage, senders=senders)
+
+
+def merge_tlogs(parts: Sequence[TlogData]) -> TlogData:
+    """Several networks' tlogs (decoded with their offsets) as one: positions in time
+    order, the rest side by side (their vehicle ids differ)."""
+    if len(parts) == 1:
+        return parts[0]
+    pos = [p.positions for p in parts]
+    unix = np.concatenate([p.unix_s for p in pos])
+    order = np.argsort(unix, kind="stable")
+    positions = Positions(np.concatenate([p.sysid for p in pos])[order], unix[order],
+                          np.concatenate([p.boot_s for p in pos])[order],
+                          np.concatenate([p.ned for p in pos])[order],
+                          np.concatenate([p.vel_ned for p in pos])[order])
+    firsts = [p.first_unix_s for p in parts if p.first_unix_s is not None]
+    lasts = [p.last_unix_s for p in parts if p.last_unix_s is not None]
+    leds: dict[int, tuple[FloatArray, NDArray[np.uint8]]] = {}
+    for p in parts:
+        for target, (t, rgb) in p.leds.items():
+            if target in leds:  # 0 (every vehicle) from two networks
+                t0, rgb0 = leds[target]
+                t, rgb = np.concatenate([t0, t]), np.concatenate([rgb0, rgb])
+                keep = np.argsort(t, kind="stable")
+                t, rgb = t[keep], rgb[keep]
+            leds[target] = (t, rgb)
+    return TlogData(
+        packets=sum(p.packets for p in parts), size=sum(p.size for p in parts),
+        first_unix_s=min(firsts) if firsts else None,
+        last_unix_s=max(lasts) if lasts else None, positions=positions,
+        origins={k: v for p in parts for k, v in p.origins.items()},
+        battery={k: v for p in parts for k, v in p.battery.items()}, leds=leds,
+        modes=sorted((m for p in parts for m in p.modes), key=lambda m: m[0]),
+        texts=sorted((x for p in parts for x in p.texts), key=lambda x: x[0]),
+        damage=next((p.damage for p in parts if p.damage is not None), None),
+        senders={s for p in parts for s in p.senders})
 
 
 def _led_rgb(msg: mavlink.MAVLink_led_control_message) -> tuple[int, int, int] | None:

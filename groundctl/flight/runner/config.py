@@ -19,6 +19,7 @@ from groundctl.execute.sequence import HOVER_BEFORE_SHOW_S, SequenceConfig, Vehi
 from groundctl.link.state import VehicleState
 from groundctl.plan.plan import Plan
 from groundctl.show.model import VehicleSettings
+from groundctl.vehicleid import spell_many
 
 log = logging.getLogger("groundctl.flight.runner")  # the package's name, as before the split
 
@@ -33,20 +34,8 @@ _AIRBORNE = frozenset({VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVI
 _WIND_PHASES = _AIRBORNE | {VehiclePhase.TAKEOFF, VehiclePhase.LANDING}
 
 def _ids(ids: Sequence[int]) -> str:
-    """System ids as a short list: "1-4, 7, 9"."""
-    out: list[str] = []
-    run: list[int] = []
-    for i in sorted(ids):
-        if run and i == run[-1] + 1:
-            run.append(i)
-            continue
-        if run:
-            out.append(f"{run[0]}-{run[-1]}" if len(run) > 2 else
-                       ", ".join(map(str, run)))
-        run = [i]
-    if run:
-        out.append(f"{run[0]}-{run[-1]}" if len(run) > 2 else ", ".join(map(str, run)))
-    return "(" + ", ".join(out) + ")"
+    """Vehicles as a short list: "(1-4, 7, 9, 2:1-2:250)" (see :func:`spell_many`)."""
+    return "(" + spell_many(ids) + ")"
 
 
 def _range_rate(pa: NDArray[np.float64], pb: NDArray[np.float64], a: VehicleState,
