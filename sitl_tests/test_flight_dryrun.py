@@ -426,6 +426,23 @@ def test_a_tick_spread_over_its_period_flies_as_a_burst_does() -> None:
     assert report["max_tracking_error_m"] < 0.5
 
 
+def test_a_fleet_simulated_in_two_processes_flies_as_one() -> None:
+    """Issue 34: the simulator split over processes (the 1,000-drone dry-run needs it):
+    vehicles 1-4 in one, 5-9 in the other, both on the paced clock; a push of vehicle 8
+    reaches the process that flies it; the truth (crashes, landed) is the whole fleet's."""
+    from groundctl.flight.dryrun import Push, sim_processes
+    from groundctl.sim.group import split_config
+
+    assert sim_processes(9, 1) == 1 and sim_processes(500, 2) == 2
+    assert sim_processes(1000, 4) == 4 and sim_processes(9, 1, asked=2) == 2
+    parts = split_config(SimConfig(count=9, system_ids=list(range(1, 10))), 2)
+    assert [list(p.system_ids or []) for p in parts] == [[1, 2, 3, 4], [5, 6, 7, 8, 9]]
+    result = dry_run(sim_processes=2, pushes=(Push(8, 10.0, (1.5, 0.0, 0.0)),))
+    report = result.report
+    _assert_flown_safely(report)
+    assert report["pacing"]["left_behind"] == {"ground_station": 0, "simulator": 0}
+
+
 def test_a_show_flown_across_two_networks(tmp_path: Path) -> None:
     """Issue 34: the quick show spread over two MAVLink networks (two ground-station
     ports; system ids 1-5 on the first, 1-4 on the second), each read by a receive worker

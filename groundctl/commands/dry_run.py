@@ -79,6 +79,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                         "of the ground station each, 254 vehicles at most per network; "
                         "default: as many as the show needs); their vehicles are named "
                         "2:17 (network 2, system id 17), network 1's plainly 17")
+    p.add_argument("--sim-processes", type=int, default=0, metavar="N",
+                   help="simulate the fleet in N processes (default: one, or one per "
+                        "network for fleets of more than 300 vehicles: one process carries "
+                        "about 600 at real time)")
     p.add_argument("--no-record", action="store_true", help="record nothing")
     add_plan_options(p)
     add_import_options(p)
@@ -103,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         pushes=tuple(Push(s, t, v) for s, t, v in args.push),
         weak=tuple(w for group in args.weak for w in group), profile=args.profile,
         rtk=args.rtk, gcs_sysid=args.gcs_sysid, paced=args.paced, networks=args.networks,
-        link_workers=args.link_workers)
+        link_workers=args.link_workers, sim_processes=args.sim_processes)
     notify = say(args.quiet)
     interrupts = Interrupts(notify)
     live = start_live_rerun(args, plan, record)

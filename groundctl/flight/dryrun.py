@@ -47,6 +47,7 @@ from groundctl.rtk.forwarder import RtkForwarder
 from groundctl.rtk.sources import RtkSource, SourceSpec
 from groundctl.sim import LinkFaults, SimConfig
 from groundctl.sim.config import profile_for
+from groundctl.sim.group import SimGroup, split_config
 from groundctl.sim.process import SimProcess
 from groundctl.vehicleid import (
     MAX_NETWORKS,
@@ -120,6 +121,10 @@ class DryRunOptions:
     networks: int = 0
     """MAVLink networks to spread the simulated fleet over (``--networks``; one UDP port
     of the ground station each); 0: as many as its size needs (254 vehicles each)."""
+    sim_processes: int = 0
+    """Simulator processes the fleet is split over (``--sim-processes``; one per network
+    part, each a participant of the paced clock); 0: one, or one per network for fleets
+    of more than :data:`SIM_PROCESS_VEHICLES`."""
     link_workers: str = "auto"
     """``--link-workers``: each network's receive path in a worker process (``on``,
     ``off``, ``auto``: from :data:`~groundctl.link.worker.WORKERS_FROM` vehicles)."""
@@ -138,6 +143,8 @@ class DryRunOptions:
         if not 0 <= self.networks <= MAX_NETWORKS:
             raise SimulatorError(f"--networks must be in 1..{MAX_NETWORKS}, got "
                                  f"{self.networks}")
+        if not 0 <= self.sim_processes <= 64:
+            raise SimulatorError(f"--sim-processes must be in 1..64, got {self.sim_processes}")
         if self.link_workers not in LINK_WORKER_MODES:
             raise SimulatorError(f"--link-workers must be one of "
                                  f"{', '.join(LINK_WORKER_MODES)}, got {self.link_workers!r}")
@@ -168,6 +175,18 @@ def network_count(drones: int, asked: int = 0) -> int:
         raise SimulatorError(str(exc)) from None
 
 
+#: A fleet larger than this is simulated in one process per network (one process carries
+#: about 600 vehicles at real time on the reference machine).
+SIM_PROCESS_VEHICLES = 300
+
+
+def sim_processes(drones: int, networks: int, asked: int = 0) -> int:
+    """How many simulator processes fly a fleet of ``drones`` on ``networks``."""
+    if asked:
+        return min(asked, drones)
+    return networks if drones > SIM_PROCESS_VEHICLES else 1
+
+
 def sim_config(plan: Plan, options: DryRunOptions,
                gcs: tuple[str, int] | Sequence[tuple[str, int]]) -> SimConfig:
     """A simulated fleet standing on the plan's takeoff slots, talking to ``gcs`` (one
@@ -193,7 +212,9 @@ def sim_config(plan: Plan, options: DryRunOptions,
         dynamics=profile_for(options.flavour, options.profile))
 
 
-During = Callable[[ShowRunner, SimProcess], Coroutine[Any, Any, None]]
+During = Callable[[ShowRunner, Any], Coroutine[Any, Any, None]]
+"""``during(runner, fleet)``: the fleet a :class:`SimProcess` (or a :class:`SimGroup`,
+which answers as one)."""
 
 
 async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
@@ -210,19 +231,24 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
     gets the runner before it starts (the CLI hooks Ctrl-C to it), ``on_simulator``
     the simulator's process id (a benchmark counts its CPU).
     """
-    paced = PacedClock(options.speed, participants=2) if options.paced else None
+    networks = network_count(plan.drones, options.networks)
+    processes = sim_processes(plan.drones, networks, options.sim_processes)
+    paced = PacedClock(options.speed, participants=1 + processes) if options.paced else None
     # The ground station's clock, and the simulator's.
     clock: ScaledClock | PacedClock
     sim_clock: ScaledClock | PacedClock
+    sim_clocks: list[ScaledClock | PacedClock]
     if paced is not None:
-        clock, sim_clock = paced.participant(0), paced.participant(1)
+        clock = paced.participant(0)
+        sim_clocks = [paced.participant(1 + k) for k in range(processes)]
+        sim_clock = sim_clocks[0]
     else:
         clock = sim_clock = ScaledClock(options.speed)
+        sim_clocks = [sim_clock] * processes
     started = time.monotonic()
     record = options.record_dir
     recording = None if record is None else Recording(record, clock.now, plan,
                                                       wall=_recording_wall(clock, paced))
-    networks = network_count(plan.drones, options.networks)
     tlogs = None if recording is None else recording.network_tlogs(networks)
     events = None if recording is None else recording.events
     nets, local = network_layout(plan.drones, networks)
@@ -232,7 +258,7 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
                      system_id=options.gcs_sysid,
                      link_workers=use_workers(options.link_workers, plan.drones))
     rtk: RtkForwarder | None = None
-    fleet: SimProcess | None = None
+    fleet: SimProcess | SimGroup | None = None
     runner: ShowRunner | None = None
     helper: asyncio.Task[None] | None = None
     error: GroundctlError | None = None
@@ -243,7 +269,11 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
         config = sim_config(plan, options, link.local_addresses)
         if customise is not None:
             config = customise(config)
-        fleet = await asyncio.to_thread(SimProcess, config, sim_clock)  # starts flying now
+        if processes == 1:
+            fleet = await asyncio.to_thread(SimProcess, config, sim_clock)  # flies now
+        else:
+            fleet = await asyncio.to_thread(SimGroup, split_config(config, processes),
+                                            sim_clocks)
         runner = ShowRunner(plan, link, clock, options.runner, events=events, notify=notify,
                             expected_ids=[VehicleId(s) for s in config.sysids()])
         runner.on_tick = _truth_probe(runner, fleet)
@@ -258,7 +288,8 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
         if on_runner is not None:
             on_runner(runner)
         if on_simulator is not None:
-            on_simulator(fleet.pid)
+            for pid in fleet.pids if isinstance(fleet, SimGroup) else [fleet.pid]:
+                on_simulator(pid)
         if events is not None:
             events.emit("dry_run", show=plan.show_name, vehicles=plan.drones,
                         autopilot=str(options.flavour), speed=options.speed,
@@ -348,13 +379,14 @@ def _pacing(paced: PacedClock | None, clock: Clock, started: float) -> dict[str,
         held = paced.held_s()
         behind = paced.left_behind()
         out.update({"held_by_ground_station_s": round(held[0], 2),
-                    "held_by_simulator_s": round(held[1], 2),
-                    "left_behind": {"ground_station": behind[0], "simulator": behind[1]}})
+                    "held_by_simulator_s": round(sum(held[1:]), 2),
+                    "left_behind": {"ground_station": behind[0],
+                                    "simulator": sum(behind[1:])}})
     return out
 
 
-async def _alongside(runner: ShowRunner, fleet: SimProcess, pushes: tuple[Push, ...],
-                     during: During | None) -> None:
+async def _alongside(runner: ShowRunner, fleet: SimProcess | SimGroup,
+                     pushes: tuple[Push, ...], during: During | None) -> None:
     """The caller's ``during`` and the scheduled pushes, side by side."""
     tasks = [asyncio.create_task(_push(runner, fleet, p)) for p in pushes]
     if during is not None:
@@ -366,7 +398,7 @@ async def _alongside(runner: ShowRunner, fleet: SimProcess, pushes: tuple[Push, 
             t.cancel()
 
 
-async def _push(runner: ShowRunner, fleet: SimProcess, push: Push) -> None:
+async def _push(runner: ShowRunner, fleet: SimProcess | SimGroup, push: Push) -> None:
     """Wait for the push's show time on the show clock, then push (rotated to ENU)."""
     while True:
         seq = runner.sequence
@@ -384,7 +416,8 @@ async def _push(runner: ShowRunner, fleet: SimProcess, push: Push) -> None:
                            show_time=round(push.show_time, 2))
 
 
-def _truth_probe(runner: ShowRunner, fleet: SimProcess) -> Callable[[float, float], None]:
+def _truth_probe(runner: ShowRunner, fleet: SimProcess | SimGroup
+                 ) -> Callable[[float, float], None]:
     """Every tick: where the simulated drones really are, and their LEDs (asked on one
     tick, read on the next).
 
