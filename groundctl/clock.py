@@ -17,6 +17,7 @@ callable), never ``time.monotonic`` directly, so that
 from __future__ import annotations
 
 import asyncio
+import bisect
 import contextlib
 import copy
 import math
@@ -308,14 +309,41 @@ class PacedClock:
             return now - self._dated(time.monotonic() - wall_seconds, now)
 
     def ago_many(self, wall_seconds: list[float]) -> list[float]:
-        """:meth:`ago` of each of ``wall_seconds``, with one look at the lock (a receive
-        worker's batch of datagrams)."""
+        """:meth:`ago` of each of ``wall_seconds`` (a link worker's batch of datagrams),
+        with one short look at the lock: the anchors the batch reaches back to are copied
+        under it, the datagrams dated outside it (a lock held while thousands were dated
+        against hundreds of anchors starved the simulator's processes of it)."""
+        if not wall_seconds:
+            return []
         with self._locked() as ok:
             if not ok:
                 return [self.speed * w for w in wall_seconds]
             now = self._read()
             wall = time.monotonic()
-            return [now - self._dated(wall - w, now) for w in wall_seconds]
+            oldest = wall - max(wall_seconds)
+            m = self._mem
+            head = int(m[self._HEAD])
+            anchors: list[tuple[float, float]] = []  # (wall, clock), newest first
+            for k in range(head, max(head - self.ANCHORS, -1), -1):
+                at = self._anchor(k)
+                anchors.append((m[at], m[at + 1]))
+                if m[at] <= oldest:
+                    break
+        # As _dated: the newest anchor at or before each moment, capped by the next one.
+        keys = [-a[0] for a in anchors]  # increasing
+        out = []
+        for w in wall_seconds:
+            t = wall - w
+            j = bisect.bisect_left(keys, -t)
+            if j < len(anchors):
+                later = anchors[j - 1][1] if j > 0 else now
+                a_wall, a_sim = anchors[j]
+                out.append(now - min(a_sim + self.speed * (t - a_wall), later))
+            else:
+                a_wall, a_sim = anchors[-1]
+                later = anchors[-2][1] if len(anchors) > 1 else now
+                out.append(now - (min(a_sim, later) - self.speed * max(a_wall - t, 0.0)))
+        return out
 
     # -- taking part -------------------------------------------------------------------
 

@@ -126,7 +126,7 @@ class LinkTiming(Planning):
             last = self._leds.last(sysid)
             if last is None or now - last[1] >= self.config.led_refresh_s:
                 c = colours[rows_of[sysid]]
-                self._send_led(sysid, (int(c[0]), int(c[1]), int(c[2])))
+                self._send_led(sysid, (int(c[0]), int(c[1]), int(c[2])), now)
 
     def _led_delays(self, sysids: Sequence[int]) -> NDArray[np.float64]:
         out = np.zeros(len(sysids))
@@ -148,8 +148,9 @@ class LinkTiming(Planning):
                 due)
             self._led_handles.append(handle)
             return
+        now = self.clock.now()  # once for the group, not once per vehicle
         for sysid, colour in items:
-            self._send_led(sysid, colour)
+            self._send_led(sysid, colour, now)
         with contextlib.suppress(ValueError):
             self._led_dues.remove(due)
         self.clock.idle_until(self._idle_due())
@@ -161,8 +162,9 @@ class LinkTiming(Planning):
         return min(self._next_tick, min(self._led_dues, default=math.inf),
                    min(slots, default=math.inf))
 
-    def _send_led(self, sysid: int, colour: tuple[int, int, int]) -> None:
-        self._leds.sent(sysid, colour, self.clock.now())
+    def _send_led(self, sysid: int, colour: tuple[int, int, int],
+                  now: float | None = None) -> None:
+        self._leds.sent(sysid, colour, self.clock.now() if now is None else now)
         with contextlib.suppress(LinkError):
             self.link.send_led_rgb(sysid, *colour)
 
