@@ -365,11 +365,12 @@ class PacedClock:
 
     def held_s(self) -> list[float]:
         """Real seconds each participant has held the clock, by slot (up to its last
-        report)."""
-        with self._lock:
+        report).  Read without the lock if its holder died holding it."""
+        with self._locked():
             return [self._mem[self._at(p, self._HELD)] for p in range(self._n)]
 
     def left_behind(self) -> list[int]:
-        """Times each participant was left behind (held the clock over ``valve_s``)."""
-        with self._lock:
+        """Times each participant was left behind (held the clock over ``valve_s``).  Read
+        without the lock if its holder died holding it."""
+        with self._locked():
             return [int(self._mem[self._at(p, self._BEHIND)]) for p in range(self._n)]
