@@ -379,7 +379,7 @@ class FleetLink:
                                 transport.stamped, os.getpid())
             worker = LinkWorker(sock, setup, functools.partial(self._on_batch, k),
                                 functools.partial(self._worker_died, k),
-                                self._on_worker_errors)
+                                self._on_worker_errors, direct=transport.send)
             self._workers.append(worker)
             worker.start()
 

@@ -95,13 +95,8 @@ class UdpTransport:
         sock = self._sock
         count = 0
         while sock is not None and count < MAX_READS:
-            age = 0.0
             try:
-                if self._stamped:
-                    data, ancillary, _, addr = sock.recvmsg(65535, ANCILLARY)
-                    age = arrival_age(ancillary)
-                else:
-                    data, addr = sock.recvfrom(65535)
+                data, addr, age = read_datagram(sock, self._stamped)
             except (BlockingIOError, InterruptedError):
                 break
             except ConnectionRefusedError as exc:
@@ -115,7 +110,7 @@ class UdpTransport:
                 break
             count += 1
             try:
-                self._on_datagram(data, (addr[0], addr[1]), age)
+                self._on_datagram(data, addr, age)
             except Exception:  # a bug in a handler must not kill the socket
                 log.exception("error handling datagram from %s:%s", addr[0], addr[1])
             sock = self._sock  # the handler may have closed us
@@ -156,6 +151,16 @@ class UdpTransport:
             self.pause_reading()
             self._sock.close()
             self._sock = None
+
+
+def read_datagram(sock: socket.socket, stamped: bool) -> tuple[bytes, Address, float]:
+    """One datagram, its sender and its age (wall seconds since the kernel stamped it; 0
+    unstamped); raises what the socket raises (BlockingIOError once it is empty)."""
+    if stamped:
+        data, ancillary, _, addr = sock.recvmsg(65535, ANCILLARY)
+        return data, (addr[0], addr[1]), arrival_age(ancillary)
+    data, addr = sock.recvfrom(65535)
+    return data, (addr[0], addr[1]), 0.0
 
 
 def arrival_age(ancillary: list[tuple[int, int, bytes]]) -> float:

@@ -51,7 +51,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from groundctl.link.codec import DatagramParser, new_codec
 from groundctl.link.signing import SigningConfig, new_guard
-from groundctl.link.transport import ANCILLARY, arrival_age
+from groundctl.link.transport import read_datagram
 
 log = logging.getLogger(__name__)
 
@@ -191,7 +191,7 @@ class FrameWriter:
     def __init__(self, fd: int, limit: int) -> None:
         self.fd = fd
         self.limit = limit
-        self._frames: deque[tuple[bytes, int]] = deque()
+        self._frames: deque[tuple[bytes, list[Any]]] = deque()
         self._bytes = 0
         self._written = 0
 
@@ -200,23 +200,18 @@ class FrameWriter:
         """Bytes not written yet."""
         return self._bytes - self._written
 
-    @property
-    def frames(self) -> int:
-        """Frames not wholly written yet."""
-        return len(self._frames)
-
-    def put(self, frame: bytes, count: int = 1) -> int:
-        """Queue ``frame`` (standing for ``count`` items) and write what the pipe takes;
+    def put(self, frame: bytes, items: list[Any]) -> int:
+        """Queue ``frame`` (the encoding of ``items``) and write what the pipe takes;
         returns how many items were dropped to stay within the limit."""
-        self._frames.append((frame, count))
+        self._frames.append((frame, items))
         self._bytes += len(frame)
         dropped = 0
         while self._bytes > self.limit and len(self._frames) > 1:
             k = 1 if self._written else 0  # never the frame half written
-            old, n = self._frames[k]
+            old, lost = self._frames[k]
             del self._frames[k]
             self._bytes -= len(old)
-            dropped += n
+            dropped += len(lost)
         self.write()
         return dropped
 
@@ -235,12 +230,12 @@ class FrameWriter:
             self._bytes -= len(frame)
             self._written = 0
 
-    def take(self) -> list[bytes]:
+    def take(self) -> list[Any]:
         """Every frame not fully written, and forget them (the reader is gone)."""
-        frames = [f for f, _ in self._frames]
+        items = [item for _, its in self._frames for item in its]
         self._frames.clear()
         self._bytes = self._written = 0
-        return frames
+        return items
 
 
 @dataclass(frozen=True)
@@ -286,12 +281,7 @@ class Receiver:
         sock = self.sock
         while len(out) < limit:
             try:
-                if self.setup.stamped:
-                    data, ancillary, _, addr = sock.recvmsg(65535, ANCILLARY)
-                    age = arrival_age(ancillary)
-                else:
-                    data, addr = sock.recvfrom(65535)
-                    age = 0.0
+                data, address, age = read_datagram(sock, self.setup.stamped)
             except (BlockingIOError, InterruptedError):
                 break
             except ConnectionRefusedError:
@@ -300,7 +290,6 @@ class Receiver:
             except OSError:
                 self.errors += 1
                 break
-            address = (addr[0], addr[1])
             result = self._parser(address).feed(data)
             out.append(Datagram(address, time.monotonic() - age,
                                 tuple(pack_message(m) for m in result.messages),
@@ -399,7 +388,7 @@ def serve(sock: socket.socket, conn: Any, sends: Any, setup: WorkerSetup) -> Non
                 reported = receiver.errors
                 # Never waits for the ground station: what its pipe does not take waits
                 # here (past the limit the oldest batches go, counted as errors).
-                receiver.errors += towards.put(frame, len(batch))
+                receiver.errors += towards.put(frame, batch)
     except (BrokenPipeError, EOFError, OSError):
         return  # the ground station closed its end
     finally:
@@ -415,10 +404,14 @@ class LinkWorker:
     def __init__(self, sock: socket.socket, setup: WorkerSetup,
                  on_batch: Callable[[list[Datagram]], None],
                  on_death: Callable[[int | None], None],
-                 on_errors: Callable[[int], None] = lambda n: None) -> None:
+                 on_errors: Callable[[int], None] = lambda n: None,
+                 direct: Callable[[bytes, Address], None] | None = None) -> None:
+        """``direct(data, address)`` sends from the socket itself while no worker runs
+        (the transport's own send; default: a plain sendto, errors to ``on_errors``)."""
         import asyncio
 
         self._sock = sock
+        self._direct = direct or self._sendto
         self.setup = setup
         self._on_batch = on_batch
         self._on_death = on_death
@@ -430,9 +423,6 @@ class LinkWorker:
         self._sends: Any = None  # our end of the sends pipe (written without blocking)
         self._writer: FrameWriter | None = None
         self._outbox: list[tuple[bytes, Address]] = []
-        # The sends of the frames not yet wholly taken by the pipe (for a worker that
-        # dies before it takes them); cleared whenever the pipe has taken everything.
-        self._pending_sends: list[list[tuple[bytes, Address]]] = []
         self._flush_due = False
         self._writing = False
         self.starts = 0
@@ -516,12 +506,15 @@ class LinkWorker:
             self._flush_due = True
             self._loop.call_soon(self.flush)
 
-    def _send_now(self, data: bytes, addr: Address) -> None:
-        self.direct += 1
+    def _sendto(self, data: bytes, addr: Address) -> None:
         try:
             self._sock.sendto(data, addr)
         except OSError:
             self._on_errors(1)
+
+    def _send_now(self, data: bytes, addr: Address) -> None:
+        self.direct += 1
+        self._direct(data, addr)
 
     def flush(self) -> None:
         """Hand the queued sends to the worker (what the pipe does not take waits)."""
@@ -534,12 +527,10 @@ class LinkWorker:
             for data, addr in sends:
                 self._send_now(data, addr)
             return
-        self._pending_sends.append(sends)
         try:
-            self.dropped += writer.put(encode_sends(sends), len(sends))
+            self.dropped += writer.put(encode_sends(sends), sends)
         except OSError:
             return  # the worker is gone: its sentinel says so, and _died sends these
-        del self._pending_sends[:-writer.frames or len(self._pending_sends)]
         self._watch_writer()
 
     def _write(self) -> None:
@@ -558,8 +549,6 @@ class LinkWorker:
         elif not writer.waiting and self._writing:
             self._loop.remove_writer(writer.fd)
             self._writing = False
-        if not writer.waiting:
-            self._pending_sends.clear()
 
     # -- its life ------------------------------------------------------------------------
 
@@ -588,11 +577,8 @@ class LinkWorker:
     def _orphans(self) -> None:
         """Sends the worker may not have taken go straight out (those of every frame the
         pipe held: a repeated setpoint or command is harmless, a missing one is not)."""
-        waiting = [send for sends in self._pending_sends for send in sends] + self._outbox
-        if self._writer is not None:
-            self._writer.take()
+        waiting = (self._writer.take() if self._writer is not None else []) + self._outbox
         self._writer = None
-        self._pending_sends = []
         self._outbox = []
         for data, addr in waiting:
             self._send_now(data, addr)
