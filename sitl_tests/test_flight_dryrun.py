@@ -401,7 +401,8 @@ def test_asked_for_more_pace_than_the_machine_has_the_clock_waits_and_the_show_i
     pacing = report["pacing"]
     assert pacing["paced"] and pacing["effective_speed"] < 60.0
     assert pacing["held_by_simulator_s"] + pacing["held_by_ground_station_s"] > 0.0
-    assert pacing["left_behind"] == {"ground_station": 0, "simulator": 0}
+    assert pacing["left_behind"] == {"ground_station": 0, "simulator": 0,
+                                     "link_workers": 0}
     events = list(read_events(tmp_path / "events.jsonl"))
     held = {e["reason"] for e in events if e["event"] == "show_held"}
     assert not held & {"stall", "overload", "silence"}, held
@@ -440,7 +441,8 @@ def test_a_fleet_simulated_in_two_processes_flies_as_one() -> None:
     result = dry_run(sim_processes=2, pushes=(Push(8, 10.0, (1.5, 0.0, 0.0)),))
     report = result.report
     _assert_flown_safely(report)
-    assert report["pacing"]["left_behind"] == {"ground_station": 0, "simulator": 0}
+    assert report["pacing"]["left_behind"] == {"ground_station": 0, "simulator": 0,
+                                               "link_workers": 0}
 
 
 def test_a_show_flown_across_two_networks(tmp_path: Path) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import os
 import pickle
 import signal
@@ -24,14 +25,18 @@ from groundctl.link.codec import new_codec
 from groundctl.link.signing import SigningConfig
 from groundctl.link.worker import (
     MAX_BACKLOG_BYTES,
+    Conflator,
     Datagram,
     FrameReader,
+    Pacer,
     Receiver,
+    Superseded,
     WorkerSetup,
     decode_batch,
     encode_batch,
     encode_sends,
     pack_message,
+    unpack,
     unpack_message,
     use_workers,
 )
@@ -355,3 +360,103 @@ async def test_telemetry_waits_in_the_worker_while_the_control_loop_is_stalled()
                          what="the stalled telemetry handed on")
         await asyncio.sleep(0.5)
         assert link.stats.datagrams - before > count * 0.9  # the kernel alone keeps ~1/3
+
+
+# -- a control loop that falls behind: conflation, and the paced clock --------------------
+
+ADDR = ("127.0.0.1", 14551)
+
+
+def _position(x: float, t_ms: int) -> mavlink.MAVLink_message:
+    return mavlink.MAVLink_local_position_ned_message(t_ms, x, 0.0, -5.0, 1.0, 0.0, 0.0)
+
+
+def _datagrams(msgs: list[mavlink.MAVLink_message], sysid: int = 7,
+               first_seq: int = 0) -> list[Datagram]:
+    """One datagram per message, numbered on from ``first_seq``, as a worker reads them."""
+    mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=1)
+    out = []
+    for k, msg in enumerate(msgs):
+        mav.seq = (first_seq + k) % 256  # (send() numbers on; pack() alone does not)
+        parsed = _parsed([msg.pack(mav)])
+        out.append(Datagram(ADDR, 100.0 + 0.01 * k, tuple(pack_message(m) for m in parsed)))
+    return out
+
+
+def test_a_conflator_keeps_the_newest_state_and_every_number() -> None:
+    ack = mavlink.MAVLink_command_ack_message(400, 0, 0, 0, 255, 190)
+    beat = mavlink.MAVLink_heartbeat_message(2, 3, 81, 4, 4, 3)
+    conflator = Conflator()
+    mine = _datagrams([_position(1.0, 100), ack, beat, _position(2.0, 200), beat,
+                       _position(3.0, 300)])
+    other = _datagrams([_position(9.0, 100)], sysid=8)
+    conflator.add(mine[:3])
+    conflator.add(other + mine[3:])
+    assert len(conflator) == 7 and conflator.oldest == mine[0].arrived
+    got = conflator.take()
+    assert len(conflator) == 0 and conflator.oldest is None
+    kept = [unpack(d.messages[0]) for d in got]
+    # The first two positions of vehicle 7 stand as their headers (numbers 0 and 3),
+    # in their places; the answer, both HEARTBEATs and vehicle 8's position go whole.
+    assert [type(m).__name__ for m in kept] == [
+        "Superseded", "MAVLink_command_ack_message", "MAVLink_heartbeat_message",
+        "MAVLink_local_position_ned_message", "Superseded", "MAVLink_heartbeat_message",
+        "MAVLink_local_position_ned_message"]
+    first, second = kept[0], kept[4]
+    assert isinstance(first, Superseded) and isinstance(second, Superseded)
+    assert (first.seq, second.seq, first.system, first.kind) == (0, 3, 7,
+                                                                 "LOCAL_POSITION_NED")
+    assert first.crc != second.crc
+    assert kept[3].get_srcSystem() == 8 and kept[6].x == 3.0
+    assert conflator.superseded == 2
+    back = decode_batch(encode_batch(got))[1]  # and it crosses the pipe as it is
+    assert isinstance(unpack(back[0].messages[0]), Superseded)
+
+
+def test_a_conflator_past_its_limit_sheds_the_oldest() -> None:
+    conflator = Conflator(limit=10)
+    beat = mavlink.MAVLink_heartbeat_message(2, 3, 81, 4, 4, 3)
+    conflator.add(_datagrams([beat] * 12))
+    assert conflator.dropped == 6 and len(conflator) == 6
+
+
+def test_superseded_packets_are_heard_and_numbered_not_acted_on() -> None:
+    """Nineteen positions replaced by a twentieth while the loop was behind: no loss, no
+    second sender, the vehicle's position the newest; then a packet under a number the
+    vehicle already used, with other bytes, is a second sender's, superseded or not."""
+    events = EventList()
+    link = FleetLink(("127.0.0.1", 0), clock=ManualClock(100.0), events=events)
+    conflator = Conflator()
+    beat = mavlink.MAVLink_heartbeat_message(2, 3, 81, 4, 4, 3)
+    conflator.add(_datagrams([beat] + [_position(0.1 * k, 100 * k) for k in range(1, 21)]))
+    batch = conflator.take()
+    assert sum(isinstance(unpack(d.messages[0]), Superseded) for d in batch) == 19
+    link._on_batch(0, batch)
+    state = link.vehicles[7]
+    assert state.packets == 21 and state.quality.lost == 0
+    assert state.link_conflicts == 0 and link.stats.superseded == 19
+    # Only the newest position was offered to the motion check (the first track waits
+    # there for its confirmation, as any vehicle's first position does).
+    offered = [x for chain in state.trust.local.chains for x in chain]
+    assert [x.t for x in offered] == [2.0] and offered[0].pos[0] == pytest.approx(2.0)
+    forged = Conflator()
+    forged.add(_datagrams([_position(5.0, 2050), _position(5.0, 2100)], first_seq=20))
+    link._on_batch(0, forged.take())  # number 20 was the last position's
+    assert state.link_conflicts >= 1
+    assert any("numbered 20" in e["reason"] for e in events.named("link_conflict"))
+
+
+def test_a_worker_behind_holds_a_paced_clock_where_its_telemetry_arrived() -> None:
+    clock = PacedClock(1.0, participants=2, slack=0.01)
+    ground, worker = clock.participant(0), clock.participant(1)
+    ground.idle_until(math.inf)
+    pacer = Pacer(worker)
+    arrived = time.monotonic()
+    at = clock.at_wall(arrived)
+    pacer.done_up_to(arrived)  # behind: what came after this has not reached the loop
+    time.sleep(0.1)
+    assert clock.now() <= at + 0.01 + 1e-6  # stood where the telemetry waits
+    pacer.done_up_to(None)  # caught up
+    time.sleep(0.05)
+    assert clock.now() >= at + 0.04
+    assert clock.held_s()[1] > 0.05

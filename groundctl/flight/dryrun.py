@@ -233,7 +233,11 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
     """
     networks = network_count(plan.drones, options.networks)
     processes = sim_processes(plan.drones, networks, options.sim_processes)
-    paced = PacedClock(options.speed, participants=1 + processes) if options.paced else None
+    workers = use_workers(options.link_workers, plan.drones)
+    # Participants: the ground station's loop, each simulator process, each network's
+    # link worker (telemetry on its way to the ground station holds the clock too).
+    paced = PacedClock(options.speed, participants=1 + processes
+                       + (networks if workers else 0)) if options.paced else None
     # The ground station's clock, and the simulator's.
     clock: ScaledClock | PacedClock
     sim_clock: ScaledClock | PacedClock
@@ -256,7 +260,9 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
                      expected_ids=[vehicle_id(n, s) for n, s in zip(nets, local, strict=True)],
                      signing_key=options.signing_key, tlog=tlogs, events=events,
                      system_id=options.gcs_sysid,
-                     link_workers=use_workers(options.link_workers, plan.drones))
+                     link_workers=workers,
+                     worker_clocks=None if paced is None or not workers else
+                     [paced.participant(1 + processes + k) for k in range(networks)])
     rtk: RtkForwarder | None = None
     fleet: SimProcess | SimGroup | None = None
     runner: ShowRunner | None = None
@@ -350,7 +356,7 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
             report["true_min_separation_m"] = (round(true_sep, 3) if math.isfinite(true_sep)
                                                else None)
         report.update({"autopilot": str(options.flavour), "speed": options.speed,
-                       "pacing": _pacing(paced, clock, started),
+                       "pacing": _pacing(paced, clock, started, processes),
                        "simulator": truth,
                        "record_dir": None if record is None else str(record)})
         if recording is not None:
@@ -370,18 +376,24 @@ def _recording_wall(clock: Clock, paced: PacedClock | None) -> Callable[[], floa
     return lambda: unix0 + clock.now() / speed
 
 
-def _pacing(paced: PacedClock | None, clock: Clock, started: float) -> dict[str, Any]:
-    """The report's ``pacing``: the pace kept, and who held the clock for how long."""
+def _pacing(paced: PacedClock | None, clock: Clock, started: float,
+            processes: int = 1) -> dict[str, Any]:
+    """The report's ``pacing``: the pace kept, and who held the clock for how long
+    (participants: the ground station, ``processes`` simulators, then link workers)."""
     wall = time.monotonic() - started
     out: dict[str, Any] = {"paced": paced is not None,
                            "effective_speed": round(clock.now() / wall, 2) if wall > 0 else None}
     if paced is not None:
         held = paced.held_s()
         behind = paced.left_behind()
+        sims = slice(1, 1 + processes)
+        links = slice(sims.stop, None)
         out.update({"held_by_ground_station_s": round(held[0], 2),
-                    "held_by_simulator_s": round(sum(held[1:]), 2),
+                    "held_by_simulator_s": round(sum(held[sims]), 2),
+                    "held_by_link_workers_s": round(sum(held[links]), 2),
                     "left_behind": {"ground_station": behind[0],
-                                    "simulator": sum(behind[1:])}})
+                                    "simulator": sum(behind[sims]),
+                                    "link_workers": sum(behind[links])}})
     return out
 
 

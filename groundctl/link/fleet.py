@@ -51,11 +51,25 @@ from groundctl.link.flavours import Flavour, mode_from_set_mode, mode_request
 from groundctl.link.fleetfile import Endpoint
 from groundctl.link.messages import FORCE_MAGIC
 from groundctl.link.signing import SigningConfig, new_guard
-from groundctl.link.state import VehicleState, apply, expect, expire_chunks, unexpect
+from groundctl.link.state import (
+    StateChange,
+    VehicleState,
+    account,
+    apply,
+    expect,
+    expire_chunks,
+    unexpect,
+)
 from groundctl.link.timesync import answer as timesync_answer
 from groundctl.link.transport import UdpTransport
 from groundctl.link.trust import EXPECT_S, Trust
-from groundctl.link.worker import Datagram, LinkWorker, WorkerSetup, unpack_message
+from groundctl.link.worker import (
+    Datagram,
+    LinkWorker,
+    Superseded,
+    WorkerSetup,
+    unpack,
+)
 from groundctl.record.events import EventSink
 from groundctl.record.tlog import TlogWriter
 from groundctl.vehicleid import (
@@ -121,6 +135,9 @@ class LinkStats:
     event; pre-flight requests included)."""
     commands_timed_out: int = 0
     """COMMAND_LONG exchanges never answered after every retry (``command_timeout`` events)."""
+    superseded: int = 0
+    """State messages a link worker replaced by newer ones while the control loop was
+    behind (counted heard and numbered, not acted on)."""
     worker_deaths: int = 0
     """Receive workers that died (each restarted; ``link_worker_died`` events)."""
 
@@ -168,6 +185,7 @@ class FleetLink:
         command_reason_grace: float = 0.2,
         wall: Callable[[], float] = time.time,
         link_workers: bool = False,
+        worker_clocks: Sequence[Any] | None = None,
     ) -> None:
         if not lost_timeout > 0:
             raise ValueError(f"`lost_timeout` must be positive, got {lost_timeout}")
@@ -258,6 +276,12 @@ class FleetLink:
         """Each network's socket work (reads, parsing, signatures, the send system calls)
         runs in a process of its own (:mod:`groundctl.link.worker`); False: in this one."""
         self._workers: list[LinkWorker] = []
+        if worker_clocks is not None and len(worker_clocks) != len(listens):
+            raise ValueError(f"{len(worker_clocks)} worker clocks for {len(listens)} networks")
+        self._worker_clocks = list(worker_clocks) if worker_clocks is not None \
+            else [None] * len(listens)
+        """Each network's worker's view of a dry-run's paced clock (its telemetry holds
+        the rehearsal: :class:`~groundctl.link.worker.Pacer`), or None."""
         self._worker_down: list[bool] = [False] * len(listens)
         self._restarts: list[asyncio.TimerHandle | None] = [None] * len(listens)
 
@@ -345,9 +369,12 @@ class FleetLink:
                         result.refused_signatures, result.unknown)
 
     def _on_parsed(self, addr: Address, now: float, network: int,
-                   messages: Iterable[mavlink.MAVLink_message], bad: Iterable[str],
-                   refused_signatures: Iterable[int], unknown: int) -> None:
-        """One datagram's content, parsed here or by the network's link worker."""
+                   messages: Iterable[mavlink.MAVLink_message | Superseded],
+                   bad: Iterable[str], refused_signatures: Iterable[int],
+                   unknown: int) -> None:
+        """One datagram's content, parsed here or by the network's link worker (whose
+        :class:`Superseded` entries stand for state messages a newer one replaced while
+        this loop was behind)."""
         self.stats.datagrams += 1
         for reason in bad:
             self._bad_packet(addr, reason)
@@ -358,6 +385,10 @@ class FleetLink:
         tlog = self._tlogs[network]
         for msg in messages:
             self.stats.packets += 1
+            if isinstance(msg, Superseded):
+                self.stats.superseded += 1
+                self._superseded(msg, addr, now, network)
+                continue
             if tlog is not None:
                 tlog.write(msg.get_msgbuf())
             try:
@@ -376,7 +407,7 @@ class FleetLink:
         for k, transport in enumerate(self._transports):
             sock = transport.pause_reading()
             setup = WorkerSetup(k, self.system_id, self.component_id, self._signings[k],
-                                transport.stamped, os.getpid())
+                                transport.stamped, os.getpid(), self._worker_clocks[k])
             worker = LinkWorker(sock, setup, functools.partial(self._on_batch, k),
                                 functools.partial(self._worker_died, k),
                                 self._on_worker_errors, direct=transport.send)
@@ -396,7 +427,7 @@ class FleetLink:
         agos = ago_many(ages) if ago_many is not None else [clock.ago(a) for a in ages]
         for datagram, ago in zip(batch, agos, strict=True):
             try:
-                messages = [unpack_message(m) for m in datagram.messages]
+                messages = [unpack(m) for m in datagram.messages]
             except Exception as exc:  # a worker of another version, a bug: one datagram
                 self._bad_packet(datagram.address, f"unreadable from the worker: {exc}")
                 continue
@@ -412,6 +443,9 @@ class FleetLink:
         restarted at once, then after WORKER_RESTART_S if it keeps dying."""
         self.stats.worker_deaths += 1
         self._worker_down[network] = True
+        clock = self._worker_clocks[network]
+        if clock is not None:
+            clock.idle_until(math.inf)  # it holds a paced clock no more (a new one may)
         self._emit("link_worker_died", network=network + 1, exit_code=exitcode)
         log.warning("network %d: the link worker died (exit code %s); restarting it",
                     network + 1, exitcode)
@@ -494,13 +528,7 @@ class FleetLink:
         self.last_packet_at = now
         self._last_by_network[network] = now
         changes = apply(state, msg, now)
-        for change in changes:
-            if change.event == "link_conflict":
-                self.stats.link_conflicts += 1
-                if not _log_worthy(int(change.fields["count"])):
-                    continue  # a flood must not flood the event log
-                log.warning("vehicle %d: link conflict: %s", sysid, change.fields["reason"])
-            self._emit(change.event, system_id=sysid, **change.fields)
+        self._emit_changes(sysid, changes)
         self._heard.set()
 
         kind = msg.get_type()
@@ -523,6 +551,29 @@ class FleetLink:
             if entry is not None and entry[0].matches(msg, self.system_id):
                 entry[0].receive(msg, now)
                 entry[1].set()
+
+    def _superseded(self, entry: Superseded, addr: Address, now: float,
+                    network: int) -> None:
+        """A packet heard and numbered, its content replaced by a newer one (the worker's
+        conflation): judged only as far as its number goes (:func:`account`)."""
+        sysid = VehicleId(network * NETWORK_STRIDE + entry.system)
+        state = self.vehicles.get(sysid)
+        if state is None or entry.system == self.system_id \
+                or self._addresses.get(sysid) != addr:
+            return  # not one of ours (its newer one, handled whole, says what it is)
+        self.last_packet_at = now
+        self._last_by_network[network] = now
+        self._emit_changes(sysid, account(state, entry.component, entry.seq, entry.crc,
+                                          entry.kind, now))
+
+    def _emit_changes(self, sysid: int, changes: list[StateChange]) -> None:
+        for change in changes:
+            if change.event == "link_conflict":
+                self.stats.link_conflicts += 1
+                if not _log_worthy(int(change.fields["count"])):
+                    continue  # a flood must not flood the event log
+                log.warning("vehicle %d: link conflict: %s", sysid, change.fields["reason"])
+            self._emit(change.event, system_id=sysid, **change.fields)
 
     def _accept_address(self, sysid: int, addr: Address) -> bool:
         known = self._addresses.get(sysid)

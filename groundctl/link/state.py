@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import operator
+import zlib
 from collections import deque
 from collections.abc import Collection
 from dataclasses import dataclass, field, replace
@@ -283,16 +284,13 @@ def apply(state: VehicleState, msg: mavlink.MAVLink_message, now: float) -> list
     state.last_heard = now
     header = msg.get_header()
     comp = header.srcComponent
-    state.quality.update(comp, header.seq)
     trust = state.trust
     buf = msg.get_msgbuf()
-    numbering = trust.sequence(comp)
     kind = msg.get_type()
-    verdict = numbering.check(header.seq, hash(bytes(buf)) if buf else hash(str(msg)), kind,
-                              now)
-    for why, kinds in numbering.blame:
-        _conflict(state, f"component {comp}: {why}", changes, kinds)
-    numbering.blame.clear()
+    verdict = _numbered(state, comp, header.seq,
+                        zlib.crc32(buf) if buf else zlib.crc32(str(msg).encode()), kind,
+                        now, changes)
+    numbering = trust.sequence(comp)
     if verdict is Seq.DUPLICATE:
         trust.last_trusted = False  # the same bytes again: already acted on
         return changes
@@ -329,6 +327,39 @@ def apply(state: VehicleState, msg: mavlink.MAVLink_message, now: float) -> list
         handler(state, msg, now, changes)
     if trust.quick is not None:
         _settle_quick(state, now, changes)
+    return changes
+
+
+def _numbered(state: VehicleState, comp: int, seq: int, digest: int, kind: str,
+              now: float, changes: list[StateChange]) -> Seq:
+    """Account packet ``seq`` of component ``comp`` (loss, reordering) and judge its
+    number against the component's numbering (``digest``: its bytes' CRC-32)."""
+    state.quality.update(comp, seq)
+    numbering = state.trust.sequence(comp)
+    verdict = numbering.check(seq, digest, kind, now)
+    for why, kinds in numbering.blame:
+        _conflict(state, f"component {comp}: {why}", changes, kinds)
+    numbering.blame.clear()
+    return verdict
+
+
+def account(state: VehicleState, comp: int, seq: int, digest: int, kind: str,
+            now: float) -> list[StateChange]:
+    """A packet known only by its header and CRC: a state message the link worker
+    replaced by a newer one of the same kind while the control loop was behind
+    (:class:`~groundctl.link.worker.Conflator`).  It was heard and it is numbered
+    (its number judged as any packet's: a second sender's shows), but what it said is
+    superseded: nothing is acted on.  Returns notable changes (conflicts)."""
+    changes: list[StateChange] = []
+    state.packets += 1
+    if state.first_heard is None:
+        state.first_heard = now
+    state.last_heard = now
+    verdict = _numbered(state, comp, seq, digest, kind, now, changes)
+    if verdict in (Seq.CONFLICT, Seq.RESTART):
+        numbering = state.trust.sequence(comp)
+        _conflict(state, f"component {comp}: {numbering.reason}", changes,
+                  numbering.suspects if verdict is Seq.CONFLICT else _ALL_KINDS)
     return changes
 
 

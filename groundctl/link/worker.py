@@ -30,6 +30,14 @@ batch per message (:func:`encode_batch` / :func:`decode_batch`), sent as soon as
 socket is empty, or :data:`BATCH_WAIT_S` after its first datagram while more keep
 coming, or at :data:`MAX_BATCH` datagrams; control loop to worker, a pipe of frames
 (a 4-byte length, then a pickled list of (bytes, address)).
+
+A control loop that falls behind (the pipe towards it full) is not fed a queue: what
+arrives meanwhile waits in a :class:`Conflator`, where a newer state message of a
+vehicle replaces the older one (kept as its header and CRC, so that every packet's
+number is still judged), and goes as one batch once the pipe is taken.  The loop's
+work then stays bounded by the fleet, and what it decides on is the newest state,
+never seconds-old positions (at 1,000 vehicles on two cores, the queue grew to a
+minute and every vehicle read as silent).
 """
 
 from __future__ import annotations
@@ -42,9 +50,10 @@ import select
 import socket
 import struct
 import time
+import zlib
 from collections import deque
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -69,10 +78,13 @@ PARENT_CHECK_S = 0.25
 #: Sends waiting for a worker that does not take them, bytes at most (a second of a
 #: 254-vehicle network's setpoints and LED colours is about 0.4 MB).
 MAX_BACKLOG_BYTES = 4 * 1024 * 1024
-#: Telemetry a worker keeps for a control loop that does not read it, bytes at most:
-#: the socket's own buffer holds well under a second of a busy network (the kernel
-#: counts about a kilobyte per small datagram), this a minute.
+#: The one frame a worker has begun for a control loop that does not read it, bytes
+#: at most (everything after it waits in the :class:`Conflator`, bounded there).
 MAX_WORKER_BACKLOG_BYTES = 256 * 1024 * 1024
+#: Reads of the pipe from a worker per call of :meth:`LinkWorker.drain` at most (each at
+#: most a pipe's worth, 64 KB): a worker that writes as fast as the control loop reads
+#: must not keep it in one call while its ticks wait; the rest is read on the next pass.
+MAX_READS_PER_DRAIN = 4
 _FRAME = struct.Struct("<I")
 
 #: ``--link-workers auto`` moves the receive path into workers for fleets this large:
@@ -94,7 +106,29 @@ def use_workers(mode: str, vehicles: int) -> bool:
 _HEADER = ("msgId", "incompat_flags", "compat_flags", "mlen", "seq", "srcSystem",
            "srcComponent")
 
-PackedMessage = tuple[int, tuple[int, ...], dict[str, Any]]
+#: A message as the worker passes it on: (message id, header, attributes), or for a
+#: message superseded while the control loop was behind (:class:`Conflator`) the CRC-32
+#: of its bytes in place of its attributes.
+PackedMessage = tuple[int, tuple[int, ...], dict[str, Any] | int]
+_SEQ, _SRC_SYSTEM, _SRC_COMPONENT = (_HEADER.index(k) for k in ("seq", "srcSystem",
+                                                                 "srcComponent"))
+
+#: Messages that say only what a vehicle's state is now (a position, a battery, a
+#: wind): of two waiting for a control loop that is behind, from the same sender and
+#: component, only the newer is worth acting on.  Every answer, text, command and
+#: HEARTBEAT (a mode or arming change is an event, and needs its second) goes on whole.
+CONFLATED: frozenset[int] = frozenset({
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE, mavlink.MAVLINK_MSG_ID_VFR_HUD,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS, mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,
+    mavlink.MAVLINK_MSG_ID_BATTERY_STATUS, mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
+    mavlink.MAVLINK_MSG_ID_EKF_STATUS_REPORT, mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS,
+    mavlink.MAVLINK_MSG_ID_WIND, mavlink.MAVLINK_MSG_ID_WIND_COV,
+    mavlink.MAVLINK_MSG_ID_SYSTEM_TIME, mavlink.MAVLINK_MSG_ID_VIBRATION,
+})
+#: Messages a worker keeps for a control loop that does not take them, at most (the
+#: conflated ones stand for one each); past that the oldest datagrams go, counted.
+MAX_CONFLATOR_MESSAGES = 400_000
 
 
 @dataclass(frozen=True)
@@ -106,8 +140,9 @@ class Datagram:
     arrived: float
     """When it arrived, ``time.monotonic()`` seconds (the kernel's stamp where it
     gives one)."""
-    messages: tuple[PackedMessage, ...]
-    """Its well-formed (and correctly signed) messages, packed (:func:`pack_message`)."""
+    messages: Sequence[PackedMessage]
+    """Its well-formed (and correctly signed) messages, packed (:func:`pack_message`),
+    those superseded while the control loop was behind as their CRC only."""
     bad: tuple[str, ...] = ()
     """One reason per rejected piece."""
     refused_signatures: tuple[int, ...] = ()
@@ -128,6 +163,8 @@ def unpack_message(packed: PackedMessage) -> mavlink.MAVLink_message:
     """The message :func:`pack_message` packed, rebuilt without parsing its bytes again
     (they were checked by the worker)."""
     msg_id, header, fields = packed
+    if isinstance(fields, int):
+        raise ValueError("a superseded message has only its header")
     cls = mavlink.mavlink_map[msg_id]
     msg: mavlink.MAVLink_message = cls.__new__(cls)
     vars(msg).update(fields)
@@ -136,6 +173,106 @@ def unpack_message(packed: PackedMessage) -> mavlink.MAVLink_message:
         setattr(head, name, value)
     msg._header = head
     return msg
+
+
+@dataclass(frozen=True, slots=True)
+class Superseded:
+    """What the control loop knows of a message the :class:`Conflator` replaced by a
+    newer one: its header and the CRC-32 of its bytes."""
+
+    msg_id: int
+    header: tuple[int, ...]
+    crc: int
+
+    @property
+    def system(self) -> int:
+        return self.header[_SRC_SYSTEM]
+
+    @property
+    def component(self) -> int:
+        return self.header[_SRC_COMPONENT]
+
+    @property
+    def seq(self) -> int:
+        return self.header[_SEQ]
+
+    @property
+    def kind(self) -> str:
+        """Its type's name, as ``get_type()`` says it."""
+        return str(mavlink.mavlink_map[self.msg_id].msgname)
+
+
+def unpack(packed: PackedMessage) -> mavlink.MAVLink_message | Superseded:
+    """The message ``packed`` stands for, or what is known of it if it was superseded."""
+    msg_id, header, fields = packed
+    if isinstance(fields, int):
+        return Superseded(msg_id, header, fields)
+    return unpack_message(packed)
+
+
+class Conflator:
+    """Datagrams waiting while the control loop has not taken the last batch (the pipe
+    towards it is full: it is behind).  A state message (:data:`CONFLATED`) replaces
+    the one of the same sender, system, component and type still waiting, which is
+    kept in its place as its header and CRC only: the control loop counts it heard and
+    takes its sequence number (loss, reordering and a second sender's numbers are
+    judged on every packet, as without conflation) without acting on what it said.
+    So a loop that falls behind catches up on the newest state instead of working
+    through seconds of stale positions, and its work per batch stays bounded by the
+    fleet, not by how far behind it is."""
+
+    def __init__(self, limit: int = MAX_CONFLATOR_MESSAGES) -> None:
+        self.limit = limit
+        self.datagrams: list[Datagram] = []
+        self._latest: dict[tuple[Address, int, int, int], tuple[int, int]] = {}
+        self._messages = 0
+        self.superseded = 0
+        """Messages replaced by newer ones so far."""
+        self.dropped = 0
+        """Datagrams dropped past :attr:`limit`."""
+
+    def __len__(self) -> int:
+        return len(self.datagrams)
+
+    @property
+    def oldest(self) -> float | None:
+        """When the oldest datagram waiting arrived (``time.monotonic()``)."""
+        return self.datagrams[0].arrived if self.datagrams else None
+
+    def add(self, batch: list[Datagram]) -> None:
+        for d in batch:
+            i = len(self.datagrams)
+            messages = list(d.messages)
+            for j, (msg_id, header, fields) in enumerate(messages):
+                if msg_id not in CONFLATED or isinstance(fields, int):
+                    continue
+                key = (d.address, header[_SRC_SYSTEM], header[_SRC_COMPONENT], msg_id)
+                old = self._latest.get(key)
+                if old is not None:
+                    older = self.datagrams[old[0]].messages
+                    o_id, o_header, o_fields = older[old[1]]
+                    assert isinstance(o_fields, dict) and isinstance(older, list)
+                    older[old[1]] = (o_id, o_header, zlib.crc32(o_fields["_msgbuf"]))
+                    self.superseded += 1
+                self._latest[key] = (i, j)
+            self.datagrams.append(replace(d, messages=messages))
+            self._messages += len(messages)
+        if self._messages > self.limit:
+            self._shed()
+
+    def _shed(self) -> None:
+        """Drop the oldest half (a control loop stopped for many seconds)."""
+        keep = len(self.datagrams) // 2
+        self.dropped += len(self.datagrams) - keep
+        rest = self.take()[-keep:] if keep else []
+        self.add(rest)
+
+    def take(self) -> list[Datagram]:
+        out = self.datagrams
+        self.datagrams = []
+        self._latest = {}
+        self._messages = 0
+        return out
 
 
 def encode_batch(datagrams: list[Datagram], errors: int = 0) -> bytes:
@@ -254,6 +391,46 @@ class WorkerSetup:
     """The socket carries the kernel's arrival stamps (SO_TIMESTAMPNS is on)."""
     parent_pid: int
     """The ground station's process: the worker leaves once it is gone."""
+    clock: Any = None
+    """A dry-run's :class:`~groundctl.clock.PacedClock`, this worker's participant view
+    (None: a real flight, nothing to pace): see :class:`Pacer`."""
+
+
+#: A worker reading datagrams older than this (real s) is behind its socket.
+HOLD_AFTER_S = 0.02
+#: While it holds a paced clock, it says how far it got no more often than this (real
+#: s of arrivals): each say is a look at the clock's lock, shared with the simulator.
+PACER_STEP_S = 0.005
+
+
+class Pacer:
+    """A link worker's part in a paced dry-run (:class:`~groundctl.clock.PacedClock`):
+    telemetry that arrived and has not reached the control loop holds the rehearsal's
+    clock where it arrived, as a late simulator or ground-station tick does.  Without
+    it a machine too busy for the fleet (1,000 vehicles on two cores) let the simulator
+    run on while the workers fell behind their sockets, and the kernel dropped
+    thousands of datagrams a second: the loss bursts read as second senders, and no
+    vehicle was believed.  With it the rehearsal slows instead, which is what pacing
+    promises: what the ground station sees is the flight's, not the machine's."""
+
+    def __init__(self, clock: Any) -> None:
+        self.clock = clock
+        self.holding = False
+        self._said = -float("inf")
+
+    def done_up_to(self, arrived: float | None) -> None:
+        """Everything that arrived before ``arrived`` (``time.monotonic()``) reached the
+        control loop and the worker is behind after it; None: it is caught up."""
+        if arrived is None:
+            if self.holding:
+                self.clock.idle_until(float("inf"))
+                self.holding = False
+            return
+        if self.holding and arrived - self._said < PACER_STEP_S:
+            return
+        self.clock.idle_until(self.clock.at_wall(arrived))
+        self.holding = True
+        self._said = arrived
 
 
 class Receiver:
@@ -337,6 +514,36 @@ def serve(sock: socket.socket, conn: Any, sends: Any, setup: WorkerSetup) -> Non
     poller.register(out_fd, select.POLLIN)
     watching_in = False
     reported = 0
+    conflator = Conflator()
+    pacer = None if setup.clock is None else Pacer(setup.clock)
+    frame_since: float | None = None  # arrival of the first datagram of the frame begun
+
+    def pace(batch: list[Datagram]) -> None:
+        """Say how far the telemetry got (a paced dry-run only)."""
+        nonlocal frame_since
+        if pacer is None:
+            return
+        if not towards.waiting:
+            frame_since = None
+        pending = [t for t in (frame_since, conflator.oldest) if t is not None]
+        if pending:
+            pacer.done_up_to(min(pending))  # not handed on yet
+        elif batch and time.monotonic() - batch[-1].arrived > HOLD_AFTER_S:
+            pacer.done_up_to(batch[-1].arrived)  # handed on, but the socket holds more
+        else:
+            pacer.done_up_to(None)
+
+    def pass_on(batch: list[Datagram]) -> int:
+        """Frame what waited and ``batch`` for the ground station; returns the errors
+        reported so far.  Never waits for it: what its pipe does not take waits here."""
+        receiver.errors += conflator.dropped
+        conflator.dropped = 0
+        nonlocal frame_since
+        batch = conflator.take() + batch
+        towards.put(encode_frame(encode_batch(batch, receiver.errors - reported)), batch)
+        if towards.waiting and batch:
+            frame_since = batch[0].arrived
+        return receiver.errors
 
     def take_sends() -> bool:
         """Send what the ground station queued; False once it closed the pipe."""
@@ -363,11 +570,15 @@ def serve(sock: socket.socket, conn: Any, sends: Any, setup: WorkerSetup) -> Non
             if not ready:
                 if not _alive(setup.parent_pid):
                     return  # (its end of the sends pipe closing says so too)
+                pace([])
                 continue
             if out_fd in ready and not take_sends():
                 return
             if in_fd in ready:
                 towards.write()
+                if not towards.waiting and (len(conflator) or conflator.dropped):
+                    reported = pass_on([])  # taken: what waited goes now, as one batch
+                pace([])
             if sock.fileno() not in ready:
                 continue
             batch = receiver.read()
@@ -383,12 +594,13 @@ def serve(sock: socket.socket, conn: Any, sends: Any, setup: WorkerSetup) -> Non
                     return
                 if sock.fileno() in more:
                     batch.extend(receiver.read(MAX_BATCH - len(batch)))
-            if batch or receiver.errors != reported:
-                frame = encode_frame(encode_batch(batch, receiver.errors - reported))
-                reported = receiver.errors
-                # Never waits for the ground station: what its pipe does not take waits
-                # here (past the limit the oldest batches go, counted as errors).
-                receiver.errors += towards.put(frame, batch)
+            if towards.waiting:
+                # Behind: the batch waits with the others, the newest state of each
+                # vehicle replacing the older (never a queue of stale positions).
+                conflator.add(batch)
+            elif batch or receiver.errors != reported:
+                reported = pass_on(batch)
+            pace(batch)
     except (BrokenPipeError, EOFError, OSError):
         return  # the ground station closed its end
     finally:
@@ -468,10 +680,13 @@ class LinkWorker:
     # -- receiving -----------------------------------------------------------------------
 
     def drain(self) -> int:
-        """Hand on every batch waiting in the pipe; returns how many datagrams.  Never
-        waits: a batch the pipe holds only part of is completed on the next call."""
+        """Hand on the batches waiting in the pipe, :data:`MAX_READS_PER_DRAIN` reads at
+        most (the rest on the next pass); returns how many datagrams.  Never waits: a
+        batch the pipe holds only part of is completed on the next call."""
         count = 0
-        while self._conn is not None:
+        for _ in range(MAX_READS_PER_DRAIN):
+            if self._conn is None:
+                break
             try:
                 data = os.read(self._conn.fileno(), 1 << 20)
             except (BlockingIOError, InterruptedError):

@@ -32,6 +32,10 @@ MAX_BUFFER = 256 << 20
 #: than this behind the flight, for a reader following it or a crash.
 FLUSH_INTERVAL_S = 0.5
 # (0: after every batch written, for a low-volume file such as the event log.)
+#: A busy file's thread is woken once this many bytes wait (else by its flush interval):
+#: not on every write, since a wake-up per packet (tens of thousands a second at 1,000
+#: vehicles) cost the control loop more than the packets themselves.
+WAKE_BYTES = 64 << 10
 
 
 class BackgroundFile:
@@ -76,10 +80,12 @@ class BackgroundFile:
             if self._waiting + len(data) > self.max_buffer:
                 self.dropped += 1
                 return False
+            was = self._waiting
             self._chunks.append(data)
             self._waiting += len(data)
             self.written += len(data)
-            self._cond.notify()
+            if not self.flush_interval or was < WAKE_BYTES <= self._waiting:
+                self._cond.notify()
         return True
 
     def flush(self) -> None:
