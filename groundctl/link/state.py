@@ -278,26 +278,18 @@ def apply(state: VehicleState, msg: mavlink.MAVLink_message, now: float) -> list
     answers TIMESYNC only for packets it trusts).
     """
     changes: list[StateChange] = []
-    state.packets += 1
-    if state.first_heard is None:
-        state.first_heard = now
-    state.last_heard = now
     header = msg.get_header()
     comp = header.srcComponent
     trust = state.trust
     buf = msg.get_msgbuf()
     kind = msg.get_type()
-    verdict = _numbered(state, comp, header.seq,
+    verdict = _received(state, comp, header.seq,
                         zlib.crc32(buf) if buf else zlib.crc32(str(msg).encode()), kind,
                         now, changes)
-    numbering = trust.sequence(comp)
     if verdict is Seq.DUPLICATE:
         trust.last_trusted = False  # the same bytes again: already acted on
         return changes
     if verdict in (Seq.CONFLICT, Seq.HELD):
-        if verdict is Seq.CONFLICT:
-            _conflict(state, f"component {comp}: {numbering.reason}", changes,
-                      numbering.suspects)
         trust.last_trusted = False
         if kind == "HEARTBEAT" and _is_autopilot_heartbeat(msg) \
                 and comp == trust.autopilot_component:
@@ -305,10 +297,6 @@ def apply(state: VehicleState, msg: mavlink.MAVLink_message, now: float) -> list
         if kind in _FROM_ANYONE:
             _HANDLERS[kind](state, msg, now, changes)
         return changes
-    if verdict is Seq.RESTART:
-        # A second numbering took over (or the vehicle rebooted without a silence):
-        # nothing waiting for confirmation can be told apart from a forger's.
-        _conflict(state, f"component {comp}: {numbering.reason}", changes, _ALL_KINDS)
     trust.last_trusted = True
     if kind == "HEARTBEAT":
         _heartbeat(state, msg, now, changes)
@@ -330,16 +318,29 @@ def apply(state: VehicleState, msg: mavlink.MAVLink_message, now: float) -> list
     return changes
 
 
-def _numbered(state: VehicleState, comp: int, seq: int, digest: int, kind: str,
+def _received(state: VehicleState, comp: int, seq: int, digest: int, kind: str,
               now: float, changes: list[StateChange]) -> Seq:
-    """Account packet ``seq`` of component ``comp`` (loss, reordering) and judge its
-    number against the component's numbering (``digest``: its bytes' CRC-32)."""
+    """What every packet of ``state``'s vehicle does, whatever it says: it is heard, it
+    is counted (loss, reordering), its number ``seq`` of component ``comp`` is judged
+    against the component's numbering (``digest``: its bytes' CRC-32), and a number
+    that contradicts it is a conflict."""
+    state.packets += 1
+    if state.first_heard is None:
+        state.first_heard = now
+    state.last_heard = now
     state.quality.update(comp, seq)
     numbering = state.trust.sequence(comp)
     verdict = numbering.check(seq, digest, kind, now)
     for why, kinds in numbering.blame:
         _conflict(state, f"component {comp}: {why}", changes, kinds)
     numbering.blame.clear()
+    if verdict is Seq.CONFLICT:
+        _conflict(state, f"component {comp}: {numbering.reason}", changes,
+                  numbering.suspects)
+    elif verdict is Seq.RESTART:
+        # A second numbering took over (or the vehicle rebooted without a silence):
+        # nothing waiting for confirmation can be told apart from a forger's.
+        _conflict(state, f"component {comp}: {numbering.reason}", changes, _ALL_KINDS)
     return verdict
 
 
@@ -351,15 +352,7 @@ def account(state: VehicleState, comp: int, seq: int, digest: int, kind: str,
     (its number judged as any packet's: a second sender's shows), but what it said is
     superseded: nothing is acted on.  Returns notable changes (conflicts)."""
     changes: list[StateChange] = []
-    state.packets += 1
-    if state.first_heard is None:
-        state.first_heard = now
-    state.last_heard = now
-    verdict = _numbered(state, comp, seq, digest, kind, now, changes)
-    if verdict in (Seq.CONFLICT, Seq.RESTART):
-        numbering = state.trust.sequence(comp)
-        _conflict(state, f"component {comp}: {numbering.reason}", changes,
-                  numbering.suspects if verdict is Seq.CONFLICT else _ALL_KINDS)
+    _received(state, comp, seq, digest, kind, now, changes)
     return changes
 
 

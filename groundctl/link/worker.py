@@ -49,6 +49,7 @@ import pickle
 import select
 import socket
 import struct
+import sys
 import time
 import zlib
 from collections import deque
@@ -78,9 +79,6 @@ PARENT_CHECK_S = 0.25
 #: Sends waiting for a worker that does not take them, bytes at most (a second of a
 #: 254-vehicle network's setpoints and LED colours is about 0.4 MB).
 MAX_BACKLOG_BYTES = 4 * 1024 * 1024
-#: The one frame a worker has begun for a control loop that does not read it, bytes
-#: at most (everything after it waits in the :class:`Conflator`, bounded there).
-MAX_WORKER_BACKLOG_BYTES = 256 * 1024 * 1024
 #: Reads of the pipe from a worker per call of :meth:`LinkWorker.drain` at most (each at
 #: most a pipe's worth, 64 KB): a worker that writes as fast as the control loop reads
 #: must not keep it in one call while its ticks wait; the rest is read on the next pass.
@@ -508,7 +506,9 @@ def serve(sock: socket.socket, conn: Any, sends: Any, setup: WorkerSetup) -> Non
     out_fd = sends.fileno()
     in_fd = conn.fileno()
     os.set_blocking(in_fd, False)
-    towards = FrameWriter(in_fd, MAX_WORKER_BACKLOG_BYTES)
+    # One frame at a time towards the ground station (a new one only once the last is
+    # wholly in the pipe): what arrives behind it waits in the Conflator, bounded there.
+    towards = FrameWriter(in_fd, sys.maxsize)
     poller = select.poll()
     poller.register(sock.fileno(), select.POLLIN)
     poller.register(out_fd, select.POLLIN)
