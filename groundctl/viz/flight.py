@@ -35,6 +35,9 @@ from groundctl.viz.tlogread import TlogData
 
 FloatArray = NDArray[np.float64]
 
+#: Half the tlog's resolution (its stamps are whole microseconds): two stamps this close are
+#: the same instant.
+STAMP_TOLERANCE_S = 0.5e-6
 #: Colour of a vehicle before any LED_CONTROL was sent to it.
 NO_LED = (90, 90, 90)
 #: Tick period assumed for a bare tlog (no show clock log), in vehicle seconds.
@@ -164,7 +167,10 @@ def led_at(data: TlogData, sysid: int, unix_s: FloatArray) -> NDArray[np.uint8]:
     c = np.concatenate(cols)
     order = np.argsort(t, kind="stable")
     t, c = t[order], c[order]
-    k = np.searchsorted(t, unix_s, side="right") - 1
+    # At or before: the tlog stamps to the microsecond and the tick's time went through
+    # decimal text, so a colour sent at the tick's own instant (a paced clock stands still
+    # within a tick) may read a fraction of a microsecond later.
+    k = np.searchsorted(t, np.asarray(unix_s) + STAMP_TOLERANCE_S, side="right") - 1
     ok = k >= 0
     out[ok] = c[k[ok]]
     return out
