@@ -3,15 +3,20 @@ plain mode's fleet-wide pre-flight lines."""
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import pytest
-from console_fixtures import fabricated_runner, grid_plan, refresh_preflight
+from console_fixtures import fabricated_runner, grid_plan, ready_state, refresh_preflight
 
+from groundctl.clock import ScaledClock
+from groundctl.console.app import header_text
 from groundctl.console.commands import Controller, GoGate
 from groundctl.console.feed import EventFeed
 from groundctl.console.model import ConsoleModel
 from groundctl.errors import FlightError
+from groundctl.flight.runner import RunnerConfig, ShowRunner
+from groundctl.link.fleet import FleetLink
 
 NOW = 100.0
 
@@ -141,6 +146,34 @@ def test_header_before_the_runner_and_the_link_summary() -> None:
     assert view.header.next_formation == "line" and view.header.show_time_s is None
     cells = view.rows[0].cells()
     assert cells["battery"] == "95%" and cells["gps"] == "3D/14" and cells["rtt"] == "4"
+
+
+def test_the_header_has_one_link_summary_per_network() -> None:
+    plan = grid_plan(6)
+    ids = [1, 2, 3, 1001, 1002, 1003]  # 1-3 and 2:1-2:3
+    clock = ScaledClock(1.0, epoch=time.monotonic() - NOW)
+    link = FleetLink([("127.0.0.1", 0), ("127.0.0.1", 0)], clock=clock, expected_ids=ids)
+    runner = ShowRunner(plan, link, clock, RunnerConfig(), expected_ids=ids)
+    for k, vid in enumerate(ids[:-1]):  # 2:3 never heard
+        link.vehicles[vid] = ready_state(vid, plan, k, NOW)
+    link.vehicles[1002].lost = True
+    link.silence_ids = set(ids)
+    model = ConsoleModel()
+    model.attach(runner)
+    header = model.view(NOW).header
+    assert header.link.startswith("5/6 heard, 1 lost")
+    rest = ", loss 0.0% (max 0%), RTT max 4 ms"
+    assert header.networks == (("net 1: 3/3 heard" + rest, "ok"),
+                               ("net 2: 2/3 heard, 1 lost" + rest, "bad"))
+    for vid in (1001, 1002):  # network 2 quiet for 12 s
+        link.vehicles[vid].last_heard = NOW - 12.0
+    later = model.view(NOW).header.networks
+    assert later[0] == ("net 1: 3/3 heard" + rest, "ok")
+    assert later[1][0].startswith("net 2: SILENT 12 s; 0/3 heard") and later[1][1] == "bad"
+    text = header_text(model.view(NOW).header).plain
+    assert text.splitlines()[-2:] == ["  net 1: 3/3 heard" + rest, "  " + later[1][0]]
+    # One network: no per-network lines.
+    assert fabricated_runner(grid_plan(3)) and ConsoleModel().view(NOW).header.networks == ()
 
 
 def test_controller_confirms_land_all_and_kill_and_reports_bad_input() -> None:

@@ -29,6 +29,7 @@ from rich.text import Text
 from textual.app import App, ComposeResult
 from textual.binding import Binding, BindingType
 from textual.containers import Horizontal, Vertical
+from textual.css.scalar import Scalar
 from textual.driver import Driver
 from textual.drivers import linux_driver
 from textual.widget import Widget
@@ -49,7 +50,7 @@ from groundctl.console.model import (
 )
 from groundctl.console.table import FleetTable
 from groundctl.console.terminal import TerminalWriter
-from groundctl.vehicleid import parse_vehicle
+from groundctl.vehicleid import parse_vehicle, spell
 
 #: Refreshes per second at most: an operator reads no faster, and every refresh is
 #: time the control loop's interpreter is not ticking.
@@ -133,16 +134,23 @@ def header_text(h: Header) -> Text:
     t.append("\n")
     t.append("worst error ")
     t.append("-" if h.worst_error_m is None else
-             f"{h.worst_error_m:.2f} m (#{h.worst_error_sysid})",
+             f"{h.worst_error_m:.2f} m (#{spell(h.worst_error_sysid or 0)})",
              "bold yellow" if (h.worst_error_m or 0.0) > 0.4 else "")
     t.append("   min separation ")
     sep = "-" if h.min_separation_m is None else f"{h.min_separation_m:.2f} m" + (
-        f" ({h.min_separation_pair[0]}-{h.min_separation_pair[1]})"
+        f" ({spell(h.min_separation_pair[0])}-{spell(h.min_separation_pair[1])})"
         if h.min_separation_pair else "")
     t.append(sep, _SEVERITY_STYLE[h.separation_severity])
     t.append(f" limit {h.separation_limit_m:.2f} m   link ")
     t.append(h.link, _SEVERITY_STYLE[h.link_severity])
+    for text, severity in h.networks:
+        t.append("\n  ")
+        t.append(text, _SEVERITY_STYLE[severity])
     return t
+
+
+#: The header's lines with one network (one more per network when there are several).
+HEADER_LINES = 3
 
 
 class ConsoleApp(App[None]):
@@ -312,6 +320,10 @@ class ConsoleApp(App[None]):
             view = self.model.view(self.model.now(), self.selected(),
                                    preflight=switcher.current == "preflight")
             self.last_view = view
+            lines = HEADER_LINES + len(view.header.networks)
+            header = self.query_one("#header", Static)
+            if header.styles.height != Scalar.from_number(lines):
+                header.styles.height = lines  # a line per network: laid out once, when known
             self._set("header", header_text(view.header))
             if view.armed and not self._switched:
                 self._switched = True  # armed: the fleet is what matters from now on

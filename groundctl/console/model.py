@@ -10,6 +10,7 @@ without a terminal, and the same numbers the plain mode prints.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -19,6 +20,7 @@ from groundctl.execute.sequence import ShowPhase, VehiclePhase, VehicleRun
 from groundctl.flight.monitor import nearest_pair
 from groundctl.flight.runner import PERMANENT_CHECKS, ShowRunner
 from groundctl.link.state import VehicleState
+from groundctl.vehicleid import network_index
 
 Severity = Literal["ok", "warn", "bad", "off"]
 """How a row (or a header figure) is coloured: fine, needs a look, act now, not flying."""
@@ -77,6 +79,9 @@ class Header:
     """Link summary: heard, lost, loss, RTT."""
     link_severity: Severity
     """Colour of the link summary."""
+    networks: tuple[tuple[str, Severity], ...] = ()
+    """With several MAVLink networks, one summary per network (its name, heard, lost,
+    loss, RTT, how long it has been silent) and its colour; empty with one network."""
 
     @property
     def progress(self) -> float:
@@ -328,7 +333,8 @@ class ConsoleModel:
         link, link_sev = _link_summary(runner, now)
         return Header(plan.show_name, phase, detail, t, plan.duration, formation, nxt,
                       nxt_in, worst[1] if worst else None, worst[0] if worst else None,
-                      sep, pair, plan.limits.min_separation, link, link_sev)
+                      sep, pair, plan.limits.min_separation, link, link_sev,
+                      _network_summaries(runner, now))
 
     @staticmethod
     def _separation(runner: ShowRunner) -> tuple[float | None, tuple[int, int] | None]:
@@ -573,14 +579,14 @@ def _leds(runner: ShowRunner, now: float) -> np.ndarray | None:
     return np.rint(colours * 255).astype(int)
 
 
-def _link_summary(runner: ShowRunner, now: float) -> tuple[str, Severity]:
-    states = runner.link.vehicles
-    expected = len(runner.expected_ids) if runner.expected_ids is not None \
-        else runner.plan.drones
-    heard = sum(1 for s in states.values() if s.silent_for(now) < 2.0)
-    lost = sum(1 for s in states.values() if s.lost)
-    losses = [s.loss_ratio for s in states.values()]
-    rtts = [r for r in (s.rtt_s for s in states.values()) if r is not None]
+def _link_text(states: Sequence[VehicleState], expected: int, now: float
+               ) -> tuple[str, int, int, list[float]]:
+    """``heard/expected heard, N lost, loss ..., RTT max ...`` of these vehicles, and
+    (heard, lost, losses) to judge it by."""
+    heard = sum(1 for s in states if s.silent_for(now) < 2.0)
+    lost = sum(1 for s in states if s.lost)
+    losses = [s.loss_ratio for s in states]
+    rtts = [r for r in (s.rtt_s for s in states) if r is not None]
     text = f"{heard}/{expected} heard"
     if lost:
         text += f", {lost} lost"
@@ -588,9 +594,44 @@ def _link_summary(runner: ShowRunner, now: float) -> tuple[str, Severity]:
         text += f", loss {np.mean(losses):.1%} (max {max(losses):.0%})"
     if rtts:
         text += f", RTT max {max(rtts) * 1000:.0f} ms"
+    return text, heard, lost, losses
+
+
+def _severity(silent: bool, heard: int, lost: int, expected: int,
+              losses: list[float]) -> Severity:
+    return "bad" if silent or lost else \
+        "warn" if heard < expected or (losses and max(losses) > LOSSY) else "ok"
+
+
+def _link_summary(runner: ShowRunner, now: float) -> tuple[str, Severity]:
+    expected = len(runner.expected_ids) if runner.expected_ids is not None \
+        else runner.plan.drones
+    text, heard, lost, losses = _link_text(list(runner.link.vehicles.values()), expected,
+                                           now)
     silent = runner.link.fleet_silent
     if silent:
         text = "FLEET SILENT; " + text
-    severity: Severity = "bad" if silent or lost else \
-        "warn" if heard < expected or (losses and max(losses) > LOSSY) else "ok"
-    return text, severity
+    return text, _severity(silent, heard, lost, expected, losses)
+
+
+def _network_summaries(runner: ShowRunner, now: float) -> tuple[tuple[str, Severity], ...]:
+    """One line per network when there are several (at 1,000 drones the fleet's line
+    hides a whole network gone quiet behind 750 heard)."""
+    link = runner.link
+    count = len(link.listens)
+    if count < 2:
+        return ()
+    expected_ids = runner.expected_ids
+    out = []
+    for k in range(count):
+        states = [v for s, v in link.vehicles.items() if network_index(s) == k]
+        expected = (sum(1 for s in expected_ids if network_index(s) == k)
+                    if expected_ids is not None else len(states))
+        text, heard, lost, losses = _link_text(states, expected, now)
+        quiet = link.network_silent_for(k, now)
+        silent = quiet > link.fleet_silence
+        if silent:
+            text = ("SILENT" if math.isinf(quiet) else f"SILENT {quiet:.0f} s") + "; " + text
+        out.append((f"net {k + 1}: {text}",
+                    _severity(silent, heard, lost, expected, losses)))
+    return tuple(out)

@@ -696,11 +696,13 @@ class FleetLink:
         cut (a radio, a cable) is silent however well the others are heard, and that
         says nothing about any one of its vehicles."""
         if len(self.listens) == 1:
-            return self._network_silent_for(0, now)
+            return self.network_silent_for(0, now)
         known = {network_index(s) for s in self.vehicles}
-        return max((self._network_silent_for(k, now) for k in sorted(known)), default=0.0)
+        return max((self.network_silent_for(k, now) for k in sorted(known)), default=0.0)
 
-    def _network_silent_for(self, network: int, now: float) -> float:
+    def network_silent_for(self, network: int, now: float) -> float:
+        """Seconds since network ``network`` (from 0) was heard, as
+        :meth:`fleet_silent_for` judges it (infinite while its link worker is down)."""
         if self._worker_down[network]:
             return math.inf  # its link worker died: nothing of it is heard
         if self.silence_ids is not None:
@@ -741,7 +743,7 @@ class FleetLink:
         quiet: set[int] = set()
         if len(self.listens) > 1:
             for k in range(len(self.listens)):
-                if self._network_silent_for(k, now) > self.fleet_silence:
+                if self.network_silent_for(k, now) > self.fleet_silence:
                     quiet.add(k)
                     self._back_by_network[k] = math.inf
                 elif self._back_by_network[k] == math.inf:
