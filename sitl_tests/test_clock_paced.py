@@ -18,7 +18,7 @@ from multiprocessing.connection import Connection
 
 import pytest
 
-from groundctl.clock import PacedClock
+from groundctl.clock import PacedClock, pace_slack
 
 
 def test_with_nobody_taking_part_it_runs_at_its_pace() -> None:
@@ -48,6 +48,23 @@ def test_a_late_participant_holds_it_and_it_resumes_from_where_it_waited() -> No
     assert me.now() == pytest.approx(2.05)  # and waits again at the next due time
     assert clock.held_s()[0] >= 0.05  # real seconds it waited for slot 0
     assert clock.held_s()[1] == 0.0
+
+
+def test_the_dry_run_slack_is_a_few_milliseconds_of_real_time() -> None:
+    # x1 and x2 (the README's demo): 6.25 ms of real time past the late participant, as
+    # clock time; from x8 on, 50 ms of clock time (the fast rehearsals, as before).
+    assert pace_slack(1.0) == pytest.approx(0.00625)
+    assert pace_slack(2.0) == pytest.approx(0.0125)
+    assert pace_slack(8.0) == pytest.approx(0.05)
+    assert pace_slack(100.0) == pytest.approx(0.05)
+    assert pace_slack(0.25) / 0.25 == pytest.approx(0.00625)
+    clock = PacedClock(1.0, slack=pace_slack(1.0))
+    me = clock.participant(0)
+    me.idle_until(0.0)  # held from here on (however late this process ran until now)
+    t = me.now()
+    me.idle_until(t + 0.1)
+    time.sleep(0.15)  # x1: the clock waits for us 6.25 ms past our due time, not 50
+    assert me.now() == pytest.approx(t + 0.10625)
 
 
 def test_it_never_goes_back_when_a_participant_reports_an_earlier_time() -> None:

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from groundctl.clock import Clock, PacedClock, ScaledClock
+from groundctl.clock import Clock, PacedClock, ScaledClock, pace_slack
 from groundctl.errors import GroundctlError, SimulatorError
 from groundctl.execute.frames import enu_to_show, show_to_enu
 from groundctl.flight.report import flight_report
@@ -237,7 +237,8 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
     # Participants: the ground station's loop, each simulator process, each network's
     # link worker (telemetry on its way to the ground station holds the clock too).
     paced = PacedClock(options.speed, participants=1 + processes
-                       + (networks if workers else 0)) if options.paced else None
+                       + (networks if workers else 0),
+                       slack=pace_slack(options.speed)) if options.paced else None
     # The ground station's clock, and the simulator's.
     clock: ScaledClock | PacedClock
     sim_clock: ScaledClock | PacedClock
