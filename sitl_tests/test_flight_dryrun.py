@@ -451,7 +451,7 @@ def test_a_show_flown_across_two_networks(tmp_path: Path) -> None:
     of its own; network 2's worker killed mid-show (the show holds, a new worker takes
     the same socket, the show goes on); an operator's land-one naming a vehicle of the
     second network; one tlog per network."""
-    from groundctl.vehicleid import parse_vehicle
+    from groundctl.vehicleid import parse_vehicle, spell
 
     async def kill_a_worker_then_land_one(runner: ShowRunner, _: SimProcess) -> None:
         await until(runner, lambda: show_time(runner) > 3.0)
@@ -468,6 +468,8 @@ def test_a_show_flown_across_two_networks(tmp_path: Path) -> None:
         ["1", "2", "3", "4", "5", "2:1", "2:2", "2:3", "2:4"]
     assert [v["network"] for v in report["vehicles"]] == [1] * 5 + [2] * 4
     assert report["vehicles"][7]["system_id"] == 1003
+    pair = report["min_separation_pair"]
+    assert report["min_separation_vehicles"] == [spell(s) for s in pair]
     events = read_events(tmp_path / "events.jsonl")
     assert any(e.get("vehicle") == "2:3" for e in events)
     texts = [e.get("text", "") for e in events]

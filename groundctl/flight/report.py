@@ -110,11 +110,13 @@ def flight_report(runner: ShowRunner, error: str | None = None,
     if seq is not None and not landed:
         down = [s for s, v in flown.items()
                 if v.phase is not VehiclePhase.LANDED and s not in never]
-        reasons.append(f"vehicle(s) {down} did not land under control")
+        reasons.append(f"vehicle(s) [{', '.join(spell(s) for s in down)}] did not land "
+                       "under control")
     commanded = mon.separation.commanded_m if mon is not None else None
     if min_sep < limit:
         pair = mon.separation.pair if mon is not None else None
-        why = f"separation {min_sep:.2f} m between vehicles {pair} (limit {limit:.2f} m)"
+        named = f"({spell(pair[0])}, {spell(pair[1])})" if pair else "(unknown)"
+        why = f"separation {min_sep:.2f} m between vehicles {named} (limit {limit:.2f} m)"
         if commanded is not None and commanded >= limit:
             wind = mon.separation.wind_m_s if mon is not None else None
             strong = runner.guard.wind.limit is not None and wind is not None \
@@ -134,10 +136,14 @@ def flight_report(runner: ShowRunner, error: str | None = None,
         "safe": not reasons,
         "unsafe_reasons": reasons,
         "landed": landed,
-        "never_took_off": [{"system_id": s, "reason": v.reason} for s, v in sorted(never.items())],
+        "never_took_off": [{"system_id": s, "vehicle": spell(s), "reason": v.reason}
+                           for s, v in sorted(never.items())],
         "vehicles": vehicles,
         "min_separation_m": _r(min_sep),
         "min_separation_pair": list(mon.separation.pair) if mon and mon.separation.pair else None,
+        # The same pair spelled as everywhere else ("2:17" on network 2, "17" on one).
+        "min_separation_vehicles": [spell(s) for s in mon.separation.pair]
+        if mon and mon.separation.pair else None,
         "min_separation_commanded_m": _r(commanded) if commanded is not None else None,
         "min_separation_wind_m_s": _r(mon.separation.wind_m_s)
         if mon is not None and mon.separation.wind_m_s is not None else None,

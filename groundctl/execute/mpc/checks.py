@@ -19,6 +19,7 @@ from groundctl.execute.mpc.types import (
 )
 from groundctl.plan.verify import inside_polygon
 from groundctl.show.model import Limits
+from groundctl.vehicleid import spell
 
 #: Absolute tolerance on separation and altitude in the verifier, m.
 DIST_TOL = 1e-3
@@ -139,7 +140,7 @@ def verify(pos: FloatArray, vel: FloatArray, acc: FloatArray, dt: float, limits:
             b = bad[int(np.argmin(per[bad]))]
             k = int(np.argmin(d[b]))
             more = f" (and {len(bad) - 1} more vehicles)" if len(bad) > 1 else ""
-            out.append(f"separation from vehicle {int(ids[b])} {per[b]:.2f} m at "
+            out.append(f"separation from vehicle {spell(int(ids[b]))} {per[b]:.2f} m at "
                        f"+{offs[k]:.2f} s (min_separation {limits.min_separation} m){more}")
     return TrajectoryCheck(tuple(out), min_sep, closest)
 
@@ -212,7 +213,7 @@ def start_violations(request: MpcRequest, limit_tol: float = 0.01) -> list[str]:
         d = np.linalg.norm(nb[:, 0] - p[None], axis=1)
         j = int(np.argmin(d))
         if d[j] < lim.min_separation - DIST_TOL:
-            out.append(f"{d[j]:.2f} m from vehicle {int(request.other_ids[j])} "
+            out.append(f"{d[j]:.2f} m from vehicle {spell(int(request.other_ids[j]))} "
                        f"(min_separation {lim.min_separation} m)")
     return out
 

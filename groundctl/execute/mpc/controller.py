@@ -22,6 +22,7 @@ from groundctl.execute.mpc.checks import (
 from groundctl.execute.mpc.qp import MpcQp, _Plan
 from groundctl.execute.mpc.types import FloatArray, MpcRequest, MpcResult, Status, TrajectoryCheck
 from groundctl.execute.retime import Retimer
+from groundctl.vehicleid import spell
 
 #: OSQP's status when a pass hits ``time_limit``.
 _TIME_LIMIT = "run time limit reached"
@@ -288,7 +289,7 @@ class MpcController(MpcQp):
             # "No worse than now" is for the envelope (a gust's 2.6 m/s climb is not the
             # path's doing); the separation it must keep outright.
             check = replace(check, violations=(
-                f"separation from vehicle {check.closest} {check.min_separation:.2f} m "
+                f"separation from vehicle {spell(check.closest or 0)} {check.min_separation:.2f} m "
                 f"(min_separation {req.limits.min_separation} m)",))
         return check
 
@@ -316,7 +317,7 @@ class MpcController(MpcQp):
             # that keeps every limit (the plan kept the fleet apart) is kept instead.
             status = "path"
             reason = f"{cause}; its path keeps every limit" + (
-                f" ({on_path.min_separation:.2f} m from vehicle {on_path.closest})"
+                f" ({on_path.min_separation:.2f} m from vehicle {spell(on_path.closest or 0)})"
                 if on_path.closest is not None else "")
         result = MpcResult(
             sysid=self.sysid, status=status, reason=reason, t0=req.t0, dt=self.dt, pos=pos,
