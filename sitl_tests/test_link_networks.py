@@ -216,3 +216,41 @@ def test_a_thousand_vehicles_are_one_short_line() -> None:
     assert spell_many([1, 2, 4, 1007]) == "1, 2, 4, 2:7"
     assert spell_many(range(1, 60, 2), most=3) == "1, 3, 5, ... and 27 more"
     assert spell_many([]) == ""
+
+
+# -- pre-flight exchanges windowed per network ------------------------------------------
+def test_pre_flight_work_runs_a_few_vehicles_per_network_at_a_time() -> None:
+    import asyncio
+
+    from groundctl.link.window import per_network
+
+    ids = [*range(1, 11), *(vehicle_id(2, s) for s in range(1, 6)),
+           *(vehicle_id(3, s) for s in range(1, 4))]
+    busy: dict[int, int] = {}
+    most: dict[int, int] = {}
+    started: list[int] = []
+
+    async def work(vid: int) -> str:
+        net = network_of(vid)
+        busy[net] = busy.get(net, 0) + 1
+        most[net] = max(most.get(net, 0), busy[net])
+        started.append(vid)
+        await asyncio.sleep(0.001 * (vid % 3))
+        busy[net] -= 1
+        return spell(vid)
+
+    out = asyncio.run(per_network(ids, work, limit=2))
+    assert out == [spell(v) for v in ids]  # in the order asked, whatever finished first
+    assert most == {1: 2, 2: 2, 3: 2}  # two at a time on each network, side by side
+    assert sorted(started) == sorted(ids)
+
+    async def fails(vid: int) -> int:
+        await asyncio.sleep(0.001)
+        if vid == 3:
+            raise SimulatorError("vehicle 3 went away")
+        return vid
+
+    with pytest.raises(SimulatorError, match="vehicle 3 went away"):
+        asyncio.run(per_network(ids, fails, limit=2))
+    with pytest.raises(ValueError, match="at least 1"):
+        asyncio.run(per_network(ids, fails, limit=0))

@@ -27,7 +27,6 @@ PX4 v1.15 (``geofence_params``, ``commander_params``, ``navigator_params``):
 
 from __future__ import annotations
 
-import asyncio
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -46,6 +45,7 @@ from groundctl.link.fence import (
 from groundctl.link.flavours import Flavour
 from groundctl.link.fleet import FleetLink
 from groundctl.link.params import ParamClient, run_params, same_value
+from groundctl.link.window import per_network
 from groundctl.show.model import GeoOrigin, Limits, VehicleSettings
 
 #: FENCE_TYPE bits: 1 maximum altitude, 4 polygon.
@@ -240,10 +240,11 @@ async def enforce(link: FleetLink, clock: Clock, flavours: Mapping[int, Flavour]
                   settings: VehicleSettings, origin: GeoOrigin, limits: Limits, *,
                   deadline_s: float = 20.0) -> dict[int, VehicleOutcome]:
     """Read, set (when allowed) and check every vehicle's parameters and upload the fence,
-    all vehicles at once (each with its own window of requests); ``deadline_s`` of
+    :data:`~groundctl.link.window.PER_NETWORK` vehicles of each network at a time (each
+    with its own window of requests); ``deadline_s`` of
     ``clock`` per parameter stage and vehicle (the fence upload is bounded by its own
     retries)."""
     ids = sorted(flavours)
-    results = await asyncio.gather(*(_one(link, clock, s, flavours[s], settings, origin,
-                                          limits, deadline_s) for s in ids))
+    results = await per_network(ids, lambda s: _one(link, clock, s, flavours[s], settings,
+                                                    origin, limits, deadline_s))
     return dict(zip(ids, results, strict=True))

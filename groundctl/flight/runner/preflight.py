@@ -12,7 +12,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from groundctl.errors import FlightError, LinkError, NoGo, PreflightFailed
+from groundctl.errors import FlightError, GroundctlError, LinkError, NoGo, PreflightFailed
 from groundctl.execute.frames import show_positions
 from groundctl.execute.lead import LeadEstimator
 from groundctl.execute.leds import LedSchedule
@@ -24,7 +24,9 @@ from groundctl.flight.monitor import FlightMonitor
 from groundctl.flight.runner.config import PERMANENT_CHECKS, _ids, log
 from groundctl.flight.runner.state import RunnerState
 from groundctl.link.flavours import Flavour
+from groundctl.link.window import per_network
 from groundctl.record.logstreams import request_log_extras
+from groundctl.vehicleid import spell
 
 
 class Preflight(RunnerState):
@@ -207,14 +209,14 @@ class Preflight(RunnerState):
                                  self.plan.origin, self.plan.limits)
         for sysid, out in sorted(outcomes.items()):
             if out.changed or out.fence:
-                self._say(f"vehicle {sysid}: " + ", ".join(
+                self._say(f"vehicle {spell(sysid)}: " + ", ".join(
                     [*(["fence uploaded"] if out.fence else []), *out.changed]),
                     "vehicle_settings_set", system_id=sysid, changed=out.changed,
                     fence=out.fence)
         failures = {s: o.problems for s, o in outcomes.items() if o.problems}
         if failures:
             self._say("pre-flight refused: vehicle settings\n" + "\n".join(
-                f"vehicle {s}: " + "; ".join(why) for s, why in sorted(failures.items())),
+                f"vehicle {spell(s)}: " + "; ".join(why) for s, why in sorted(failures.items())),
                 "preflight_failed", failures=failures)
             raise PreflightFailed(failures)
 
@@ -226,9 +228,14 @@ class Preflight(RunnerState):
         ardu = [s for s, v in seq.vehicles.items() if v.flavour is Flavour.ARDUPILOT]
         if not ardu:
             return
-        done = await asyncio.gather(*(self.link.set_param(s, "GUID_TIMEOUT", timeout)
-                                      for s in ardu), return_exceptions=True)
-        failed = [s for s, ok in zip(ardu, done, strict=True) if ok is not True]
+        async def confirmed(vid: int) -> bool:
+            try:
+                return await self.link.set_param(vid, "GUID_TIMEOUT", timeout) is True
+            except GroundctlError:
+                return False
+
+        done = await per_network(ardu, confirmed)
+        failed = [s for s, ok in zip(ardu, done, strict=True) if not ok]
         if failed:
             self._say(f"GUID_TIMEOUT {timeout:g} s not confirmed by vehicle(s) {_ids(failed)}: "
                       "through a link drop they fly on along their last setpoint for up to "
