@@ -60,9 +60,13 @@ def test_quick_show_is_flown_landed_and_recorded(flavour: Flavour, tmp_path: Pat
     assert report["mpc"]["enabled"] and report["mpc"]["activations"] == 0
     # Each vehicle's lead measured in flight; nobody flagged late on loopback.
     assert all(v["lead_ms"] is not None and not v["late_count"] for v in report["vehicles"])
-    # The sequence's own commands; pre-flight requests refused before the EKF origin is
-    # known count at the top level.
+    # The sequence's own commands; pre-flight's questions for the EKF origin and home
+    # (refused by ArduPilot until its EKF has one) are asked again, not counted.
     assert sum(v["commands_refused"] for v in report["vehicles"]) == 0
+    events = read_events(tmp_path / "events.jsonl")
+    assert not [e for e in events if e["event"] == "command_refused"
+                and e["command"] == "MAV_CMD_REQUEST_MESSAGE"]
+    assert sum(e["event"] == "ekf_origin" for e in events) == 9
     assert report["link"]["bad_packets"] == 0
     if flavour is Flavour.ARDUPILOT:  # PX4 ignores LED_CONTROL, as the real one does
         led = report["led_timing_error_s"]

@@ -86,10 +86,10 @@ class Preflight(RunnerState):
                     self._spawn(self._request_streams(sysid, streams_ok))
                 if state.ekf_origin is None and due(sysid, "origin", 2.0):
                     self._spawn(self._ask(sysid, "GPS_GLOBAL_ORIGIN", self.link.request_message(
-                        sysid, mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, retries=0)))
+                        sysid, mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN, retries=0, poll=True)))
                 if state.home is None and due(sysid, "home", 2.0):
                     self._spawn(self._ask(sysid, "HOME_POSITION", self.link.request_message(
-                        sysid, mavlink.MAVLINK_MSG_ID_HOME_POSITION, retries=0)))
+                        sysid, mavlink.MAVLINK_MSG_ID_HOME_POSITION, retries=0, poll=True)))
             self.assignment = self._assign()
             report = run_preflight(fleet, self.assignment, now, cfg.thresholds)
             self.preflight_report = report
