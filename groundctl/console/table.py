@@ -3,8 +3,9 @@
 Textual's DataTable renders every visible cell through Rich again whenever any
 cell changes (at 200 vehicles, about 50 rows x 13 cells, tens of milliseconds
 per refresh of the executor's own interpreter).  Here each row is one
-pre-built :class:`~textual.strip.Strip`, rebuilt only when its text or colour
-changed, and only the lines of changed rows are repainted.
+:class:`~textual.strip.Strip`, built when its line is drawn and rebuilt only after its
+text or colour changed (so a refresh of 1,000 changing rows builds the few dozen on
+the screen), and only the lines of changed rows are repainted.
 """
 
 from __future__ import annotations
@@ -85,14 +86,17 @@ class FleetTable(ScrollView, can_focus=True):
         changed: list[int] = []
         keep = set(order)
         for sysid in [s for s in self._cells if s not in keep]:
-            del self._cells[sysid], self._severity[sysid], self._strips[sysid]
+            del self._cells[sysid], self._severity[sysid]
+            self._strips.pop(sysid, None)
         for i, row in enumerate(rows):
             cells = row.cells()
             if cells != self._cells.get(row.sysid) or row.severity != \
                     self._severity.get(row.sysid):
                 self._cells[row.sysid] = cells
                 self._severity[row.sysid] = row.severity
-                self._strips[row.sysid] = self._strip(cells, row.severity)
+                # Built when its line is drawn: of 1,000 rows changing every refresh,
+                # the forty on the screen.
+                self._strips.pop(row.sysid, None)
                 changed.append(i)
         self._order = order
         if reordered:
@@ -151,7 +155,10 @@ class FleetTable(ScrollView, can_focus=True):
         index = scroll_y + y - 1
         if index >= len(self._order):
             return Strip.blank(width)
-        strip = self._strips[self._order[index]]
+        sysid = self._order[index]
+        strip = self._strips.get(sysid)
+        if strip is None:
+            strip = self._strips[sysid] = self._strip(self._cells[sysid], self._severity[sysid])
         if index == self.cursor_row and self.has_focus:
             strip = strip.apply_style(_CURSOR)
         elif index == self.cursor_row:
