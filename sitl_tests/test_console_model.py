@@ -172,6 +172,16 @@ def test_the_header_has_one_link_summary_per_network() -> None:
     assert later[1][0].startswith("net 2: SILENT 12 s; 0/3 heard") and later[1][1] == "bad"
     text = header_text(model.view(NOW).header).plain
     assert text.splitlines()[-2:] == ["  net 1: 3/3 heard" + rest, "  " + later[1][0]]
+    # A third network the show does not use (a fleet file's spare link): no line for it.
+    link3 = FleetLink([("127.0.0.1", 0)] * 3, clock=clock, expected_ids=ids)
+    runner3 = ShowRunner(plan, link3, clock, RunnerConfig(), expected_ids=ids)
+    for k, vid in enumerate(ids):
+        link3.vehicles[vid] = ready_state(vid, plan, k, NOW)
+    link3.silence_ids = set(ids)
+    three = ConsoleModel()
+    three.attach(runner3)
+    assert [t for t, _ in three.view(NOW).header.networks] == [
+        "net 1: 3/3 heard" + rest, "net 2: 3/3 heard" + rest]
     # One network: no per-network lines.
     assert fabricated_runner(grid_plan(3)) and ConsoleModel().view(NOW).header.networks == ()
 

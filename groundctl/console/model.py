@@ -627,6 +627,8 @@ def _network_summaries(runner: ShowRunner, now: float) -> tuple[tuple[str, Sever
         states = [v for s, v in link.vehicles.items() if network_index(s) == k]
         expected = (sum(1 for s in expected_ids if network_index(s) == k)
                     if expected_ids is not None else len(states))
+        if not states and not expected:
+            continue  # a network this show does not use (a fleet file's spare link)
         text, heard, lost, losses = _link_text(states, expected, now)
         quiet = link.network_silent_for(k, now)
         silent = quiet > link.fleet_silence

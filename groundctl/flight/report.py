@@ -5,8 +5,9 @@ Keys relied on elsewhere (scripts, CI): ``safe``, ``vehicles``,
 ``led_timing_error_s``, ``setpoint_lateness_ms``, ``link``.
 
 ``commands_refused`` and ``commands_timed_out`` at the top count every
-COMMAND_LONG exchange of the flight (pre-flight requests included), one for one
-with the ``command_refused`` and ``command_timeout`` events; a vehicle's
+COMMAND_LONG exchange of the flight that failed (pre-flight requests included, but
+not its polls for the EKF origin and home, which are refused until the EKF has them),
+one for one with the ``command_refused`` and ``command_timeout`` events; a vehicle's
 ``commands_refused`` counts only the show sequence's commands to it.  A
 formation never flown (the flight ended before it) has ``"flown": false`` and
 null pattern errors.

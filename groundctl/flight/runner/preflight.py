@@ -12,7 +12,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from groundctl.errors import FlightError, GroundctlError, LinkError, NoGo, PreflightFailed
+from groundctl.errors import FlightError, LinkError, NoGo, PreflightFailed
 from groundctl.execute.frames import show_positions
 from groundctl.execute.lead import LeadEstimator
 from groundctl.execute.leds import LedSchedule
@@ -231,7 +231,7 @@ class Preflight(RunnerState):
         async def confirmed(vid: int) -> bool:
             try:
                 return await self.link.set_param(vid, "GUID_TIMEOUT", timeout) is True
-            except GroundctlError:
+            except Exception:  # whatever went wrong: not confirmed, said below, not fatal
                 return False
 
         done = await per_network(ardu, confirmed)
