@@ -2,7 +2,9 @@
 
 The bytecode (libskybrush ``src/lights``): one command byte, then its arguments;
 durations are varints (7 bits a byte, least significant first, high bit "more")
-counting 20 ms units; ``WAIT_UNTIL`` takes milliseconds.  ``SET_*`` sets the
+counting 20 ms frames, ``WAIT_UNTIL``'s deadline too (frames from the program's
+start, or from its last ``RESET_CLOCK``: libskybrush's player, skybrush.js and
+pyledctrl's compiler agree).  ``SET_*`` sets the
 colour at once and then waits its duration; ``FADE_*`` fades linearly from the
 current colour to its colour over its duration.  Colours are bytes 0..255.
 
@@ -123,7 +125,7 @@ def decode(code: bytes, until_s: float | None = None) -> list[LightKey]:
         if op == SLEEP:
             wait(r.varint() * 20)
         elif op == WAIT_UNTIL:
-            deadline = origin_ms + r.varint()
+            deadline = origin_ms + r.varint() * 20  # frames, like every duration
             t_ms = max(t_ms, deadline)
         elif op == SET_COLOR:
             rgb = (r.byte(), r.byte(), r.byte())
