@@ -9,6 +9,7 @@ The tree::
     ├── PlanFileError                   a plan file that cannot be read (path, message)
     │   └── UntrustedPlan               a plan not tied to the show it is flown with (path, show)
     ├── ImportedShowError               a Skybrush .skyc or CSV show that cannot be used
+    ├── SkybrushExportError             a plan Skybrush could not load or upload (path, drone)
     ├── WrongFileKind                   a file of another kind than the command reads
     ├── UnsafePlan                      verification found violations (violations)
     ├── LinkError                       MAVLink transport and protocol
@@ -181,6 +182,20 @@ class ImportedShowError(GroundctlError):
         self.path = str(path)
         self.message = message
         super().__init__(f"{self.path}: {message}")
+
+
+class SkybrushExportError(GroundctlError):
+    """A plan that cannot be written as a ``.skyc`` Skybrush loads and uploads: too many
+    drones for Skybrush, or a drone whose trajectory is past the size Skybrush's server
+    sends to a drone (``drone``: its 1-based number, None for the show as a whole)."""
+
+    exit_code = EXIT_USAGE
+
+    def __init__(self, path: str | Path, message: str, drone: int | None = None) -> None:
+        self.path = str(path)
+        self.message = message
+        self.drone = drone
+        super().__init__(f"{self.path}: not written: {message}")
 
 
 class WrongFileKind(GroundctlError):

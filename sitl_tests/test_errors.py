@@ -44,7 +44,7 @@ def _error_classes() -> list[type[GroundctlError]]:
 _SAMPLES: dict[Any, Any] = {
     int: 7, float: 2.5, str: "text", bool: True, str | Path: "shows/x.toml",
     Sequence[str]: ["first", "second"], dict[int, list[str]]: {3: ["gps", "battery"]},
-    float | None: 1.5, Sequence[tuple[int, int, float, float]]: [(3, 9, 1.2, 4.5)],
+    float | None: 1.5, int | None: 2, Sequence[tuple[int, int, float, float]]: [(3, 9, 1.2, 4.5)],
 }
 
 

@@ -153,7 +153,7 @@ def test_an_exported_plan_is_a_skyc_skybrush_reads(quick_plan, tmp_path: Path) -
     assert s["home"] == pytest.approx(list(quick_plan.home[0]))
     assert s["trajectory"]["version"] == 1 and s["lights"]["version"] == 1
     pts = s["trajectory"]["points"]
-    assert pts[0][2] == [] and all(len(p[2]) == 2 for p in pts[1:])
+    assert pts[0][2] == [] and all(len(p[2]) in (0, 2) for p in pts[1:])  # straight: none
     assert pts[0][1] == pytest.approx(list(quick_plan.home[0]))
     assert base64.b64decode(s["lights"]["data"])[-1] == lights.END
     assert doc["settings"]["validation"]["minDistance"] == quick_plan.limits.min_separation
@@ -299,6 +299,10 @@ def test_dry_run_flies_an_imported_show_against_the_simulator(tmp_path: Path) ->
     assert report["safe"] and report["landed"] and len(report["vehicles"]) == 3
     assert report["min_separation_m"] > 3.5
     assert report["max_tracking_error_m"] < 0.5
+    # Pre-flight's polls (origin, home) asked again until the vehicles can answer are
+    # not refusals: a clean flight reports none.
+    assert report["commands_refused"] == 0
+    assert sorted(v["name"] for v in report["vehicles"]) == ["d1", "d2", "d3"]
 
 
 @pytest.mark.slow
@@ -416,10 +420,43 @@ def test_the_shows_geofence_is_checked_and_written_back(tmp_path: Path) -> None:
 
 
 def test_wait_until_gray_and_white_decode() -> None:
-    # SET_GRAY 128 for 10 units, WAIT_UNTIL 1000 ms (varint e8 07), FADE_TO_WHITE over 25.
-    keys = lights.decode(bytes([0x05, 128, 10, 0x03, 0xE8, 0x07, 0x0B, 25, 0x00]))
+    # SET_GRAY 128 for 10 frames, WAIT_UNTIL frame 50 (1 s), FADE_TO_WHITE over 25 frames.
+    keys = lights.decode(bytes([0x05, 128, 10, 0x03, 50, 0x0B, 25, 0x00]))
     assert lights.LightKey(1.0, (128, 128, 128)) in keys
     assert keys[-1] == lights.LightKey(1.5, (255, 255, 255))
+
+
+def _frames_played(code: bytes, frames: int) -> list[tuple[int, int, int]]:
+    """The colour at each 20 ms frame 0..frames-1, from the decoded keys (linear between
+    keys, the later of two keys at one time holding from then on)."""
+    keys = lights.decode(code)
+    out = []
+    for f in range(frames):
+        t = f * lights.UNIT_S + 1e-9
+        before = [k for k in keys if k.t <= t]
+        after = [k for k in keys if k.t > t]
+        a = before[-1]
+        if not after:
+            out.append(a.rgb)
+            continue
+        b = after[0]
+        w = (t - a.t) / (b.t - a.t)
+        out.append(tuple(round(x + (y - x) * w) for x, y in zip(a.rgb, b.rgb, strict=True)))
+    return out
+
+
+def test_wait_until_counts_frames_as_skybrush_plays_it() -> None:
+    # White, WAIT_UNTIL frame 500 (10 s; varint f4 03), then red for 1 s: Skybrush's
+    # player turns the drone red at frame 500 exactly, not at 0.5 s.
+    code = bytes([0x07, 0, 0x03, 0xF4, 0x03, 0x04, 255, 0, 0, 50, 0x00])
+    played = _frames_played(code, 560)
+    assert played[:500] == [(255, 255, 255)] * 500
+    assert played[500:550] == [(255, 0, 0)] * 50
+    # After RESET_CLOCK the deadline counts from there: white 2 s, reset, wait until frame
+    # 100 of the new clock (4 s in all), then green.
+    code = bytes([0x07, 100, 0x0E, 0x03, 100, 0x04, 0, 255, 0, 10, 0x00])
+    played = _frames_played(code, 210)
+    assert played[199] == (255, 255, 255) and played[200] == (0, 255, 0)
 
 
 def test_straight_segments_with_corners_are_reported(tmp_path: Path) -> None:

@@ -54,6 +54,12 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.output) if args.output else default_plan_path(args.show)
     rerun = rerun_target(args.rerun, out.with_suffix(".rrd"))
     show = load_show(args.show, args.points_dir)
+    if out.suffix.lower() == ".skyc":
+        from groundctl.errors import SkybrushExportError
+        from groundctl.skybrush.writer import MAX_SKYBRUSH_DRONES
+        if show.drones > MAX_SKYBRUSH_DRONES:  # said before planning, not after
+            raise SkybrushExportError(out, f"{show.drones} drones, more than the "
+                                           f"{MAX_SKYBRUSH_DRONES} Skybrush loads in one show")
     executor = None
     if args.ray is not None:
         from groundctl.plan.distribute import RayExecutor

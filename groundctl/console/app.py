@@ -131,6 +131,8 @@ def header_text(h: Header) -> Text:
     if h.next_formation:
         t.append(f"   next: {h.next_formation}"
                  + (f" in {h.next_in_s:.1f} s" if h.next_in_s is not None else ""))
+    if h.cue:
+        t.append(f"   {h.cue}", "bold magenta")
     t.append("\n")
     t.append("worst error ")
     t.append("-" if h.worst_error_m is None else

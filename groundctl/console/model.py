@@ -20,6 +20,7 @@ from groundctl.execute.sequence import ShowPhase, VehiclePhase, VehicleRun
 from groundctl.flight.monitor import nearest_pair
 from groundctl.flight.runner import PERMANENT_CHECKS, ShowRunner
 from groundctl.link.state import VehicleState
+from groundctl.plan.plan import Plan
 from groundctl.vehicleid import network_index
 
 Severity = Literal["ok", "warn", "bad", "off"]
@@ -79,6 +80,9 @@ class Header:
     """Link summary: heard, lost, loss, RTT."""
     link_severity: Severity
     """Colour of the link summary."""
+    cue: str = ""
+    """The show's cues on its clock (an imported Skybrush show's): the last one passed and
+    the next with the seconds to it ("" when the show has none)."""
     networks: tuple[tuple[str, Severity], ...] = ()
     """With several MAVLink networks, one summary per network (its name, heard, lost,
     loss, RTT, how long it has been silent) and its colour; empty with one network."""
@@ -334,7 +338,7 @@ class ConsoleModel:
         return Header(plan.show_name, phase, detail, t, plan.duration, formation, nxt,
                       nxt_in, worst[1] if worst else None, worst[0] if worst else None,
                       sep, pair, plan.limits.min_separation, link, link_sev,
-                      _network_summaries(runner, now))
+                      cue=cue_text(plan, t), networks=_network_summaries(runner, now))
 
     @staticmethod
     def _separation(runner: ShowRunner) -> tuple[float | None, tuple[int, int] | None]:
@@ -568,6 +572,19 @@ def _formations(runner: ShowRunner, t: float | None) -> tuple[str, str, float | 
     if nxt is None:
         return now, "", None
     return now, nxt.name, nxt.arrive - t
+
+
+def cue_text(plan: Plan, t: float | None) -> str:
+    """``cue Intro · next Chorus in 12.0 s`` on the show clock ``t`` (before the show: the
+    first cue); "" for a show without cues."""
+    if not plan.cues:
+        return ""
+    last, nxt = plan.cue_at(-math.inf if t is None else t)
+    parts = [f"cue {last.name}"] if last is not None else []
+    if nxt is not None:
+        parts.append(f"next {nxt.name}" + (f" in {nxt.time - t:.1f} s" if t is not None
+                                           else f" at {nxt.time:.1f} s"))
+    return " · ".join(parts)
 
 
 def _leds(runner: ShowRunner, now: float) -> np.ndarray | None:

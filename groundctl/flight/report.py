@@ -66,6 +66,8 @@ def flight_report(runner: ShowRunner, error: str | None = None,
             "vehicle": spell(sysid),
             "network": network_of(sysid),
             "track": run.track if run is not None else None,
+            # The track's drone name in the show it was imported from (Skybrush), or None.
+            "name": plan.name_of(run.track) if run is not None else None,
             "phase": str(run.phase) if run is not None else
             ("excluded" if sysid in runner.config.excluded else "not flown"),
             "landed": run is not None and run.phase is VehiclePhase.LANDED,
@@ -283,6 +285,8 @@ def render_report(report: dict[str, Any]) -> str:
             return "-" if x is None else format(x, fmt)
         note = v["reason"] or ("late" if v["late"] else
                                f"was late {v['late_count']}x" if v.get("late_count") else "")
+        if v.get("name"):
+            note = f"{v['name']}: {note}" if note else v["name"]
         lines.append(f"{v['system_id']:>5} {f(v['track'], 'd'):>5} {v['phase']:<9} "
                      f"{f(v['max_tracking_error_m'], '.2f'):>7} "
                      f"{f(v['rms_tracking_error_m'], '.2f'):>6} {f(v['loss_ratio'], '.1%'):>6} "

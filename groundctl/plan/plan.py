@@ -26,7 +26,17 @@ from groundctl.show.model import GeoOrigin, Limits, MpcSettings
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["PLAN_FORMAT", "FormationWindow", "Plan", "State"]
+__all__ = ["PLAN_FORMAT", "Cue", "FormationWindow", "Plan", "State"]
+
+
+@dataclass(frozen=True)
+class Cue:
+    """A named moment of the show (a Skybrush show's cues: the chorus, a firework)."""
+
+    time: float
+    """Plan time, s (negative: before the plan starts, during the takeoff)."""
+    name: str
+    """Its name."""
 
 
 @dataclass(frozen=True)
@@ -90,6 +100,26 @@ class Plan:
     show_digest: str = ""
     """:attr:`Show.digest <groundctl.show.model.Show.digest>` of the show file it was
     planned from ("" for a plan built in code or saved before plans recorded it)."""
+    names: tuple[str, ...] = ()
+    """Each track's drone name in the show it was imported from (a Skybrush show's
+    ``drone_7``), in track order; empty: the tracks are only numbered."""
+    cues: tuple[Cue, ...] = ()
+    """The show's cues in time order (a Skybrush show's), plan time."""
+
+    def name_of(self, track: int) -> str | None:
+        """Track ``track``'s drone name, or None if the plan names none."""
+        return self.names[track] if 0 <= track < len(self.names) else None
+
+    def cue_at(self, t: float) -> tuple[Cue | None, Cue | None]:
+        """The last cue at or before plan time ``t`` and the next one after it."""
+        last = nxt = None
+        for c in self.cues:
+            if c.time <= t:
+                last = c
+            else:
+                nxt = c
+                break
+        return last, nxt
 
     @property
     def drones(self) -> int:
@@ -147,6 +177,10 @@ class Plan:
         }
         if self.show_digest:
             meta["show_digest"] = self.show_digest
+        if self.names:
+            meta["names"] = list(self.names)
+        if self.cues:
+            meta["cues"] = [{"time": c.time, "name": c.name} for c in self.cues]
         arrays: dict[str, Any] = {
             "meta": np.array(json.dumps(meta)),
             "times": self.trajectories.times,
@@ -178,4 +212,5 @@ class Plan:
                    home=c.home, takeoff_altitude=c.takeoff_altitude,
                    trajectories=Trajectories(c.times, c.pos, c.vel), color_times=c.color_times,
                    colors=c.colors, formations=formations, mpc=c.mpc,
-                   show_digest=c.show_digest)
+                   show_digest=c.show_digest, names=c.names,
+                   cues=tuple(Cue(t, n) for t, n in c.cues))

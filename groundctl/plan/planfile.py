@@ -20,6 +20,7 @@ Every problem is one :class:`~groundctl.errors.PlanFileError`.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import re
@@ -83,7 +84,11 @@ _MEMBER = re.compile(r"(meta|times|pos|vel|home|color_times|colors|goals_(?:0|[1
                      r"\.npy")
 _ARRAYS = ("times", "pos", "vel", "home", "color_times", "colors")
 _META_KEYS = {"format", "show_name", "origin", "limits", "mpc", "model", "takeoff_altitude",
-              "formations", "show_digest"}
+              "formations", "show_digest", "names", "cues"}
+#: Keys a plan may leave out (older plans, plans built from a TOML show).
+_OPTIONAL_KEYS = {"mpc", "show_digest", "names", "cues"}
+#: Most cues a plan holds.
+MAX_CUES = 1000
 _DIGEST = re.compile(r"[0-9a-f]{64}")
 
 
@@ -110,6 +115,8 @@ class PlanContents:
     takeoff_altitude: float
     windows: tuple[WindowRecord, ...]
     show_digest: str
+    names: tuple[str, ...]
+    cues: tuple[tuple[float, str], ...]
     times: FloatArray
     pos: FloatArray
     vel: FloatArray
@@ -424,12 +431,36 @@ def _windows(value: object) -> tuple[WindowRecord, ...]:
     return tuple(out)
 
 
+def _names(value: object) -> tuple[str, ...]:
+    """Each track's drone name (an imported show's), or none at all."""
+    if not isinstance(value, list) or len(value) > MAX_DRONES:
+        raise _Bad(f"meta 'names' must be a list of at most {MAX_DRONES} names, "
+                   f"got {_kind(value)}")
+    return tuple(_Doc({"name": v}, f"names.{i}").name("name") for i, v in enumerate(value))
+
+
+def _cues(value: object) -> tuple[tuple[float, str], ...]:
+    """The show's cues, (plan time, name), in time order."""
+    if not isinstance(value, list) or len(value) > MAX_CUES:
+        raise _Bad(f"meta 'cues' must be a list of at most {MAX_CUES} cues, got "
+                   f"{_kind(value)}")
+    out = []
+    span = Range(-MAX_DURATION, MAX_DURATION)
+    for i, raw in enumerate(value):
+        doc = _Doc(raw, f"cues.{i}")
+        doc.keys({"time", "name"}, {"time", "name"})
+        out.append((doc.number("time", span), doc.name("name")))
+    if any(b[0] < a[0] for a, b in itertools.pairwise(out)):
+        raise _Bad("meta 'cues' are not in time order")
+    return tuple(out)
+
+
 def _contents(meta: dict[str, Any], arrays: dict[str, FloatArray]) -> PlanContents:
     doc = _Doc(meta, "")
     fmt = meta.get("format")
     if isinstance(fmt, bool) or fmt != PLAN_FORMAT:
         raise _Bad(f"plan format {_kind(fmt)} is not {PLAN_FORMAT}; re-plan the show")
-    doc.keys(_META_KEYS, _META_KEYS - {"mpc", "show_digest"})
+    doc.keys(_META_KEYS, _META_KEYS - _OPTIONAL_KEYS)
     origin = _Doc(meta["origin"], "origin")
     origin.keys(set(ORIGIN_RANGES), {"lat", "lon", "alt"})
     model = meta["model"]
@@ -449,6 +480,7 @@ def _contents(meta: dict[str, Any], arrays: dict[str, FloatArray]) -> PlanConten
         model=model,
         takeoff_altitude=doc.number("takeoff_altitude", TAKEOFF_ALTITUDE),
         windows=_windows(meta["formations"]), show_digest=digest,
+        names=_names(meta.get("names", [])), cues=_cues(meta.get("cues", [])),
         times=arrays["times"], pos=arrays["pos"], vel=arrays["vel"], home=arrays["home"],
         color_times=arrays["color_times"], colors=arrays["colors"], goals=goals)
 
@@ -482,6 +514,8 @@ def _check_consistency(c: PlanContents) -> None:
             raise _Bad(f"formation {w.index} '{w.name}' has start {w.start:g}, arrive "
                        f"{w.arrive:g}, end {w.end:g} s: not in order within the plan")
         prev_end = w.end
+    if c.names and len(c.names) != len(c.pos):
+        raise _Bad(f"meta 'names' names {len(c.names)} drones, the plan has {len(c.pos)}")
     start = c.home + np.array([0.0, 0.0, c.takeoff_altitude])
     off = np.linalg.norm(c.pos[:, 0] - start, axis=1)
     worst = int(np.argmax(off))

@@ -10,30 +10,37 @@ from pathlib import Path
 
 from groundctl.errors import EXIT_OK, EXIT_UNSAFE, UnsafePlan, WrongFileKind
 from groundctl.plan.plan import Plan
-from groundctl.show.model import GeoOrigin
 from groundctl.show.ranges import ORIGIN_RANGES, TAKEOFF_ALTITUDE
-from groundctl.skybrush.importing import DEFAULT_ORIGIN, ImportResult, import_show, is_skybrush
+from groundctl.skybrush.importing import (
+    DEFAULT_ORIGIN,
+    ImportResult,
+    OriginOption,
+    import_show,
+    is_skybrush,
+)
+from groundctl.skybrush.model import orientation_of
 from groundctl.skybrush.sniff import Kind, sniff
 
 
-def origin(text: str) -> GeoOrigin:
-    """``--origin LAT,LON,ALT[,HEADING]``."""
+def origin(text: str) -> OriginOption:
+    """``--origin LAT,LON,ALT[,ORIENTATION]`` (ORIENTATION: Skybrush's, the bearing of the
+    show's X axis)."""
     parts = text.split(",")
     try:
         values = [float(p) for p in parts]
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"--origin must be LAT,LON,ALT[,HEADING] in degrees and metres, not {text!r}") \
+            f"--origin must be LAT,LON,ALT[,ORIENTATION] in degrees and metres, not {text!r}") \
             from None
     if len(values) not in (3, 4):
         raise argparse.ArgumentTypeError(
-            f"--origin must be LAT,LON,ALT[,HEADING], not {len(values)} numbers")
+            f"--origin must be LAT,LON,ALT[,ORIENTATION], not {len(values)} numbers")
     keys = ("lat", "lon", "alt", "heading_deg")
     for k, v in zip(keys, values, strict=False):
-        problem = ORIGIN_RANGES[k].problem(k, v)
+        problem = ORIGIN_RANGES[k].problem("orientation" if k == "heading_deg" else k, v)
         if problem:
             raise argparse.ArgumentTypeError(f"--origin: {problem}")
-    return GeoOrigin(*values)
+    return OriginOption(*values)
 
 
 def takeoff_altitude(text: str) -> float:
@@ -50,10 +57,14 @@ def takeoff_altitude(text: str) -> float:
 
 def add_import_options(p: argparse.ArgumentParser) -> None:
     """``--origin``, ``--takeoff-altitude``, ``--repair``: for a ``.skyc`` or CSV show."""
-    p.add_argument("--origin", type=origin, default=None, metavar="LAT,LON,ALT[,HEADING]",
-                   help="for a Skybrush show (.skyc, CSV): its geodetic origin, which the "
-                        "file does not carry (default: the bundled shows' field, "
-                        f"{DEFAULT_ORIGIN.lat},{DEFAULT_ORIGIN.lon},{DEFAULT_ORIGIN.alt:g})")
+    p.add_argument("--origin", type=origin, default=None,
+                   metavar="LAT,LON,ALT[,ORIENTATION]",
+                   help="for a Skybrush show (.skyc, CSV): where its frame stands, "
+                        "overriding the file's environment.location: the origin (degrees, "
+                        "metres above mean sea level) and Skybrush's orientation, the "
+                        "bearing of the show's X axis (default: the file's, else 0). "
+                        "Without either, the bundled shows' field, "
+                        f"{DEFAULT_ORIGIN.lat},{DEFAULT_ORIGIN.lon},{DEFAULT_ORIGIN.alt:g}")
     p.add_argument("--takeoff-altitude", type=takeoff_altitude, default=None, metavar="M",
                    help="for a Skybrush show: the height groundctl takes off to before the "
                         "show's trajectories begin (default: the lowest drone's height "
@@ -63,12 +74,27 @@ def add_import_options(p: argparse.ArgumentParser) -> None:
                         "the other drones as moving obstacles), keep the rest")
 
 
-def _origin_note(args: argparse.Namespace, quiet: bool) -> None:
-    if getattr(args, "origin", None) is None and not quiet:
-        o = DEFAULT_ORIGIN
-        print(f"note: a Skybrush show carries no geodetic origin: anchored at {o.lat},{o.lon}"
-              f",{o.alt:g} m, heading {o.heading_deg:g} (give --origin LAT,LON,ALT[,HEADING])",
-              file=sys.stderr)
+def _origin_note(result: ImportResult, quiet: bool) -> None:
+    """One line on where the show stands when the operator may not expect it."""
+    if quiet:
+        return
+    loc = result.source.location
+    o = result.plan.origin
+    orientation = orientation_of(o.heading_deg)
+    line = None
+    if result.placement == "default":
+        line = (f"note: the Skybrush show is not placed (no environment.location): anchored "
+                f"at {o.lat},{o.lon},{o.alt:g} m, orientation {orientation:g} (its X axis "
+                "north; give --origin LAT,LON,ALT[,ORIENTATION])")
+    elif result.placement == "--origin" and loc is not None:
+        line = (f"note: --origin overrides the show's own placement ({loc.lat:.7f},"
+                f"{loc.lon:.7f}, orientation {loc.orientation_deg:g}): flown at {o.lat},"
+                f"{o.lon},{o.alt:g} m, orientation {orientation:g}")
+    elif result.placement == "file" and loc is not None and loc.amsl is None:
+        line = (f"note: the show's environment.location gives no altitude: its z = 0 taken "
+                f"at {o.alt:g} m above mean sea level (give --origin LAT,LON,ALT to set it)")
+    if line is not None:
+        print(line, file=sys.stderr)
 
 
 def _import(args: argparse.Namespace, path: Path) -> ImportResult:
@@ -110,7 +136,7 @@ def run_plan(args: argparse.Namespace) -> int:
     """``groundctl plan SHOW.skyc|CSV [-o OUT.skyc|OUT.npz] [--repair]``."""
     path = Path(args.show)
     result = _import(args, path)
-    _origin_note(args, args.json)
+    _origin_note(result, args.json)
     plan = result.plan
     out = Path(args.output) if args.output else path.with_name(path.stem + ".plan.npz")
     written = None
@@ -180,7 +206,7 @@ def flight_plan(args: argparse.Namespace) -> Plan:
     conflict unless it is safe (or ``--repair`` made it so)."""
     quiet = getattr(args, "quiet", False)
     result = _import(args, Path(args.show))
-    _origin_note(args, quiet)
+    _origin_note(result, quiet)
     if not result.safe:
         raise UnsafePlan(result.lines())
     if not quiet:

@@ -33,6 +33,7 @@ keys as 20 ms bytecode.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -40,12 +41,19 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from groundctl.plan.plan import FormationWindow, Plan
+from groundctl.plan.plan import Cue, FormationWindow, Plan
 from groundctl.plan.planfile import MAX_COLOR_KEYS, MAX_DRONE_KNOTS, MAX_KNOTS
 from groundctl.plan.trajectory import Trajectories, concatenate
 from groundctl.show.model import GeoOrigin, Limits, MpcSettings
 from groundctl.skybrush.lights import UNIT_S, LightKey
-from groundctl.skybrush.model import BezierTrack, SkyDrone, SkyShow, hermite_to_bezier
+from groundctl.skybrush.model import (
+    BezierTrack,
+    SkyDrone,
+    SkyLocation,
+    SkyShow,
+    hermite_to_bezier,
+    orientation_of,
+)
 
 FloatArray = NDArray[np.float64]
 
@@ -282,7 +290,8 @@ def sky_to_plan(show: SkyShow, origin: GeoOrigin, limits: Limits,
     plan = Plan(show_name=show.title, origin=origin, limits=limits, model="quadrotor",
                 home=home.copy(), takeoff_altitude=h, trajectories=traj,
                 color_times=color_times, colors=colors, formations=(window,),
-                mpc=MpcSettings(), show_digest="")
+                mpc=MpcSettings(), show_digest="", names=tuple(d.name for d in show.drones),
+                cues=tuple(Cue(t - t0 + climb_s, name) for t, name in show.cues))
     return Imported(plan=plan, t0=t0, t_end=t_end, climb_s=climb_s, descent_s=descent_s,
                     jumps=tuple(jumps))
 
@@ -325,6 +334,53 @@ def _colors(drones: tuple[SkyDrone, ...], shift: Callable[[FloatArray], FloatArr
 # -- plan to Skybrush ----------------------------------------------------------------------
 
 
+#: Largest distance between a merged segment and the segments it replaces, m (positions
+#: are written to 0.1 mm).
+MERGE_TOL = 1e-5
+
+
+def _hermite_ends(p0: FloatArray, v0: FloatArray, p1: FloatArray, v1: FloatArray,
+                  h: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(acceleration at the start, at the end, jerk) of cubic Hermite segments (..., 3)
+    lasting ``h`` (..., 1)."""
+    d = p1 - p0
+    a0 = (6.0 * d - h * (4.0 * v0 + 2.0 * v1)) / h**2
+    a1 = (-6.0 * d + h * (2.0 * v0 + 4.0 * v1)) / h**2
+    return a0, a1, (a1 - a0) / h
+
+
+def own_segments(times: FloatArray, pos: FloatArray, vel: FloatArray) -> NDArray[np.intp]:
+    """The knots of one drone's trajectory (``times`` (K+1,), ``pos``/``vel`` (K+1, 3) on
+    the fleet's shared time grid) that are its own: indices of the knots where its
+    polynomial changes, first and last included.  Two cubic pieces that meet with the
+    same acceleration and jerk are one polynomial split at a knot another drone needed;
+    each run so joined is checked again against the pieces it replaces (within
+    :data:`MERGE_TOL`), and kept split where it is not one."""
+    h = np.diff(times)[:, None]
+    a0, a1, jerk = _hermite_ends(pos[:-1], vel[:-1], pos[1:], vel[1:], h)
+    scale_a = 1e-6 + 1e-9 * (np.abs(a1[:-1]) + np.abs(a0[1:])).max(axis=1)
+    same = (np.abs(a1[:-1] - a0[1:]).max(axis=1) <= scale_a) \
+        & (np.abs(jerk[:-1] - jerk[1:]).max(axis=1) <= 1e-6 + 1e-9 * np.abs(jerk).max())
+    cuts = np.concatenate([[0], np.flatnonzero(~same) + 1, [len(times) - 1]])
+    keep: list[int] = [0]
+    for i0, i1 in itertools.pairwise(cuts):
+        if i1 - i0 > 1:
+            inner = np.arange(i0 + 1, i1)
+            tr = Trajectories(np.array([times[i0], times[i1]]),
+                              np.stack([pos[i0], pos[i1]])[None], np.stack([vel[i0],
+                                                                            vel[i1]])[None])
+            mid = 0.5 * (times[i0:i1] + times[i0 + 1:i1 + 1])
+            p_in, _, _ = tr.evaluate(times[inner])
+            p_mid, _, _ = tr.evaluate(mid)
+            orig = Trajectories(times, pos[None], vel[None]).evaluate(mid)[0]
+            off = max(float(np.abs(p_in[0] - pos[inner]).max()),
+                      float(np.abs(p_mid[0] - orig[0]).max()))
+            if off > MERGE_TOL:
+                keep.extend(int(k) for k in inner)
+        keep.append(int(i1))
+    return np.array(sorted(set(keep)), dtype=np.intp)
+
+
 def plan_to_sky(plan: Plan) -> tuple[SkyShow, float]:
     """``plan`` as a Skybrush show, and the climb's length (plan time 0 is that Skybrush
     time)."""
@@ -335,23 +391,30 @@ def plan_to_sky(plan: Plan) -> tuple[SkyShow, float]:
     lim = plan.limits
     climb_s = math.ceil(_rest_to_rest_time(climb, lim) / UNIT_S - 1e-9) * UNIT_S
     descent_s = math.ceil(_rest_to_rest_time(descent, lim) / UNIT_S - 1e-9) * UNIT_S
-    h = np.diff(tr.times)
-    body = hermite_to_bezier(tr.pos[:, :-1], tr.vel[:, :-1], tr.pos[:, 1:], tr.vel[:, 1:],
-                             h[None, :])
     zero = np.zeros_like(start)
     up = hermite_to_bezier(plan.home, zero, start, zero, np.array(climb_s))
     down = hermite_to_bezier(end, zero, plan.landing, zero, np.array(descent_s))
-    times = np.concatenate([[0.0], tr.times + climb_s, [tr.end + climb_s + descent_s]])
     drones = []
     rgb = np.clip(np.round(plan.colors * 255.0), 0, 255).astype(int)
     for i in range(plan.drones):
-        ctrl = np.concatenate([up[i][None], body[i], down[i][None]])
+        # Each drone with its own knots: the plan's grid is every drone's knots together,
+        # which would make each drone's trajectory as long as the whole fleet's.
+        k = own_segments(tr.times, tr.pos[i], tr.vel[i])
+        t = tr.times[k]
+        body = hermite_to_bezier(tr.pos[i, k[:-1]], tr.vel[i, k[:-1]], tr.pos[i, k[1:]],
+                                 tr.vel[i, k[1:]], np.diff(t))
+        times = np.concatenate([[0.0], t + climb_s, [tr.end + climb_s + descent_s]])
+        ctrl = np.concatenate([up[i][None], body, down[i][None]])
         keys = tuple(LightKey(float(t + climb_s), (int(c[0]), int(c[1]), int(c[2])))
                      for t, c in zip(plan.color_times, rgb[i], strict=True))
-        drones.append(SkyDrone(name=f"drone_{i + 1}", home=plan.home[i].copy(),
+        drones.append(SkyDrone(name=plan.name_of(i) or f"drone_{i + 1}", home=plan.home[i].copy(),
                                track=BezierTrack(times, ctrl), lights=keys))
     sky = SkyShow(title=plan.show_name, drones=tuple(drones),
                   min_distance=lim.min_separation, max_altitude=lim.max_alt,
                   max_velocity_xy=lim.max_speed_h, max_velocity_z=lim.max_speed_down,
-                  max_velocity_z_up=lim.max_speed_up, geofence=lim.geofence)
+                  max_velocity_z_up=lim.max_speed_up, geofence=lim.geofence,
+                  cues=tuple((max(c.time + climb_s, 0.0), c.name) for c in plan.cues),
+                  location=SkyLocation(lat=plan.origin.lat, lon=plan.origin.lon,
+                                       amsl=plan.origin.alt,
+                                       orientation_deg=orientation_of(plan.origin.heading_deg)))
     return sky, climb_s

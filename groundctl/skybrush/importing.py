@@ -18,15 +18,47 @@ from groundctl.skybrush.convert import (
     sky_to_plan,
 )
 from groundctl.skybrush.csvshow import read_csv_show
-from groundctl.skybrush.model import SkyShow
+from groundctl.skybrush.model import SkyShow, heading_of
 from groundctl.skybrush.reader import read_skyc
 from groundctl.skybrush.repair import Repair, repair
 from groundctl.skybrush.sniff import Kind, sniff
 from groundctl.skybrush.writer import write_skyc
 
-#: Where an imported show is anchored when no ``--origin`` is given: the bundled shows'
-#: field.  A .skyc carries no geodetic origin (Skybrush Live sets it at the field).
-DEFAULT_ORIGIN = GeoOrigin(lat=47.3977, lon=8.5456, alt=488.0, heading_deg=0.0)
+#: Where an imported show is anchored when neither the file (``environment.location``)
+#: nor ``--origin`` places it: the bundled shows' field, Skybrush's orientation 0 (its X
+#: axis north; Skybrush Live's default).
+DEFAULT_ORIGIN = GeoOrigin(lat=47.3977, lon=8.5456, alt=488.0, heading_deg=heading_of(0.0))
+
+
+@dataclass(frozen=True)
+class OriginOption:
+    """``--origin LAT,LON,ALT[,ORIENTATION]`` for a Skybrush show: ORIENTATION is
+    Skybrush's (the bearing of the show's X axis, as Skybrush Live shows it)."""
+
+    lat: float
+    lon: float
+    alt: float
+    orientation_deg: float | None = None
+    """None: the file's orientation, or 0."""
+
+
+def place(show: SkyShow, given: GeoOrigin | OriginOption | None) -> tuple[GeoOrigin, str]:
+    """The show frame's geodetic origin and heading, and where they came from: ``"code"``
+    (a GeoOrigin given in code, used as it is), ``"--origin"``, ``"file"`` (the show's
+    ``environment.location``) or ``"default"`` (:data:`DEFAULT_ORIGIN`).  Coordinates are
+    kept as the file has them: only the heading carries Skybrush's orientation
+    (:func:`~groundctl.skybrush.model.heading_of`)."""
+    loc = show.location
+    if isinstance(given, GeoOrigin):
+        return given, "code"
+    if isinstance(given, OriginOption):
+        orientation = given.orientation_deg if given.orientation_deg is not None else \
+            (loc.orientation_deg if loc is not None else 0.0)
+        return GeoOrigin(given.lat, given.lon, given.alt, heading_of(orientation)), "--origin"
+    if loc is not None:
+        alt = loc.amsl if loc.amsl is not None else DEFAULT_ORIGIN.alt
+        return GeoOrigin(loc.lat, loc.lon, alt, loc.heading_deg), "file"
+    return DEFAULT_ORIGIN, "default"
 
 
 @dataclass(frozen=True)
@@ -45,6 +77,8 @@ class ImportResult:
     """The verifier's verdict on :attr:`plan`."""
     problems: tuple[str, ...] = field(default=())
     """Violations the verifier does not see: velocity jumps."""
+    placement: str = "code"
+    """Where the show's origin and heading came from (:func:`place`)."""
 
     @property
     def plan(self) -> Plan:
@@ -89,21 +123,24 @@ def read_any(path: str | Path) -> SkyShow:
     return read_skyc(path)
 
 
-def import_show(path: str | Path, origin: GeoOrigin | None = None, *,
+def import_show(path: str | Path, origin: GeoOrigin | OriginOption | None = None, *,
                 limits: Limits | None = None, takeoff_altitude: float | None = None,
                 do_repair: bool = False) -> ImportResult:
-    """Read, convert, check and (with ``do_repair``) repair the Skybrush show at ``path``."""
+    """Read, convert, check and (with ``do_repair``) repair the Skybrush show at ``path``,
+    placed by ``origin`` or the file (:func:`place`)."""
     show = read_any(path)
     lim = limits_for(show, limits or Limits())
+    where, placement = place(show, origin)
     try:
-        imported = sky_to_plan(show, origin or DEFAULT_ORIGIN, lim, takeoff_altitude)
+        imported = sky_to_plan(show, where, lim, takeoff_altitude)
     except (ConversionError, ValueError) as exc:
         raise ImportedShowError(path, str(exc)) from None
     conflicts = tuple(find_conflicts(imported.plan.trajectories, lim.min_separation))
     fixed = repair(imported.plan, list(conflicts)) if do_repair and conflicts else None
     plan = fixed.plan if fixed is not None else imported.plan
     return ImportResult(source=show, imported=imported, conflicts=conflicts, repaired=fixed,
-                        verification=verify(plan), problems=imported.jumps)
+                        verification=verify(plan), problems=imported.jumps,
+                        placement=placement)
 
 
 def export_skyc(plan: Plan, path: str | Path) -> Path:

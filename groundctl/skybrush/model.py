@@ -98,6 +98,48 @@ class SkyDrone:
 
 
 @dataclass(frozen=True)
+class SkyLocation:
+    """``environment.location``: where a Skybrush show stands on the Earth.
+
+    Skybrush's show frame is NWU: +X points along ``orientation_deg`` (clockwise from
+    true north), +Y 90 degrees to its left, +Z up (flockwave-gps's flat-earth
+    transformation, type ``nwu``, which Skybrush's MAVLink driver requires).
+    """
+
+    lat: float
+    """Latitude of the show frame's origin, degrees (the file holds it times 1e7)."""
+    lon: float
+    """Longitude, degrees (times 1e7 in the file)."""
+    amsl: float | None
+    """Altitude of z = 0 above mean sea level, m (millimetres in the file; None: not
+    given, as Skybrush Studio writes it)."""
+    orientation_deg: float
+    """Bearing of the show frame's +X axis, degrees clockwise from true north."""
+
+    @property
+    def heading_deg(self) -> float:
+        """groundctl's heading of the same frame, every coordinate kept (:func:`heading_of`)."""
+        return heading_of(self.orientation_deg)
+
+
+def heading_of(orientation_deg: float) -> float:
+    """groundctl's show heading of a Skybrush show frame whose +X points at
+    ``orientation_deg``, every coordinate kept as it is.
+
+    groundctl's heading is the bearing of its +y axis, with +x to the right of it.
+    Skybrush's +Y is 90 degrees to the left of +X, at ``orientation_deg - 90``; taking
+    that bearing as groundctl's +y puts groundctl's +x (its right) on Skybrush's +X.  So
+    (x, y, z) mean the same point in both frames."""
+    return (orientation_deg - 90.0) % 360.0
+
+
+def orientation_of(heading_deg: float) -> float:
+    """Skybrush's orientation (the bearing of +X) of groundctl's heading: the inverse of
+    :func:`heading_of`."""
+    return (heading_deg + 90.0) % 360.0
+
+
+@dataclass(frozen=True)
 class SkyShow:
     """A whole Skybrush show."""
 
@@ -117,3 +159,7 @@ class SkyShow:
     """settings.validation.maxVelocityZUp, m/s."""
     geofence: tuple[tuple[float, float], ...] | None = None
     """settings.geofence's inclusion polygon (x, y), m (None: not given)."""
+    cues: tuple[tuple[float, str], ...] = ()
+    """settings.cues' items: (Skybrush show time, s; name), in time order."""
+    location: SkyLocation | None = None
+    """environment.location (None: the file does not place the show)."""

@@ -12,14 +12,16 @@ how skybrush-server reads it::
          "trajectory": {"version": 1, "takeoffTime": 0,
                         "points": [[t, [x, y, z], [control points]], ...]},
          "lights": {"version": 1, "data": "<base64 ledctrl bytecode>"}}}]},
-     "meta": {"title": ...}, "environment": {"type": "outdoor"}}
+     "meta": {"title": ...}, "environment": {"type": "outdoor", "location": {
+         "origin": [lat * 1e7, lon * 1e7, AMSL mm (optional)], "orientation": deg}}}
 
 Each trajectory point is ``[t, end point, control points]``: the segment from
 the previous point to this one is a Bezier curve of degree 1 + the number of
 control points, ``t`` relative to ``takeoffTime``; the first point has none.
 A value may also be ``{"$ref": "./member.json#"}``, another member of the zip
-(third-party writers do this).  The geodetic origin is not in the file:
-Skybrush Live sets it at the field, so the command line gives it.
+(third-party writers do this).  ``environment.location`` places the show (its frame
+is NWU, +X along the orientation): :class:`~.model.SkyLocation`; a show without it is
+placed at the field by Skybrush Live, so the command line gives it.
 
 Everything is checked before it is used: sizes and names of the zip
 (:mod:`.archive`), JSON nesting, every number finite and in range, times
@@ -39,6 +41,7 @@ import numpy as np
 
 from groundctl.errors import ImportedShowError
 from groundctl.files import FileProblem
+from groundctl.plan.planfile import MAX_CUES
 from groundctl.show.ranges import (
     MAX_COORD,
     MAX_DRONE_STEPS,
@@ -48,7 +51,13 @@ from groundctl.show.ranges import (
 )
 from groundctl.skybrush import lights as ledctrl
 from groundctl.skybrush.archive import ArchiveProblem, SafeZip, open_zip
-from groundctl.skybrush.model import BezierTrack, SkyDrone, SkyShow, cubic_from_points
+from groundctl.skybrush.model import (
+    BezierTrack,
+    SkyDrone,
+    SkyLocation,
+    SkyShow,
+    cubic_from_points,
+)
 
 #: Longest show, s (a battery's endurance as a show file may give it, with room).
 MAX_SHOW_SECONDS = 3600.0
@@ -170,7 +179,59 @@ def _read(zf: SafeZip, stem: str) -> SkyShow:
                    max_velocity_xy=opt("maxVelocityXY", 50.0),
                    max_velocity_z=opt("maxVelocityZ", 50.0),
                    max_velocity_z_up=opt("maxVelocityZUp", 50.0),
-                   geofence=_geofence(settings.get("geofence")))
+                   geofence=_geofence(settings.get("geofence")),
+                   cues=_cues(settings.get("cues")),
+                   location=_location(_resolve(zf, doc.get("environment"), "environment")))
+
+
+def _location(raw: object) -> SkyLocation | None:
+    """``environment.location``: ``{"origin": [lat * 1e7, lon * 1e7(, AMSL in mm)],
+    "orientation": degrees}`` (Skybrush Studio's exporter, the show format's ``Location``
+    type); None when the show is not placed (no location, or an indoor show)."""
+    if raw is None:
+        return None
+    env = _object(raw, "'environment'")
+    if env.get("type", "outdoor") == "indoor" or env.get("location") is None:
+        return None
+    loc = _object(env["location"], "'environment.location'")
+    origin = loc.get("origin")
+    if not isinstance(origin, list) or len(origin) not in (2, 3):
+        raise _Bad("'environment.location.origin' must be [latitude x 1e7, longitude x 1e7"
+                   f"(, altitude above mean sea level in mm)], got {_kind(origin)}")
+    lat = _number(origin[0], "environment.location latitude (x 1e7)", -90e7, 90e7) / 1e7
+    lon = _number(origin[1], "environment.location longitude (x 1e7)", -180e7, 180e7) / 1e7
+    amsl = None if len(origin) < 3 or origin[2] is None else _number(
+        origin[2], "environment.location altitude (mm)", -500e3, MAX_COORD * 1e3) / 1e3
+    raw_orientation = loc.get("orientation", 0.0)
+    if isinstance(raw_orientation, str):  # Skybrush Live keeps it as text
+        try:
+            raw_orientation = float(raw_orientation)
+        except ValueError:
+            raise _Bad("'environment.location.orientation' must be degrees, got "
+                       f"{_kind(raw_orientation)}") from None
+    orientation = _number(raw_orientation, "environment.location orientation", -360.0, 360.0)
+    return SkyLocation(lat=lat, lon=lon, amsl=amsl, orientation_deg=orientation % 360.0)
+
+
+def _cues(raw: object) -> tuple[tuple[float, str], ...]:
+    """``settings.cues``: ``{"version": 1, "items": [{"time": s, "name": text}, ...]}``,
+    in time order (a cue without a usable name is called ``cue N``)."""
+    if raw is None:
+        return ()
+    items = _object(raw, "'settings.cues'").get("items", [])
+    if not isinstance(items, list) or len(items) > MAX_CUES:
+        raise _Bad(f"'settings.cues.items' must be a list of at most {MAX_CUES} cues")
+    out = []
+    for k, item in enumerate(items):
+        where = f"settings.cues item {k + 1}"
+        item = _object(item, where)
+        t = _number(item.get("time"), f"{where} time", 0.0, MAX_SHOW_SECONDS)
+        name = item.get("name")
+        if not isinstance(name, str) or not name.strip() or len(name) > MAX_NAME_CHARS \
+                or not name.isprintable():
+            name = f"cue {k + 1}"
+        out.append((t, name))
+    return tuple(sorted(out, key=lambda c: c[0]))
 
 
 def _geofence(raw: object) -> tuple[tuple[float, float], ...] | None:
