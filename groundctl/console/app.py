@@ -131,9 +131,11 @@ def header_text(h: Header) -> Text:
     if h.next_formation:
         t.append(f"   next: {h.next_formation}"
                  + (f" in {h.next_in_s:.1f} s" if h.next_in_s is not None else ""))
-    if h.cue:
-        t.append(f"   {h.cue}", "bold magenta")
     t.append("\n")
+    if h.cue:  # a line of its own: the show's cues (an imported Skybrush show's)
+        t.append("cues       ")
+        t.append(h.cue, "bold magenta")
+        t.append("\n")
     t.append("worst error ")
     t.append("-" if h.worst_error_m is None else
              f"{h.worst_error_m:.2f} m (#{spell(h.worst_error_sysid or 0)})",
@@ -151,7 +153,8 @@ def header_text(h: Header) -> Text:
     return t
 
 
-#: The header's lines with one network (one more per network when there are several).
+#: The header's lines with one network (one more per network when there are several, and
+#: one for a show's cues).
 HEADER_LINES = 3
 
 
@@ -322,7 +325,7 @@ class ConsoleApp(App[None]):
             view = self.model.view(self.model.now(), self.selected(),
                                    preflight=switcher.current == "preflight")
             self.last_view = view
-            lines = HEADER_LINES + len(view.header.networks)
+            lines = HEADER_LINES + bool(view.header.cue) + len(view.header.networks)
             header = self.query_one("#header", Static)
             if header.styles.height != Scalar.from_number(lines):
                 header.styles.height = lines  # a line per network: laid out once, when known
