@@ -48,8 +48,23 @@ def takeoff_altitude(text: str) -> float:
     return value
 
 
+def smooth_tolerance(text: str) -> float:
+    """``--smooth TOL``: metres, more than 0."""
+    from groundctl.skybrush.smooth import TOLERANCE
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--smooth must be a tolerance in metres, not "
+                                         f"{text!r}") from None
+    problem = TOLERANCE.problem("--smooth", value)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
+    return value
+
+
 def add_import_options(p: argparse.ArgumentParser) -> None:
-    """``--origin``, ``--takeoff-altitude``, ``--repair``: for a ``.skyc`` or CSV show."""
+    """``--origin``, ``--takeoff-altitude``, ``--repair``, ``--smooth``: for a ``.skyc`` or
+    CSV show."""
     p.add_argument("--origin", type=origin, default=None, metavar="LAT,LON,ALT[,HEADING]",
                    help="for a Skybrush show (.skyc, CSV): its geodetic origin, which the "
                         "file does not carry (default: the bundled shows' field, "
@@ -61,6 +76,11 @@ def add_import_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repair", action="store_true",
                    help="for a Skybrush show: re-plan only the stretches in conflict (SCP, "
                         "the other drones as moving obstacles), keep the rest")
+    p.add_argument("--smooth", type=smooth_tolerance, default=None, metavar="TOL",
+                   help="for a Skybrush show: round the corners of its trajectories (a "
+                        "velocity that changes at once, as between straight segments) "
+                        "within TOL metres of the show's path and its acceleration and speed "
+                        "limits; says per drone what changed, and each corner it cannot round")
 
 
 def _origin_note(args: argparse.Namespace, quiet: bool) -> None:
@@ -74,7 +94,8 @@ def _origin_note(args: argparse.Namespace, quiet: bool) -> None:
 def _import(args: argparse.Namespace, path: Path) -> ImportResult:
     return import_show(path, getattr(args, "origin", None),
                        takeoff_altitude=getattr(args, "takeoff_altitude", None),
-                       do_repair=getattr(args, "repair", False))
+                       do_repair=getattr(args, "repair", False),
+                       smooth=getattr(args, "smooth", None))
 
 
 # -- groundctl plan -------------------------------------------------------------------------
@@ -137,6 +158,7 @@ def run_plan(args: argparse.Namespace) -> int:
         "min_separation_m": o.min_separation, "max_speed_mps": o.max_speed_h,
         "max_accel_mps2": o.max_accel, "violations": result.lines(), "safe": result.safe,
         "written": written,
+        "smoothed": None if result.smoothing is None else result.smoothing.report(),
     }
     if args.json:
         json.dump(report, sys.stdout)

@@ -21,6 +21,7 @@ from groundctl.skybrush.csvshow import read_csv_show
 from groundctl.skybrush.model import SkyShow
 from groundctl.skybrush.reader import read_skyc
 from groundctl.skybrush.repair import Repair, repair
+from groundctl.skybrush.smooth import Smoothing, smooth_show
 from groundctl.skybrush.sniff import Kind, sniff
 from groundctl.skybrush.writer import write_skyc
 
@@ -45,6 +46,9 @@ class ImportResult:
     """The verifier's verdict on :attr:`plan`."""
     problems: tuple[str, ...] = field(default=())
     """Violations the verifier does not see: velocity jumps."""
+    smoothing: Smoothing | None = None
+    """What ``--smooth`` did (None: not asked); :attr:`imported` is then the smoothed show's
+    conversion, and its corners not rounded are the :attr:`problems`."""
 
     @property
     def plan(self) -> Plan:
@@ -63,6 +67,8 @@ class ImportResult:
         off = self.imported.t0 - self.imported.climb_s
         out = [c.line(limit, names) + f" [show time {c.time + off:.2f} s]"
                for c in self.conflicts]
+        if self.smoothing is not None:
+            out += self.smoothing.lines()
         out += [f"violation: {p}" for p in self.problems]
         if self.repaired is not None:
             for w in self.repaired.windows:
@@ -91,19 +97,33 @@ def read_any(path: str | Path) -> SkyShow:
 
 def import_show(path: str | Path, origin: GeoOrigin | None = None, *,
                 limits: Limits | None = None, takeoff_altitude: float | None = None,
-                do_repair: bool = False) -> ImportResult:
-    """Read, convert, check and (with ``do_repair``) repair the Skybrush show at ``path``."""
+                do_repair: bool = False, smooth: float | None = None) -> ImportResult:
+    """Read, convert, check and (with ``do_repair``) repair the Skybrush show at ``path``;
+    with ``smooth`` (m), first round its corners within that tolerance
+    (:mod:`groundctl.skybrush.smooth`)."""
     show = read_any(path)
     lim = limits_for(show, limits or Limits())
+    smoothing = None
     try:
         imported = sky_to_plan(show, origin or DEFAULT_ORIGIN, lim, takeoff_altitude)
+        if smooth is not None:
+            # Rounded between the instants the plan begins and ends (found on the show as
+            # read), so that both stay where they were.
+            smoothing = smooth_show(show, lim, smooth, imported.t0, imported.t_end)
+            imported = sky_to_plan(smoothing.show, origin or DEFAULT_ORIGIN, lim,
+                                   takeoff_altitude)
     except (ConversionError, ValueError) as exc:
         raise ImportedShowError(path, str(exc)) from None
     conflicts = tuple(find_conflicts(imported.plan.trajectories, lim.min_separation))
     fixed = repair(imported.plan, list(conflicts)) if do_repair and conflicts else None
     plan = fixed.plan if fixed is not None else imported.plan
+    problems = imported.jumps
+    if smoothing is not None:
+        smoothing = smoothing.measured(plan.trajectories)
+        # Every jump left is a corner not rounded, which says why: one line each.
+        problems = smoothing.problems() or imported.jumps
     return ImportResult(source=show, imported=imported, conflicts=conflicts, repaired=fixed,
-                        verification=verify(plan), problems=imported.jumps)
+                        verification=verify(plan), problems=problems, smoothing=smoothing)
 
 
 def export_skyc(plan: Plan, path: str | Path) -> Path:
