@@ -63,6 +63,8 @@ FACTORS = 2.0 ** (-np.arange(STEPS_PER_HALVING * HALVINGS) / STEPS_PER_HALVING)
 TIME_EPS = 1e-9
 #: Corners assessed per block (bounds the temporaries: block x 96 candidates).
 BLOCK = 2048
+#: Most knots one blend may span (corners too close together for a blend each).
+MAX_RUN = 4
 #: Unrounded corners listed one line each; the rest are counted in one more line.
 LISTED = 50
 
@@ -244,6 +246,33 @@ def _bezier(c: FloatArray, s: FloatArray) -> tuple[FloatArray, FloatArray]:
     return pos, der
 
 
+def _split_matrix(parts: int) -> FloatArray:
+    """(4 parts, 4): a cubic's Bezier control points to those of its ``parts`` equal pieces
+    (each the blossom at the piece's ends, by de Casteljau)."""
+    rows = []
+    for k in range(parts):
+        a, b = k / parts, (k + 1) / parts
+        for us in ((a, a, a), (a, a, b), (a, b, b), (b, b, b)):
+            m = np.eye(4)
+            for u in us:
+                m = (1 - u) * m[:-1] + u * m[1:]
+            rows.append(m[0])
+    return np.array(rows)
+
+
+#: A blend across knots is checked on the control points of 4 pieces of each difference
+#: cubic: within a few per cent of its largest value, and never below it.
+_SPLIT = _split_matrix(4)
+
+
+def _hull(d: FloatArray, split: FloatArray | None = None) -> FloatArray:
+    """An upper bound of the length of the cubics with control points ``d`` (..., 4, 3):
+    the longest of their control points (or of their pieces' by ``split``)."""
+    if split is not None:
+        d = np.einsum("rk,...kd->...rd", split, d)
+    return np.asarray(np.linalg.norm(d, axis=-1).max(axis=-1), dtype=float)
+
+
 def _envelope(v: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Largest horizontal speed, climb and descent rate over control velocities (M, k, 3)."""
     return (np.linalg.norm(v[..., :2], axis=-1).max(axis=-1), v[..., 2].max(axis=-1),
@@ -272,9 +301,9 @@ def _assess(cs: _Corners, idx: IntArray, tau: FloatArray, limits: Limits
     mid = 0.5 * (p0 + p1) + T * (v0 - v1) / 8
     vm = 1.5 * dp / T - 0.25 * (v0 + v1)
     e = corner - mid
-    dev = np.maximum.reduce([np.linalg.norm(e, axis=1),
-                             np.linalg.norm(e - (vl - vm) * tt / 3, axis=1),
-                             np.linalg.norm(e + (vr - vm) * tt / 3, axis=1)])
+    zero = np.zeros_like(e)
+    dev = np.maximum(_hull(np.stack([zero, zero, e - (vl - vm) * tt / 3, e], axis=1)),
+                     _hull(np.stack([e, e + (vr - vm) * tt / 3, zero, zero], axis=1)))
     blend = np.stack([v0, 3 * dp / T - v0 - v1, v1], axis=1)
     show = np.stack([v0, 3 * (corner - p0) / tt - v0 - vl, vl,
                      vr, 3 * (p1 - corner) / tt - vr - v1, v1], axis=1)
@@ -442,17 +471,16 @@ def _reason(cs: _Corners, c: int, turn: _Turn, limits: Limits, tolerance: float,
     if not math.isfinite(turn.tau):
         t, (start, end) = float(cs.time[c]), window
         if t - start <= w + TIME_EPS:
-            why = f"the plan begins {t - start:.2f} s before it, at show time {start:.2f} s " \
-                  "(the first instant every drone is up and at rest)"
+            why = f"the plan begins {t - start:.2f} s before it, at show time {start:.2f} s, " \
+                  "the first instant every drone is up and at rest"
         elif end - t <= w + TIME_EPS:
-            why = f"the plan ends {end - t:.2f} s after it, at show time {end:.2f} s (the " \
-                  "last instant every drone is up and at rest)"
+            why = f"the plan ends {end - t:.2f} s after it, at show time {end:.2f} s, the " \
+                  "last instant every drone is up and at rest"
         elif cs.room[c] > w + TIME_EPS:
             why = "another drone's corner at the same instant has no more room"
         else:
             why = "its neighbouring segments leave no more"
-        return (f"it has at most {2 * w:.2f} s to turn in ({why}), and turning in "
-                f"{2 * w:.2f} s takes {turn.acc:.1f} m/s^2")
+        return (f"turning in the {2 * w:.2f} s it has takes {turn.acc:.1f} m/s^2 ({why})")
     need = f"turning it at {limits.max_accel:g} m/s^2 takes {2 * turn.tau:.2f} s"
     if turn.dev > tolerance:
         return f"{need} and strays {turn.dev:.3f} m from the show's path"
@@ -482,35 +510,194 @@ def _leftovers(cs: _Corners, left: IntArray, width: FloatArray, taus: FloatArray
     return out
 
 
+# -- blends across several knots --------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Window:
+    """One blend of one drone: it flies the Hermite curve from ``lo`` to ``hi``."""
+
+    first: int
+    """The first knot inside it."""
+    last: int
+    """The last knot inside it (``first`` for the blend of one corner)."""
+    lo: float
+    hi: float
+    dev: float
+    """Its deviation bound, m."""
+
+
+def _hermite_state(p0: FloatArray, v0: FloatArray, p1: FloatArray, v1: FloatArray,
+                   T: FloatArray, s: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Position and velocity of the Hermite curves (M, 3) lasting ``T`` (M, 1) at the
+    parameters ``s`` (M, P): (M, P, 3) each."""
+    p0, v0, p1, v1 = (x[:, None] for x in (p0, v0, p1, v1))
+    TT = T[:, None]
+    s = s[..., None]
+    s2, s3 = s * s, s * s * s
+    pos = (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * TT * v0 \
+        + (-2 * s3 + 3 * s2) * p1 + (s3 - s2) * TT * v1
+    vel = ((6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * TT * v0
+           + (-6 * s2 + 6 * s) * p1 + (3 * s2 - 2 * s) * TT * v1) / TT
+    return pos, vel
+
+
+def _assess_run(track: BezierTrack, first: int, last: int, lo: FloatArray, hi: FloatArray,
+                limits: Limits) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """As :func:`_assess`, for candidate blends ``[lo, hi]`` (M,) of one drone across its
+    knots ``first`` to ``last``: the show is a cubic on each piece between them."""
+    t, c = track.times, track.ctrl
+    h = np.diff(t)
+    M = len(lo)
+    pa, da = _bezier(np.repeat(c[first - 1][None], M, 0), (lo - t[first - 1]) / h[first - 1])
+    pb, db = _bezier(np.repeat(c[last][None], M, 0), (hi - t[last]) / h[last])
+    va, vb = da / h[first - 1], db / h[last]
+    T = (hi - lo)[:, None]
+    dp = pb - pa
+    acc = np.maximum(np.linalg.norm(6 * dp - T * (4 * va + 2 * vb), axis=1),
+                     np.linalg.norm(-6 * dp + T * (2 * va + 4 * vb), axis=1)) / T[:, 0] ** 2
+    segs, hs = c[first - 1:last + 1], h[first - 1:last + 1]
+    m = last - first + 1
+    at = np.broadcast_to(segs[1:, 0], (M, m, 3))
+    v_in = np.broadcast_to(3 * (segs[:-1, 3] - segs[:-1, 2]) / hs[:-1, None], (M, m, 3))
+    v_out = np.broadcast_to(3 * (segs[1:, 1] - segs[1:, 0]) / hs[1:, None], (M, m, 3))
+    bounds = np.concatenate([lo[:, None], np.broadcast_to(t[first:last + 1], (M, m)),
+                             hi[:, None]], axis=1)
+    dur = np.diff(bounds, axis=1)
+    show = hermite_to_bezier(np.concatenate([pa[:, None], at], 1),
+                             np.concatenate([va[:, None], v_out], 1),
+                             np.concatenate([at, pb[:, None]], 1),
+                             np.concatenate([v_in, vb[:, None]], 1), dur)
+    bp, bv = _hermite_state(pa, va, pb, vb, T, (bounds - lo[:, None]) / T)
+    blend = hermite_to_bezier(bp[:, :-1], bv[:, :-1], bp[:, 1:], bv[:, 1:], dur)
+    dev = _hull(show - blend, _SPLIT).max(axis=1)
+    bh, bu, bd = _envelope(np.stack([va, 3 * dp / T - va - vb, vb], axis=1))
+    sh, su, sd = _envelope((3 * np.diff(show, axis=2) / dur[..., None, None]).reshape(M, -1, 3))
+    slack = 1e-9
+    speeds = ((bh <= np.maximum(limits.max_speed_h, sh) + slack)
+              & (bu <= np.maximum(limits.max_speed_up, su) + slack)
+              & (bd <= np.maximum(limits.max_speed_down, sd) + slack))
+    return acc, dev, speeds
+
+
+def _merge(show: SkyShow, cs: _Corners, grid: _Grid, windows: dict[int, list[_Window]],
+           left: list[int], window: tuple[float, float], tolerance: float, limits: Limits
+           ) -> set[int]:
+    """Round each corner of ``left`` that no blend of its own can with one blend across it
+    and the knots next to it (up to :data:`MAX_RUN`, the fewest first), replacing the blends
+    inside and shrinking a corner's blend on either side to the least it needs if it must;
+    the corners so rounded."""
+    start, end = window
+    corner = {(int(d), int(j)): c for c, (d, j) in enumerate(zip(cs.drone, cs.knot,
+                                                                  strict=True))}
+    done: set[int] = set()
+
+    def halves(i: int, w: _Window | None, t: FloatArray) -> tuple[float, float, int]:
+        """How far the blend ``w`` reaches from its knot now and at the least (its own
+        half-width for a blend across knots or off the grid), and its corner (-1: none)."""
+        if w is None:
+            return 0.0, 0.0, -1
+        if w.first != w.last:
+            return math.inf, math.inf, -1
+        now = w.hi - float(t[w.first])
+        c = corner.get((i, w.first), -1)
+        if c < 0:
+            return now, now, -1
+        ok = np.flatnonzero(grid.ok[c] & (grid.tau[c] <= now + TIME_EPS))
+        return (now, float(grid.tau[c, ok[-1]]), c) if len(ok) else (now, now, -1)
+
+    for c in left:
+        if c in done:
+            continue
+        i, j = int(cs.drone[c]), int(cs.knot[c])
+        t = show.drones[i].track.times
+        wins = windows.setdefault(i, [])
+        runs = [(f, f + n - 1) for n in range(2, MAX_RUN + 1) for f in range(j - n + 1, j + 1)]
+        for first, last in runs:
+            if first < 1 or last > len(t) - 2 or t[first] <= start or t[last] >= end:
+                continue
+            inner = [w for w in wins if w.last >= first and w.first <= last]
+            if any(w.first < first or w.last > last for w in inner):
+                continue
+            before = next((w for w in wins if w.last == first - 1), None)
+            after = next((w for w in wins if w.first == last + 1), None)
+            _, least_b, _ = halves(i, before, t)
+            _, least_a, _ = halves(i, after, t)
+            lo_min = max(float(t[first - 1]) + least_b if math.isfinite(least_b)
+                         else before.hi if before else -math.inf, start)
+            hi_max = min(float(t[last + 1]) - least_a if math.isfinite(least_a)
+                         else after.lo if after else math.inf, end)
+            room_lo, room_hi = t[first] - lo_min, hi_max - t[last]
+            if min(room_lo, room_hi) <= TIME_EPS:
+                continue
+            # Each side as far as the other, or as far as it can (the plan's first instant
+            # just before a corner: the blend starts there, at rest).
+            tau = max(room_lo, room_hi) * FACTORS
+            lo, hi = t[first] - np.minimum(tau, room_lo), t[last] + np.minimum(tau, room_hi)
+            acc, dev, speeds = _assess_run(show.drones[i].track, first, last, lo, hi, limits)
+            ok = np.flatnonzero((acc <= limits.max_accel) & (dev <= tolerance) & speeds)
+            if not len(ok):
+                continue
+            k = int(ok[0])
+            new = _Window(first, last, float(lo[k]), float(hi[k]), float(dev[k]))
+            keep = [w for w in wins if w not in inner and w is not before and w is not after]
+            for w, room in ((before, new.lo - float(t[first - 1])),
+                            (after, float(t[last + 1]) - new.hi)):
+                if w is None:
+                    continue
+                now, _, cw = halves(i, w, t)
+                if cw >= 0 and now > room + TIME_EPS:
+                    # The widest half-width that fits beside the new blend.
+                    half = float(grid.tau[cw, np.flatnonzero(
+                        grid.ok[cw] & (grid.tau[cw] <= room + TIME_EPS))[0]])
+                    _, d, _ = _assess(cs, np.array([cw]), np.array([half]), limits)
+                    w = _Window(w.first, w.last, float(t[w.first] - half),
+                                float(t[w.first] + half), float(d[0]))
+                keep.append(w)
+            wins[:] = [*keep, new]
+            mine = np.flatnonzero(cs.drone == i)
+            done.update(int(x) for x in mine[(cs.knot[mine] >= first)
+                                             & (cs.knot[mine] <= last)])
+            break
+    return done
+
+
 # -- the smoothed tracks -------------------------------------------------------------------
 
 
-def _rebuild(track: BezierTrack, knots: IntArray, taus: FloatArray) -> BezierTrack:
-    """``track`` with a blend of half-width ``taus[m]`` around its knot ``knots[m]``."""
+def _rebuild(track: BezierTrack, windows: list[_Window]) -> BezierTrack:
+    """``track`` flying each of ``windows``' blends instead of the show inside it."""
     t, c = track.times, track.ctrl
     K = len(t) - 1
-    cut = np.zeros(K + 1)
-    cut[knots] = taus
-    lo = np.concatenate([t[:-1] + cut[:-1], t[knots] - taus])
-    hi = np.concatenate([t[1:] - cut[1:], t[knots] + taus])
-    key = np.concatenate([2 * np.arange(K) + 1, 2 * knots])
-    seg_lo = np.concatenate([np.arange(K), knots - 1])  # the segment each end lies on
-    seg_hi = np.concatenate([np.arange(K), knots])
-    blend = np.concatenate([np.zeros(K, dtype=bool), np.ones(len(knots), dtype=bool)])
-    keep = (hi - lo > TIME_EPS) | blend
-    order = np.argsort(key[keep], kind="stable")
-    lo, hi, seg_lo, seg_hi, blend = (x[keep][order] for x in (lo, hi, seg_lo, seg_hi, blend))
+    first = np.array([w.first for w in windows], dtype=np.intp)
+    last = np.array([w.last for w in windows], dtype=np.intp)
+    wlo = np.array([w.lo for w in windows])
+    whi = np.array([w.hi for w in windows])
+    seg_lo, seg_hi = t[:-1].copy(), t[1:].copy()
+    seg_hi[first - 1] = wlo
+    seg_lo[last] = whi
+    covered = np.zeros(K, dtype=bool)
+    for w in windows:
+        covered[w.first:w.last] = True
+    segs = np.flatnonzero(~covered & (seg_hi - seg_lo > TIME_EPS))
+    lo = np.concatenate([seg_lo[segs], wlo])
+    hi = np.concatenate([seg_hi[segs], whi])
+    key = np.concatenate([2 * segs + 1, 2 * first])
+    on_lo = np.concatenate([segs, first - 1])  # the segment each end lies on
+    on_hi = np.concatenate([segs, last])
+    blend = np.concatenate([np.zeros(len(segs), dtype=bool), np.ones(len(first), dtype=bool)])
+    order = np.argsort(key, kind="stable")
+    lo, hi, on_lo, on_hi, blend = (x[order] for x in (lo, hi, on_lo, on_hi, blend))
     # Where a segment between two blends is used up, they meet: one instant.
-    gap = lo[1:] - hi[:-1]
-    if np.abs(gap).max(initial=0.0) > 1e-6:
+    if np.abs(lo[1:] - hi[:-1]).max(initial=0.0) > 1e-6:
         raise AssertionError("blends overlap")  # the chooser keeps them apart
     lo[1:] = hi[:-1]
     h = np.diff(t)
-    p0, d0 = _bezier(c[seg_lo], (lo - t[seg_lo]) / h[seg_lo])
-    p1, d1 = _bezier(c[seg_hi], (hi - t[seg_hi]) / h[seg_hi])
-    ctrl = hermite_to_bezier(p0, d0 / h[seg_lo, None], p1, d1 / h[seg_hi, None], hi - lo)
-    whole = ~blend & (lo == t[seg_lo]) & (hi == t[seg_lo + 1])
-    ctrl[whole] = c[seg_lo[whole]]  # untouched segments stay exactly as read
+    p0, d0 = _bezier(c[on_lo], (lo - t[on_lo]) / h[on_lo])
+    p1, d1 = _bezier(c[on_hi], (hi - t[on_hi]) / h[on_hi])
+    ctrl = hermite_to_bezier(p0, d0 / h[on_lo, None], p1, d1 / h[on_hi, None], hi - lo)
+    whole = ~blend & (lo == t[on_lo]) & (hi == t[on_lo + 1])
+    ctrl[whole] = c[on_lo[whole]]  # untouched segments stay exactly as read
     return BezierTrack(np.concatenate([lo, hi[-1:]]), ctrl)
 
 
@@ -545,25 +732,33 @@ def smooth_show(show: SkyShow, limits: Limits, tolerance: float, start: float,
     left = np.flatnonzero(k < 0)
     left = left[np.argsort(cs.time[left], kind="stable")]
     turns = _leftovers(cs, left, width, taus, tolerance, limits)
-    rounded = taus > 0
-    _, dev, _ = _assess(cs, np.flatnonzero(rounded), taus[rounded], limits)
-    deviation = np.zeros(len(cs))
-    deviation[rounded] = dev
+    rounded = np.flatnonzero(taus > 0)
+    _, dev, _ = _assess(cs, rounded, taus[rounded], limits)
+    windows: dict[int, list[_Window]] = {}
+    for c, d in zip(rounded, dev, strict=True):
+        windows.setdefault(int(cs.drone[c]), []).append(
+            _Window(int(cs.knot[c]), int(cs.knot[c]), float(cs.time[c] - taus[c]),
+                    float(cs.time[c] + taus[c]), float(d)))
+    for c in _merge(show, cs, grid, windows, list(turns), (start, end), tolerance,
+                    limits):
+        turns.pop(c, None)
 
     drones = []
     summary = []
     for i, d in enumerate(show.drones):
-        mine = np.flatnonzero((cs.drone == i) & rounded)
-        track = d.track if not len(mine) else _rebuild(d.track, cs.knot[mine], taus[mine])
-        drones.append(replace(d, track=track))
+        wins = windows.get(i, [])
+        mine = cs.knot[cs.drone == i]
+        inside = sum(int(((mine >= w.first) & (mine <= w.last)).sum()) for w in wins)
+        drones.append(replace(d, track=_rebuild(d.track, wins)) if wins else d)
         summary.append(DroneSmoothing(
-            drone=i, name=d.name, corners=len(mine),
-            unrounded=int(((cs.drone == i) & ~rounded).sum()),
-            max_deviation=float(deviation[mine].max(initial=0.0))))
+            drone=i, name=d.name, corners=inside,
+            unrounded=sum(int(cs.drone[c]) == i for c in turns),
+            max_deviation=max([w.dev for w in wins], default=0.0)))
     unrounded = tuple(
         Unrounded(drone=int(cs.drone[c]), name=show.drones[int(cs.drone[c])].name,
                   time=float(cs.time[c]), jump=float(cs.jump[c]),
-                  reason=_reason(cs, c, turn, limits, tolerance, (start, end)))
+                  reason=_reason(cs, c, turn, limits, tolerance, (start, end))
+                  + f"; nor does one blend across up to {MAX_RUN} knots around it")
         for c, turn in sorted(turns.items(), key=lambda ct: (cs.time[ct[0]], cs.drone[ct[0]])))
     return Smoothing(show=replace(show, drones=tuple(drones)), tolerance=tolerance,
                      max_accel=limits.max_accel, drones=tuple(summary), unrounded=unrounded)
