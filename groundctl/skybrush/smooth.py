@@ -28,10 +28,22 @@ What a blend is allowed is certified, not sampled:
 to the corner, one value for every drone cornering at that instant where it
 can be (groundctl's trajectories share one knot grid: a window per drone would
 multiply the knots), as large as the tolerance allows up to half of a segment
-shared with another corner: the gentlest acceleration.  A corner that needs
-more borrows from its neighbours (they shrink to the least they need).  A
-corner that still cannot be rounded within the tolerance, the acceleration
-limit and the room it has is reported, with the reason, and left as it is.
+shared with another corner: the gentlest acceleration.  Then, in order:
+
+* a corner that needs more borrows from its neighbours (they shrink to the
+  least they need);
+* one that the grid missed gets the least ``tau`` that keeps the acceleration
+  limit (bisection), if that fits;
+* corners too close together for a blend each (a sharp turn drawn as two or
+  three short segments) get one blend across up to :data:`MAX_RUN` knots,
+  evaluated piece by piece on the show's own segments; next to the plan's
+  first or last instant such a blend may begin or end there.
+
+A corner still not rounded within the tolerance, the acceleration limit and
+the room it has is left as it is and reported with the reason and the
+figures (what turning it takes); the show then stays refused.  The corners
+are taken between the instants the plan begins and ends, which stay where
+they were.
 """
 
 from __future__ import annotations
@@ -45,7 +57,16 @@ from numpy.typing import NDArray
 from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import Limits
 from groundctl.show.ranges import above_zero
-from groundctl.skybrush.model import BezierTrack, SkyShow, hermite_to_bezier
+from groundctl.skybrush.blend import (
+    TIME_EPS,
+    Corners,
+    Window,
+    assess,
+    assess_run,
+    find_corners,
+    rebuild,
+)
+from groundctl.skybrush.model import SkyShow
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.intp]
@@ -53,14 +74,10 @@ BoolArray = NDArray[np.bool_]
 
 #: ``--smooth``'s allowed values, m: more than a few metres is another show.
 TOLERANCE = above_zero(10.0)
-#: A velocity change at a knot larger than this is a corner, m/s.
-CORNER_EPS = 1e-6
 #: Candidate half-widths: the room next to the corner times 2^(-k/8), k < 8 x 12.
 STEPS_PER_HALVING = 8
 HALVINGS = 12
 FACTORS = 2.0 ** (-np.arange(STEPS_PER_HALVING * HALVINGS) / STEPS_PER_HALVING)
-#: Times closer than this are one instant, s.
-TIME_EPS = 1e-9
 #: Corners assessed per block (bounds the temporaries: block x 96 candidates).
 BLOCK = 2048
 #: Most knots one blend may span (corners too close together for a blend each).
@@ -171,149 +188,7 @@ def drone_max_accel(traj: Trajectories) -> FloatArray:
                                  np.linalg.norm(a1, axis=2).max(axis=1)), dtype=float)
 
 
-# -- corners -------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Corners:
-    """Every corner of every drone inside the flown window, flattened (C,)."""
-
-    drone: IntArray
-    knot: IntArray
-    """Index of the corner's knot in its drone's track."""
-    time: FloatArray
-    jump: FloatArray
-    h_a: FloatArray
-    """Length of the segment ending at the corner, s."""
-    h_b: FloatArray
-    """Length of the segment starting there, s."""
-    a: FloatArray
-    """(C, 4, 3) that segment's control points."""
-    b: FloatArray
-    prev: IntArray
-    """Index of the same drone's corner at the knot before (-1: that knot is no corner)."""
-    next: IntArray
-    room: FloatArray
-    """Largest half-width inside both segments and the flown window, s."""
-
-    def __len__(self) -> int:
-        return len(self.time)
-
-
-def _find_corners(show: SkyShow, start: float, end: float) -> _Corners:
-    parts: list[tuple[int, IntArray, FloatArray, FloatArray, FloatArray]] = []
-    for i, d in enumerate(show.drones):
-        t, c = d.track.times, d.track.ctrl
-        if len(t) < 3:
-            continue
-        h = np.diff(t)
-        vl = 3 * (c[:-1, 3] - c[:-1, 2]) / h[:-1, None]
-        vr = 3 * (c[1:, 1] - c[1:, 0]) / h[1:, None]
-        jump = np.linalg.norm(vr - vl, axis=1)
-        inner = t[1:-1]
-        keep = (jump > CORNER_EPS) & (inner > start + TIME_EPS) & (inner < end - TIME_EPS)
-        j = np.flatnonzero(keep) + 1
-        parts.append((i, j, t, h, jump[keep]))
-    drone = np.concatenate([np.full(len(j), i, dtype=np.intp) for i, j, *_ in parts]
-                           + [np.zeros(0, dtype=np.intp)])
-    knot = np.concatenate([j for _, j, *_ in parts] + [np.zeros(0, dtype=np.intp)])
-    time = np.concatenate([t[j] for _, j, t, *_ in parts] + [np.zeros(0)])
-    jump = np.concatenate([jp for *_, jp in parts] + [np.zeros(0)])
-    h_a = np.concatenate([h[j - 1] for _, j, _, h, _ in parts] + [np.zeros(0)])
-    h_b = np.concatenate([h[j] for _, j, _, h, _ in parts] + [np.zeros(0)])
-    ctrl = [show.drones[i].track.ctrl for i, *_ in parts]
-    a = np.concatenate([c[j - 1] for c, (_, j, *_) in zip(ctrl, parts, strict=True)]
-                       + [np.zeros((0, 4, 3))])
-    b = np.concatenate([c[j] for c, (_, j, *_) in zip(ctrl, parts, strict=True)]
-                       + [np.zeros((0, 4, 3))])
-    idx = np.arange(len(time))
-    same = (np.diff(drone) == 0) & (np.diff(knot) == 1)
-    prev = np.full(len(time), -1, dtype=np.intp)
-    nxt = np.full(len(time), -1, dtype=np.intp)
-    prev[1:][same] = idx[:-1][same]
-    nxt[:-1][same] = idx[1:][same]
-    room = np.minimum.reduce([h_a, h_b, time - start, end - time])
-    return _Corners(drone, knot, time, jump, h_a, h_b, a, b, prev, nxt, room)
-
-
-def _bezier(c: FloatArray, s: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Position and derivative by the parameter of the cubics ``c`` (M, 4, 3) at ``s`` (M,)."""
-    s = s[:, None]
-    u = 1.0 - s
-    pos = u**3 * c[:, 0] + 3 * u * u * s * c[:, 1] + 3 * u * s * s * c[:, 2] + s**3 * c[:, 3]
-    der = 3 * (u * u * (c[:, 1] - c[:, 0]) + 2 * u * s * (c[:, 2] - c[:, 1])
-               + s * s * (c[:, 3] - c[:, 2]))
-    return pos, der
-
-
-def _split_matrix(parts: int) -> FloatArray:
-    """(4 parts, 4): a cubic's Bezier control points to those of its ``parts`` equal pieces
-    (each the blossom at the piece's ends, by de Casteljau)."""
-    rows = []
-    for k in range(parts):
-        a, b = k / parts, (k + 1) / parts
-        for us in ((a, a, a), (a, a, b), (a, b, b), (b, b, b)):
-            m = np.eye(4)
-            for u in us:
-                m = (1 - u) * m[:-1] + u * m[1:]
-            rows.append(m[0])
-    return np.array(rows)
-
-
-#: A blend across knots is checked on the control points of 4 pieces of each difference
-#: cubic: within a few per cent of its largest value, and never below it.
-_SPLIT = _split_matrix(4)
-
-
-def _hull(d: FloatArray, split: FloatArray | None = None) -> FloatArray:
-    """An upper bound of the length of the cubics with control points ``d`` (..., 4, 3):
-    the longest of their control points (or of their pieces' by ``split``)."""
-    if split is not None:
-        d = np.einsum("rk,...kd->...rd", split, d)
-    return np.asarray(np.linalg.norm(d, axis=-1).max(axis=-1), dtype=float)
-
-
-def _envelope(v: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Largest horizontal speed, climb and descent rate over control velocities (M, k, 3)."""
-    return (np.linalg.norm(v[..., :2], axis=-1).max(axis=-1), v[..., 2].max(axis=-1),
-            (-v[..., 2]).max(axis=-1))
-
-
-def _assess(cs: _Corners, idx: IntArray, tau: FloatArray, limits: Limits
-            ) -> tuple[FloatArray, FloatArray, BoolArray]:
-    """Acceleration, deviation bound and whether the speeds are kept, of the blends of the
-    corners ``idx`` (M,) with half-widths ``tau`` (M,) (see the module's docstring)."""
-    A, B = cs.a[idx], cs.b[idx]
-    ha, hb = cs.h_a[idx][:, None], cs.h_b[idx][:, None]
-    p0, d0 = _bezier(A, 1.0 - tau / ha[:, 0])
-    p1, d1 = _bezier(B, tau / hb[:, 0])
-    v0, v1 = d0 / ha, d1 / hb
-    corner = A[:, 3]
-    vl, vr = 3 * (A[:, 3] - A[:, 2]) / ha, 3 * (B[:, 1] - B[:, 0]) / hb
-    tt = tau[:, None]
-    T = 2 * tt
-    dp = p1 - p0
-    acc = np.maximum(np.linalg.norm(6 * dp - T * (4 * v0 + 2 * v1), axis=1),
-                     np.linalg.norm(-6 * dp + T * (2 * v0 + 4 * v1), axis=1)) / (T[:, 0] ** 2)
-    # The blend's state half way (at the corner's time); on each half, show minus blend
-    # is the cubic with control points (0, 0, e - (vl - vm) tau / 3, e) before the
-    # corner and (e, e + (vr - vm) tau / 3, 0, 0) after it.
-    mid = 0.5 * (p0 + p1) + T * (v0 - v1) / 8
-    vm = 1.5 * dp / T - 0.25 * (v0 + v1)
-    e = corner - mid
-    zero = np.zeros_like(e)
-    dev = np.maximum(_hull(np.stack([zero, zero, e - (vl - vm) * tt / 3, e], axis=1)),
-                     _hull(np.stack([e, e + (vr - vm) * tt / 3, zero, zero], axis=1)))
-    blend = np.stack([v0, 3 * dp / T - v0 - v1, v1], axis=1)
-    show = np.stack([v0, 3 * (corner - p0) / tt - v0 - vl, vl,
-                     vr, 3 * (p1 - corner) / tt - vr - v1, v1], axis=1)
-    bh, bu, bd = _envelope(blend)
-    sh, su, sd = _envelope(show)
-    slack = 1e-9
-    speeds = ((bh <= np.maximum(limits.max_speed_h, sh) + slack)
-              & (bu <= np.maximum(limits.max_speed_up, su) + slack)
-              & (bd <= np.maximum(limits.max_speed_down, sd) + slack))
-    return acc, dev, speeds
+# -- the candidates --------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -326,28 +201,28 @@ class _Grid:
     """(C, K) within the tolerance, the acceleration limit and the speeds."""
 
 
-def _grid(cs: _Corners, width: FloatArray, tolerance: float, limits: Limits) -> _Grid:
+def _grid(cs: Corners, width: FloatArray, tolerance: float, limits: Limits) -> _Grid:
     n, k = len(cs), len(FACTORS)
     tau = width[:, None] * FACTORS[None, :]
     ok = np.zeros((n, k), dtype=bool)
     for lo in range(0, n, BLOCK):
         rows = np.arange(lo, min(n, lo + BLOCK))
-        acc, dev, speeds = _assess(cs, np.repeat(rows, k), tau[rows].ravel(), limits)
+        acc, dev, speeds = assess(cs, np.repeat(rows, k), tau[rows].ravel(), limits)
         ok[rows] = ((acc <= limits.max_accel) & (dev <= tolerance) & speeds).reshape(-1, k)
     return _Grid(tau, ok)
 
 
-def _least_turn(cs: _Corners, idx: IntArray, width: FloatArray, limits: Limits
+def _least_turn(cs: Corners, idx: IntArray, width: FloatArray, limits: Limits
                 ) -> tuple[FloatArray, BoolArray]:
     """The least half-width (to 2^-40 of ``width``) that keeps the acceleration limit, for
     the corners ``idx``, and whether ``width`` itself does."""
     hi = width.copy()
-    acc, _, _ = _assess(cs, idx, hi, limits)
+    acc, _, _ = assess(cs, idx, hi, limits)
     can = acc <= limits.max_accel
     lo = np.zeros_like(hi)
     for _ in range(40):
         mid = 0.5 * (lo + hi)
-        acc, _, _ = _assess(cs, idx, mid, limits)
+        acc, _, _ = assess(cs, idx, mid, limits)
         fine = acc <= limits.max_accel
         hi = np.where(fine, mid, hi)
         lo = np.where(fine, lo, mid)
@@ -370,7 +245,7 @@ def _instants(time: FloatArray) -> tuple[IntArray, IntArray, IntArray]:
 class _Chooser:
     """The half-width of every corner (an index into its candidates; -1: not rounded)."""
 
-    def __init__(self, cs: _Corners, grid: _Grid) -> None:
+    def __init__(self, cs: Corners, grid: _Grid) -> None:
         self.cs, self.grid = cs, grid
         self.group, self.order, self.starts = _instants(cs.time)
         self.k = np.full(len(cs), -1, dtype=np.intp)
@@ -464,7 +339,7 @@ class _Turn:
     """The half-width its neighbouring corners leave, s."""
 
 
-def _reason(cs: _Corners, c: int, turn: _Turn, limits: Limits, tolerance: float,
+def _reason(cs: Corners, c: int, turn: _Turn, limits: Limits, tolerance: float,
             window: tuple[float, float]) -> str:
     """Why corner ``c`` is not rounded, with the figures."""
     w = turn.width
@@ -489,14 +364,14 @@ def _reason(cs: _Corners, c: int, turn: _Turn, limits: Limits, tolerance: float,
     return f"{need} and its neighbouring corners leave {2 * max(turn.room, 0.0):.2f} s"
 
 
-def _leftovers(cs: _Corners, left: IntArray, width: FloatArray, taus: FloatArray,
+def _leftovers(cs: Corners, left: IntArray, width: FloatArray, taus: FloatArray,
                tolerance: float, limits: Limits) -> dict[int, _Turn]:
     """Round what the grid missed of the corners ``left`` (each with the least half-width
     that keeps the acceleration limit, where that fits, into ``taus``); the rest, and
     what they would take."""
     tau, can = _least_turn(cs, left, width[left], limits)
-    acc_w, _, _ = _assess(cs, left, width[left], limits)
-    _, dev, speeds = _assess(cs, left, tau, limits)
+    acc_w, _, _ = assess(cs, left, width[left], limits)
+    _, dev, speeds = assess(cs, left, tau, limits)
     out = {}
     for m, c in enumerate(left):
         p, q = int(cs.prev[c]), int(cs.next[c])
@@ -510,77 +385,7 @@ def _leftovers(cs: _Corners, left: IntArray, width: FloatArray, taus: FloatArray
     return out
 
 
-# -- blends across several knots --------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Window:
-    """One blend of one drone: it flies the Hermite curve from ``lo`` to ``hi``."""
-
-    first: int
-    """The first knot inside it."""
-    last: int
-    """The last knot inside it (``first`` for the blend of one corner)."""
-    lo: float
-    hi: float
-    dev: float
-    """Its deviation bound, m."""
-
-
-def _hermite_state(p0: FloatArray, v0: FloatArray, p1: FloatArray, v1: FloatArray,
-                   T: FloatArray, s: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Position and velocity of the Hermite curves (M, 3) lasting ``T`` (M, 1) at the
-    parameters ``s`` (M, P): (M, P, 3) each."""
-    p0, v0, p1, v1 = (x[:, None] for x in (p0, v0, p1, v1))
-    TT = T[:, None]
-    s = s[..., None]
-    s2, s3 = s * s, s * s * s
-    pos = (2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * TT * v0 \
-        + (-2 * s3 + 3 * s2) * p1 + (s3 - s2) * TT * v1
-    vel = ((6 * s2 - 6 * s) * p0 + (3 * s2 - 4 * s + 1) * TT * v0
-           + (-6 * s2 + 6 * s) * p1 + (3 * s2 - 2 * s) * TT * v1) / TT
-    return pos, vel
-
-
-def _assess_run(track: BezierTrack, first: int, last: int, lo: FloatArray, hi: FloatArray,
-                limits: Limits) -> tuple[FloatArray, FloatArray, BoolArray]:
-    """As :func:`_assess`, for candidate blends ``[lo, hi]`` (M,) of one drone across its
-    knots ``first`` to ``last``: the show is a cubic on each piece between them."""
-    t, c = track.times, track.ctrl
-    h = np.diff(t)
-    M = len(lo)
-    pa, da = _bezier(np.repeat(c[first - 1][None], M, 0), (lo - t[first - 1]) / h[first - 1])
-    pb, db = _bezier(np.repeat(c[last][None], M, 0), (hi - t[last]) / h[last])
-    va, vb = da / h[first - 1], db / h[last]
-    T = (hi - lo)[:, None]
-    dp = pb - pa
-    acc = np.maximum(np.linalg.norm(6 * dp - T * (4 * va + 2 * vb), axis=1),
-                     np.linalg.norm(-6 * dp + T * (2 * va + 4 * vb), axis=1)) / T[:, 0] ** 2
-    segs, hs = c[first - 1:last + 1], h[first - 1:last + 1]
-    m = last - first + 1
-    at = np.broadcast_to(segs[1:, 0], (M, m, 3))
-    v_in = np.broadcast_to(3 * (segs[:-1, 3] - segs[:-1, 2]) / hs[:-1, None], (M, m, 3))
-    v_out = np.broadcast_to(3 * (segs[1:, 1] - segs[1:, 0]) / hs[1:, None], (M, m, 3))
-    bounds = np.concatenate([lo[:, None], np.broadcast_to(t[first:last + 1], (M, m)),
-                             hi[:, None]], axis=1)
-    dur = np.diff(bounds, axis=1)
-    show = hermite_to_bezier(np.concatenate([pa[:, None], at], 1),
-                             np.concatenate([va[:, None], v_out], 1),
-                             np.concatenate([at, pb[:, None]], 1),
-                             np.concatenate([v_in, vb[:, None]], 1), dur)
-    bp, bv = _hermite_state(pa, va, pb, vb, T, (bounds - lo[:, None]) / T)
-    blend = hermite_to_bezier(bp[:, :-1], bv[:, :-1], bp[:, 1:], bv[:, 1:], dur)
-    dev = _hull(show - blend, _SPLIT).max(axis=1)
-    bh, bu, bd = _envelope(np.stack([va, 3 * dp / T - va - vb, vb], axis=1))
-    sh, su, sd = _envelope((3 * np.diff(show, axis=2) / dur[..., None, None]).reshape(M, -1, 3))
-    slack = 1e-9
-    speeds = ((bh <= np.maximum(limits.max_speed_h, sh) + slack)
-              & (bu <= np.maximum(limits.max_speed_up, su) + slack)
-              & (bd <= np.maximum(limits.max_speed_down, sd) + slack))
-    return acc, dev, speeds
-
-
-def _merge(show: SkyShow, cs: _Corners, grid: _Grid, windows: dict[int, list[_Window]],
+def _merge(show: SkyShow, cs: Corners, grid: _Grid, windows: dict[int, list[Window]],
            left: list[int], window: tuple[float, float], tolerance: float, limits: Limits
            ) -> set[int]:
     """Round each corner of ``left`` that no blend of its own can with one blend across it
@@ -588,11 +393,15 @@ def _merge(show: SkyShow, cs: _Corners, grid: _Grid, windows: dict[int, list[_Wi
     inside and shrinking a corner's blend on either side to the least it needs if it must;
     the corners so rounded."""
     start, end = window
-    corner = {(int(d), int(j)): c for c, (d, j) in enumerate(zip(cs.drone, cs.knot,
-                                                                  strict=True))}
+    per = np.searchsorted(cs.drone, np.arange(len(show.drones) + 1))
     done: set[int] = set()
 
-    def halves(i: int, w: _Window | None, t: FloatArray) -> tuple[float, float, int]:
+    def corner(i: int, knot: int) -> int:
+        """Drone ``i``'s corner at ``knot`` (-1: none); corners are in drone, knot order."""
+        k = int(per[i] + np.searchsorted(cs.knot[per[i]:per[i + 1]], knot))
+        return k if k < per[i + 1] and cs.knot[k] == knot else -1
+
+    def halves(i: int, w: Window | None, t: FloatArray) -> tuple[float, float, int]:
         """How far the blend ``w`` reaches from its knot now and at the least (its own
         half-width for a blend across knots or off the grid), and its corner (-1: none)."""
         if w is None:
@@ -600,7 +409,7 @@ def _merge(show: SkyShow, cs: _Corners, grid: _Grid, windows: dict[int, list[_Wi
         if w.first != w.last:
             return math.inf, math.inf, -1
         now = w.hi - float(t[w.first])
-        c = corner.get((i, w.first), -1)
+        c = corner(i, w.first)
         if c < 0:
             return now, now, -1
         ok = np.flatnonzero(grid.ok[c] & (grid.tau[c] <= now + TIME_EPS))
@@ -634,12 +443,12 @@ def _merge(show: SkyShow, cs: _Corners, grid: _Grid, windows: dict[int, list[_Wi
             # just before a corner: the blend starts there, at rest).
             tau = max(room_lo, room_hi) * FACTORS
             lo, hi = t[first] - np.minimum(tau, room_lo), t[last] + np.minimum(tau, room_hi)
-            acc, dev, speeds = _assess_run(show.drones[i].track, first, last, lo, hi, limits)
+            acc, dev, speeds = assess_run(show.drones[i].track, first, last, lo, hi, limits)
             ok = np.flatnonzero((acc <= limits.max_accel) & (dev <= tolerance) & speeds)
             if not len(ok):
                 continue
             k = int(ok[0])
-            new = _Window(first, last, float(lo[k]), float(hi[k]), float(dev[k]))
+            new = Window(first, last, float(lo[k]), float(hi[k]), float(dev[k]))
             keep = [w for w in wins if w not in inner and w is not before and w is not after]
             for w, room in ((before, new.lo - float(t[first - 1])),
                             (after, float(t[last + 1]) - new.hi)):
@@ -650,55 +459,16 @@ def _merge(show: SkyShow, cs: _Corners, grid: _Grid, windows: dict[int, list[_Wi
                     # The widest half-width that fits beside the new blend.
                     half = float(grid.tau[cw, np.flatnonzero(
                         grid.ok[cw] & (grid.tau[cw] <= room + TIME_EPS))[0]])
-                    _, d, _ = _assess(cs, np.array([cw]), np.array([half]), limits)
-                    w = _Window(w.first, w.last, float(t[w.first] - half),
+                    _, d, _ = assess(cs, np.array([cw]), np.array([half]), limits)
+                    w = Window(w.first, w.last, float(t[w.first] - half),
                                 float(t[w.first] + half), float(d[0]))
                 keep.append(w)
             wins[:] = [*keep, new]
-            mine = np.flatnonzero(cs.drone == i)
+            mine = np.arange(per[i], per[i + 1])
             done.update(int(x) for x in mine[(cs.knot[mine] >= first)
                                              & (cs.knot[mine] <= last)])
             break
     return done
-
-
-# -- the smoothed tracks -------------------------------------------------------------------
-
-
-def _rebuild(track: BezierTrack, windows: list[_Window]) -> BezierTrack:
-    """``track`` flying each of ``windows``' blends instead of the show inside it."""
-    t, c = track.times, track.ctrl
-    K = len(t) - 1
-    first = np.array([w.first for w in windows], dtype=np.intp)
-    last = np.array([w.last for w in windows], dtype=np.intp)
-    wlo = np.array([w.lo for w in windows])
-    whi = np.array([w.hi for w in windows])
-    seg_lo, seg_hi = t[:-1].copy(), t[1:].copy()
-    seg_hi[first - 1] = wlo
-    seg_lo[last] = whi
-    covered = np.zeros(K, dtype=bool)
-    for w in windows:
-        covered[w.first:w.last] = True
-    segs = np.flatnonzero(~covered & (seg_hi - seg_lo > TIME_EPS))
-    lo = np.concatenate([seg_lo[segs], wlo])
-    hi = np.concatenate([seg_hi[segs], whi])
-    key = np.concatenate([2 * segs + 1, 2 * first])
-    on_lo = np.concatenate([segs, first - 1])  # the segment each end lies on
-    on_hi = np.concatenate([segs, last])
-    blend = np.concatenate([np.zeros(len(segs), dtype=bool), np.ones(len(first), dtype=bool)])
-    order = np.argsort(key, kind="stable")
-    lo, hi, on_lo, on_hi, blend = (x[order] for x in (lo, hi, on_lo, on_hi, blend))
-    # Where a segment between two blends is used up, they meet: one instant.
-    if np.abs(lo[1:] - hi[:-1]).max(initial=0.0) > 1e-6:
-        raise AssertionError("blends overlap")  # the chooser keeps them apart
-    lo[1:] = hi[:-1]
-    h = np.diff(t)
-    p0, d0 = _bezier(c[on_lo], (lo - t[on_lo]) / h[on_lo])
-    p1, d1 = _bezier(c[on_hi], (hi - t[on_hi]) / h[on_hi])
-    ctrl = hermite_to_bezier(p0, d0 / h[on_lo, None], p1, d1 / h[on_hi, None], hi - lo)
-    whole = ~blend & (lo == t[on_lo]) & (hi == t[on_lo + 1])
-    ctrl[whole] = c[on_lo[whole]]  # untouched segments stay exactly as read
-    return BezierTrack(np.concatenate([lo, hi[-1:]]), ctrl)
 
 
 def smooth_show(show: SkyShow, limits: Limits, tolerance: float, start: float,
@@ -709,7 +479,7 @@ def smooth_show(show: SkyShow, limits: Limits, tolerance: float, start: float,
     problem = TOLERANCE.problem("tolerance", tolerance)
     if problem:
         raise ValueError(problem)
-    cs = _find_corners(show, start, end)
+    cs = find_corners(show, start, end)
     if not len(cs):
         return Smoothing(show=show, tolerance=tolerance, max_accel=limits.max_accel,
                          drones=tuple(DroneSmoothing(i, d.name, 0, 0, 0.0)
@@ -733,26 +503,32 @@ def smooth_show(show: SkyShow, limits: Limits, tolerance: float, start: float,
     left = left[np.argsort(cs.time[left], kind="stable")]
     turns = _leftovers(cs, left, width, taus, tolerance, limits)
     rounded = np.flatnonzero(taus > 0)
-    _, dev, _ = _assess(cs, rounded, taus[rounded], limits)
-    windows: dict[int, list[_Window]] = {}
+    _, dev, _ = assess(cs, rounded, taus[rounded], limits)
+    windows: dict[int, list[Window]] = {}
     for c, d in zip(rounded, dev, strict=True):
         windows.setdefault(int(cs.drone[c]), []).append(
-            _Window(int(cs.knot[c]), int(cs.knot[c]), float(cs.time[c] - taus[c]),
+            Window(int(cs.knot[c]), int(cs.knot[c]), float(cs.time[c] - taus[c]),
                     float(cs.time[c] + taus[c]), float(d)))
     for c in _merge(show, cs, grid, windows, list(turns), (start, end), tolerance,
                     limits):
         turns.pop(c, None)
 
+    # Corners are in drone order: drone i's are cs[per[i]:per[i + 1]].
+    per = np.searchsorted(cs.drone, np.arange(len(show.drones) + 1))
+    left_per = np.bincount(cs.drone[list(turns)], minlength=len(show.drones))
     drones = []
     summary = []
     for i, d in enumerate(show.drones):
-        wins = windows.get(i, [])
-        mine = cs.knot[cs.drone == i]
-        inside = sum(int(((mine >= w.first) & (mine <= w.last)).sum()) for w in wins)
-        drones.append(replace(d, track=_rebuild(d.track, wins)) if wins else d)
+        wins = sorted(windows.get(i, []), key=lambda w: w.first)
+        inside = 0
+        if wins:
+            mine = cs.knot[per[i]:per[i + 1]]
+            at = np.searchsorted([w.first for w in wins], mine, side="right") - 1
+            lasts = np.array([w.last for w in wins])
+            inside = int(((at >= 0) & (mine <= lasts[np.maximum(at, 0)])).sum())
+        drones.append(replace(d, track=rebuild(d.track, wins)) if wins else d)
         summary.append(DroneSmoothing(
-            drone=i, name=d.name, corners=inside,
-            unrounded=sum(int(cs.drone[c]) == i for c in turns),
+            drone=i, name=d.name, corners=inside, unrounded=int(left_per[i]),
             max_deviation=max([w.dev for w in wins], default=0.0)))
     unrounded = tuple(
         Unrounded(drone=int(cs.drone[c]), name=show.drones[int(cs.drone[c])].name,
