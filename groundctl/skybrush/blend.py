@@ -280,3 +280,22 @@ def rebuild(track: BezierTrack, windows: list[Window]) -> BezierTrack:
     whole = ~blend & (lo == t[on_lo]) & (hi == t[on_lo + 1])
     ctrl[whole] = c[on_lo[whole]]  # untouched segments stay exactly as read
     return BezierTrack(np.concatenate([lo, hi[-1:]]), ctrl)
+
+
+def curve_max_accel(track: BezierTrack, start: float, end: float) -> float:
+    """The largest acceleration of ``track`` between ``start`` and ``end``, exactly (along
+    a cubic it is linear: largest at an end of a piece), not counting its velocity jumps
+    at knots (unbounded)."""
+    t, c = track.times, track.ctrl
+    h = np.diff(t)
+    seg = np.flatnonzero((t[1:] > start) & (t[:-1] < end))
+    if not len(seg):
+        return 0.0
+    s0 = np.clip((start - t[seg]) / h[seg], 0.0, 1.0)[:, None]
+    s1 = np.clip((end - t[seg]) / h[seg], 0.0, 1.0)[:, None]
+    q0 = c[seg, 0] - 2 * c[seg, 1] + c[seg, 2]
+    q1 = c[seg, 1] - 2 * c[seg, 2] + c[seg, 3]
+    hh = (h[seg] ** 2)[:, None]
+    a0 = 6 * ((1 - s0) * q0 + s0 * q1) / hh
+    a1 = 6 * ((1 - s1) * q0 + s1 * q1) / hh
+    return float(max(np.linalg.norm(a0, axis=1).max(), np.linalg.norm(a1, axis=1).max()))

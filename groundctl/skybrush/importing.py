@@ -119,7 +119,6 @@ def import_show(path: str | Path, origin: GeoOrigin | None = None, *,
     plan = fixed.plan if fixed is not None else imported.plan
     problems = imported.jumps
     if smoothing is not None:
-        smoothing = smoothing.measured(plan.trajectories)
         # Every jump left is a corner not rounded, which says why: one line each.
         problems = smoothing.problems() or imported.jumps
     return ImportResult(source=show, imported=imported, conflicts=conflicts, repaired=fixed,

@@ -54,7 +54,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import Limits
 from groundctl.show.ranges import above_zero
 from groundctl.skybrush.blend import (
@@ -63,6 +62,7 @@ from groundctl.skybrush.blend import (
     Window,
     assess,
     assess_run,
+    curve_max_accel,
     find_corners,
     rebuild,
 )
@@ -121,8 +121,9 @@ class DroneSmoothing:
     """Corners left as they are (each an :class:`Unrounded`)."""
     max_deviation: float
     """Largest distance from the show's path at the same instant, m (certified bound)."""
-    max_accel: float = math.nan
-    """Largest acceleration of the drone's plan, m/s^2 (NaN until :meth:`Smoothing.measured`)."""
+    max_accel: float
+    """Largest acceleration of its curve as flown (the plan between its first and last
+    instants), m/s^2, exact; not counting the velocity jumps at corners not rounded."""
 
 
 @dataclass(frozen=True)
@@ -152,17 +153,11 @@ class Smoothing:
         out = []
         for d in self.drones:
             if d.corners or d.unrounded:
-                left = f", {d.unrounded} not rounded" if d.unrounded else ""
+                left = f"; {d.unrounded} not rounded (velocity jumps)" if d.unrounded else ""
                 out.append(f"smoothed: drone {d.drone + 1} ({d.name}): {d.corners} corners "
-                           f"rounded{left}, at most {d.max_deviation:.3f} m from the show's "
-                           f"path, max accel {d.max_accel:.2f} m/s^2")
+                           f"rounded, at most {d.max_deviation:.3f} m from the show's path, "
+                           f"max accel {d.max_accel:.2f} m/s^2{left}")
         return out
-
-    def measured(self, traj: Trajectories) -> Smoothing:
-        """These figures with every drone's largest acceleration read off ``traj``."""
-        acc = drone_max_accel(traj)
-        return replace(self, drones=tuple(replace(d, max_accel=float(acc[d.drone]))
-                                          for d in self.drones))
 
     def report(self) -> dict[str, object]:
         """The ``smoothed`` object of ``plan --json``."""
@@ -174,18 +169,6 @@ class Smoothing:
             "unrounded": [{"drone": u.drone + 1, "name": u.name, "show_time_s": u.time,
                            "jump_mps": u.jump, "reason": u.reason} for u in self.unrounded],
         }
-
-
-def drone_max_accel(traj: Trajectories) -> FloatArray:
-    """(n,) every drone's largest acceleration, exactly: along a cubic it is linear, so it
-    is largest at one end of a segment."""
-    p, v = traj.pos, traj.vel
-    h = np.diff(traj.times)[None, :, None]
-    dp = p[:, 1:] - p[:, :-1]
-    a0 = (6 * dp - h * (4 * v[:, :-1] + 2 * v[:, 1:])) / (h * h)
-    a1 = (-6 * dp + h * (2 * v[:, :-1] + 4 * v[:, 1:])) / (h * h)
-    return np.asarray(np.maximum(np.linalg.norm(a0, axis=2).max(axis=1),
-                                 np.linalg.norm(a1, axis=2).max(axis=1)), dtype=float)
 
 
 # -- the candidates --------------------------------------------------------------------------
@@ -482,7 +465,8 @@ def smooth_show(show: SkyShow, limits: Limits, tolerance: float, start: float,
     cs = find_corners(show, start, end)
     if not len(cs):
         return Smoothing(show=show, tolerance=tolerance, max_accel=limits.max_accel,
-                         drones=tuple(DroneSmoothing(i, d.name, 0, 0, 0.0)
+                         drones=tuple(DroneSmoothing(i, d.name, 0, 0, 0.0,
+                                                     curve_max_accel(d.track, start, end))
                                       for i, d in enumerate(show.drones)), unrounded=())
     group, order, starts = _instants(cs.time)
     width = np.minimum.reduceat(cs.room[order], starts)[group]
@@ -529,7 +513,8 @@ def smooth_show(show: SkyShow, limits: Limits, tolerance: float, start: float,
         drones.append(replace(d, track=rebuild(d.track, wins)) if wins else d)
         summary.append(DroneSmoothing(
             drone=i, name=d.name, corners=inside, unrounded=int(left_per[i]),
-            max_deviation=max([w.dev for w in wins], default=0.0)))
+            max_deviation=max([w.dev for w in wins], default=0.0),
+            max_accel=curve_max_accel(drones[-1].track, start, end)))
     unrounded = tuple(
         Unrounded(drone=int(cs.drone[c]), name=show.drones[int(cs.drone[c])].name,
                   time=float(cs.time[c]), jump=float(cs.jump[c]),
