@@ -37,6 +37,7 @@ from groundctl.link.fleet import FleetLink
 from groundctl.link.fleetfile import FleetFile, FleetFileError, load_fleet_file, parse_address
 from groundctl.link.worker import use_workers
 from groundctl.record.recording import Recording, default_directory
+from groundctl.skybrush.cli import add_import_options
 from groundctl.vehicleid import MAX_NETWORKS
 
 
@@ -64,7 +65,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                     "land SYSID, land-here SYSID, kill SYSID confirm on stdin. Ctrl-C (or "
                     "SIGTERM, SIGHUP) once lands every vehicle; twice abandons the flight "
                     "to the vehicles' failsafes.")
-    p.add_argument("show", type=Path, help="show file (TOML) or plan file (.npz)")
+    p.add_argument("show", type=Path, help="show file (TOML), plan file (.npz), Skybrush "
+                                            ".skyc or CSV export")
     p.add_argument("--connect", type=endpoint, action="append", default=None,
                    metavar="ENDPOINT",
                    help="UDP address to listen on, udp:HOST:PORT (default udp:0.0.0.0:14550); "
@@ -76,9 +78,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
     p.add_argument("--connect-timeout", type=float, default=30.0, metavar="S",
                    help="wait this long for every vehicle's HEARTBEAT (default 30)")
     add_plan_options(p)
+    add_import_options(p)
     add_runner_options(p)
     add_console_options(p)
-    p.set_defaults(func=run)
+    # Real vehicles: a Skybrush show must say (or be told) its altitude above sea level.
+    p.set_defaults(func=run, real_vehicles=True)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -73,8 +73,15 @@ def run(args: argparse.Namespace) -> int:
         if executor is not None:
             executor.close()
     if out.suffix.lower() == ".skyc":
+        from groundctl.errors import SkybrushExportError
         from groundctl.skybrush.importing import export_skyc
-        export_skyc(result.plan, out)
+        try:
+            export_skyc(result.plan, out)
+        except SkybrushExportError as exc:
+            # Planning took its time: keep what it made.
+            kept = result.plan.save(out.with_suffix(".plan.npz"))
+            raise SkybrushExportError(exc.path, f"{exc.message}; the plan is saved as "
+                                                f"{kept}", drone=exc.drone) from None
     else:
         result.plan.save(out)
     report = report_dict(result)

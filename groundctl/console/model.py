@@ -574,16 +574,25 @@ def _formations(runner: ShowRunner, t: float | None) -> tuple[str, str, float | 
     return now, nxt.name, nxt.arrive - t
 
 
+#: Longest cue name the header shows, characters (two must fit one line).
+CUE_NAME_CHARS = 30
+
+
+def _short(name: str) -> str:
+    return name if len(name) <= CUE_NAME_CHARS else name[:CUE_NAME_CHARS - 1] + "…"
+
+
 def cue_text(plan: Plan, t: float | None) -> str:
     """``cue Intro · next Chorus in 12.0 s`` on the show clock ``t`` (before the show: the
     first cue); "" for a show without cues."""
     if not plan.cues:
         return ""
     last, nxt = plan.cue_at(-math.inf if t is None else t)
-    parts = [f"cue {last.name}"] if last is not None else []
+    parts = [f"cue {_short(last.name)}"] if last is not None else []
     if nxt is not None:
-        parts.append(f"next {nxt.name}" + (f" in {nxt.time - t:.1f} s" if t is not None
-                                           else f" at {nxt.time:.1f} s"))
+        parts.append(f"next {_short(nxt.name)}" + (f" in {nxt.time - t:.1f} s"
+                                                   if t is not None
+                                                   else f" at {nxt.time:.1f} s"))
     return " · ".join(parts)
 
 

@@ -255,7 +255,7 @@ def render_report(report: dict[str, Any]) -> str:
                  f"{report['commands_refused']}"
                  + (f", timed out {report['commands_timed_out']}"
                     if report.get("commands_timed_out") else "")
-                 + " (pre-flight requests asked again until the vehicles can answer included)")
+                 + " (pre-flight's polls for each vehicle's origin and home not counted)")
     mpc = report.get("mpc")
     if mpc and mpc["enabled"]:
         ms = mpc["solve_ms"]

@@ -194,6 +194,33 @@ def load_vehicle_file(path: str | Path) -> VehicleSettings:
     return _read_vehicle(_table(data, "vehicle", str(p)), None)
 
 
+def load_limits_file(path: str | Path) -> dict[str, Any]:
+    """The keys the ``[limits]`` table of any TOML file gives (``--limits FILE`` for a
+    Skybrush show: a show file, or one with only that table), as :class:`Limits` fields
+    and values; each checked as a show file's are."""
+    p = Path(path)
+    try:
+        data = tomllib.loads(read_regular_file(p, MAX_SHOW_FILE_BYTES).decode("utf-8"))
+    except FileProblem as exc:
+        raise ShowFileError(p, "", str(exc)) from None
+    except UnicodeDecodeError:
+        raise ShowFileError(p, "", "not UTF-8 text (a [limits] table is TOML)") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise _syntax_error(p, exc) from None
+    except RecursionError:
+        raise ShowFileError(p, "", "TOML syntax error: arrays or inline tables nested too "
+                                   "deeply") from None
+    if "limits" not in data:
+        raise ShowFileError(p, "", "no [limits] table (--limits takes the envelope your "
+                                   "vehicles fly from one)")
+    t = _table(data, "limits", str(p))
+    limits = _read_limits(t)
+    given = {field: getattr(limits, field) for key, field in _LIMIT_KEYS.items() if t.has(key)}
+    if t.has("geofence"):
+        given["geofence"] = limits.geofence
+    return given
+
+
 def _syntax_error(path: Path, exc: tomllib.TOMLDecodeError) -> ShowFileError:
     # tomllib puts the position in the message: "Invalid value (at line 3, column 9)".
     text = str(exc)

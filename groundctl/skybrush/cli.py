@@ -8,7 +8,13 @@ import json
 import sys
 from pathlib import Path
 
-from groundctl.errors import EXIT_OK, EXIT_UNSAFE, UnsafePlan, WrongFileKind
+from groundctl.errors import (
+    EXIT_OK,
+    EXIT_UNSAFE,
+    ImportedShowError,
+    UnsafePlan,
+    WrongFileKind,
+)
 from groundctl.plan.plan import Plan
 from groundctl.show.ranges import ORIGIN_RANGES, TAKEOFF_ALTITUDE
 from groundctl.skybrush.importing import (
@@ -55,8 +61,23 @@ def takeoff_altitude(text: str) -> float:
     return value
 
 
+def smooth_tolerance(text: str) -> float:
+    """``--smooth TOL``: metres, more than 0."""
+    from groundctl.skybrush.smooth import TOLERANCE
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--smooth must be a tolerance in metres, not "
+                                         f"{text!r}") from None
+    problem = TOLERANCE.problem("--smooth", value)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
+    return value
+
+
 def add_import_options(p: argparse.ArgumentParser) -> None:
-    """``--origin``, ``--takeoff-altitude``, ``--repair``: for a ``.skyc`` or CSV show."""
+    """``--origin``, ``--takeoff-altitude``, ``--repair``, ``--smooth``: for a ``.skyc`` or
+    CSV show."""
     p.add_argument("--origin", type=origin, default=None,
                    metavar="LAT,LON,ALT[,ORIENTATION]",
                    help="for a Skybrush show (.skyc, CSV): where its frame stands, "
@@ -72,35 +93,46 @@ def add_import_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--repair", action="store_true",
                    help="for a Skybrush show: re-plan only the stretches in conflict (SCP, "
                         "the other drones as moving obstacles), keep the rest")
+    p.add_argument("--limits", dest="limits_file", type=Path, default=None, metavar="FILE",
+                   help="for a Skybrush show: the envelope your vehicles fly, from the "
+                        "[limits] table of FILE (a show file, or one with only that table); "
+                        "each key it gives wins over the show's settings.validation and "
+                        "groundctl's defaults")
+    p.add_argument("--smooth", type=smooth_tolerance, default=None, metavar="TOL",
+                   help="for a Skybrush show: round the corners of its trajectories (a "
+                        "velocity that changes at once, as between straight segments) "
+                        "within TOL metres of the show's path and its acceleration and speed "
+                        "limits; says per drone what changed, and each corner it cannot round")
 
 
 def _origin_note(result: ImportResult, quiet: bool) -> None:
-    """One line on where the show stands when the operator may not expect it."""
-    if quiet:
+    """Where the show stands, always in one line (an operator must never find out in the
+    air that a show turned), and one more when ``--origin`` overrides the file's."""
+    if quiet or result.placement is None:
         return
     loc = result.source.location
-    o = result.plan.origin
-    orientation = orientation_of(o.heading_deg)
-    line = None
-    if result.placement == "default":
-        line = (f"note: the Skybrush show is not placed (no environment.location): anchored "
-                f"at {o.lat},{o.lon},{o.alt:g} m, orientation {orientation:g} (its X axis "
-                "north; give --origin LAT,LON,ALT[,ORIENTATION])")
-    elif result.placement == "--origin" and loc is not None:
-        line = (f"note: --origin overrides the show's own placement ({loc.lat:.7f},"
-                f"{loc.lon:.7f}, orientation {loc.orientation_deg:g}): flown at {o.lat},"
-                f"{o.lon},{o.alt:g} m, orientation {orientation:g}")
-    elif result.placement == "file" and loc is not None and loc.amsl is None:
-        line = (f"note: the show's environment.location gives no altitude: its z = 0 taken "
-                f"at {o.alt:g} m above mean sea level (give --origin LAT,LON,ALT to set it)")
-    if line is not None:
-        print(line, file=sys.stderr)
+    if result.placement.source == "--origin" and loc is not None:
+        print(f"note: --origin overrides the show's own placement ({loc.lat:.7f},"
+              f"{loc.lon:.7f}, its X axis at bearing {loc.orientation_deg:g} deg)",
+              file=sys.stderr)
+    print(f"note: {result.placement.line()}", file=sys.stderr)
 
 
 def _import(args: argparse.Namespace, path: Path) -> ImportResult:
     return import_show(path, getattr(args, "origin", None),
                        takeoff_altitude=getattr(args, "takeoff_altitude", None),
-                       do_repair=getattr(args, "repair", False))
+                       do_repair=getattr(args, "repair", False),
+                       smooth=getattr(args, "smooth", None),
+                       operator_limits=_operator_limits(args))
+
+
+def _operator_limits(args: argparse.Namespace) -> dict[str, object] | None:
+    """``--limits FILE``: the Limits fields its [limits] table gives (None: not given)."""
+    path = getattr(args, "limits_file", None)
+    if path is None:
+        return None
+    from groundctl.show.loader import load_limits_file
+    return load_limits_file(path)
 
 
 # -- groundctl plan -------------------------------------------------------------------------
@@ -142,7 +174,7 @@ def run_plan(args: argparse.Namespace) -> int:
     written = None
     if out.suffix.lower() == ".skyc":
         from groundctl.skybrush.importing import export_skyc
-        written = str(export_skyc(plan, out))
+        written = str(export_skyc(plan, out, result.placement))
     else:
         why = result.imported.fits_plan_file
         if why is None:
@@ -160,9 +192,15 @@ def run_plan(args: argparse.Namespace) -> int:
             for w in result.repaired.windows],
         "remaining_conflicts": None if result.repaired is None
         else len(result.repaired.remaining),
+        "placement": None if result.placement is None else {
+            "lat": plan.origin.lat, "lon": plan.origin.lon, "alt": plan.origin.alt,
+            "orientation_deg": orientation_of(plan.origin.heading_deg),
+            "source": result.placement.source,
+            "altitude_known": result.placement.altitude_known},
         "min_separation_m": o.min_separation, "max_speed_mps": o.max_speed_h,
         "max_accel_mps2": o.max_accel, "violations": result.lines(), "safe": result.safe,
         "written": written,
+        "smoothed": None if result.smoothing is None else result.smoothing.report(),
     }
     if args.json:
         json.dump(report, sys.stdout)
@@ -207,6 +245,13 @@ def flight_plan(args: argparse.Namespace) -> Plan:
     quiet = getattr(args, "quiet", False)
     result = _import(args, Path(args.show))
     _origin_note(result, quiet)
+    if getattr(args, "real_vehicles", False) and result.placement is not None \
+            and not result.placement.altitude_known:
+        # Real vehicles fly the show frame at its altitude above sea level: a stand-in
+        # puts the show tens or hundreds of metres above (or below) the field.
+        raise ImportedShowError(Path(args.show), "the show gives no altitude above sea level "
+                                "(no environment.location, or one without it): give "
+                                "--origin LAT,LON,ALT[,ORIENTATION] with the field's")
     if not result.safe:
         raise UnsafePlan(result.lines())
     if not quiet:

@@ -33,7 +33,6 @@ keys as 20 ms bytecode.
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -42,7 +41,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from groundctl.plan.plan import Cue, FormationWindow, Plan
-from groundctl.plan.planfile import MAX_COLOR_KEYS, MAX_DRONE_KNOTS, MAX_KNOTS
+from groundctl.plan.planfile import MAX_COLOR_KEYS, MAX_DRONE_KNOTS, MAX_DURATION, MAX_KNOTS
 from groundctl.plan.trajectory import Trajectories, concatenate
 from groundctl.show.model import GeoOrigin, Limits, MpcSettings
 from groundctl.skybrush.lights import UNIT_S, LightKey
@@ -54,6 +53,7 @@ from groundctl.skybrush.model import (
     hermite_to_bezier,
     orientation_of,
 )
+from groundctl.skybrush.reader import MAX_SHOW_SECONDS
 
 FloatArray = NDArray[np.float64]
 
@@ -291,7 +291,8 @@ def sky_to_plan(show: SkyShow, origin: GeoOrigin, limits: Limits,
                 home=home.copy(), takeoff_altitude=h, trajectories=traj,
                 color_times=color_times, colors=colors, formations=(window,),
                 mpc=MpcSettings(), show_digest="", names=tuple(d.name for d in show.drones),
-                cues=tuple(Cue(t - t0 + climb_s, name) for t, name in show.cues))
+                cues=tuple(Cue(min(max(t - t0 + climb_s, -MAX_DURATION), MAX_DURATION), name)
+                           for t, name in show.cues))
     return Imported(plan=plan, t0=t0, t_end=t_end, climb_s=climb_s, descent_s=descent_s,
                     jumps=tuple(jumps))
 
@@ -339,51 +340,134 @@ def _colors(drones: tuple[SkyDrone, ...], shift: Callable[[FloatArray], FloatArr
 MERGE_TOL = 1e-5
 
 
-def _hermite_ends(p0: FloatArray, v0: FloatArray, p1: FloatArray, v1: FloatArray,
-                  h: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """(acceleration at the start, at the end, jerk) of cubic Hermite segments (..., 3)
-    lasting ``h`` (..., 1)."""
-    d = p1 - p0
-    a0 = (6.0 * d - h * (4.0 * v0 + 2.0 * v1)) / h**2
-    a1 = (-6.0 * d + h * (2.0 * v0 + 4.0 * v1)) / h**2
-    return a0, a1, (a1 - a0) / h
+def _hermite_at(p0: FloatArray, v0: FloatArray, p1: FloatArray, v1: FloatArray,
+                h: FloatArray, s: FloatArray) -> FloatArray:
+    """Positions (..., 3) of cubic Hermite segments (..., 3) lasting ``h`` (..., 1) at the
+    fractions ``s`` (..., 1) of their durations."""
+    s2, s3 = s * s, s * s * s
+    return ((2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * h * v0
+            + (-2 * s3 + 3 * s2) * p1 + (s3 - s2) * h * v1)
 
 
 def own_segments(times: FloatArray, pos: FloatArray, vel: FloatArray) -> NDArray[np.intp]:
     """The knots of one drone's trajectory (``times`` (K+1,), ``pos``/``vel`` (K+1, 3) on
     the fleet's shared time grid) that are its own: indices of the knots where its
-    polynomial changes, first and last included.  Two cubic pieces that meet with the
-    same acceleration and jerk are one polynomial split at a knot another drone needed;
-    each run so joined is checked again against the pieces it replaces (within
-    :data:`MERGE_TOL`), and kept split where it is not one."""
+    polynomial changes, first and last included.
+
+    Two cubic pieces meeting at a knot with the same position, velocity, acceleration
+    and jerk are one polynomial split at a knot another drone needed.  Acceleration and
+    jerk are compared within what rounding of the positions and velocities makes of them
+    on pieces that short (a millisecond piece's jerk carries 1e-4 m/s^3 of it); each run
+    so joined is then checked against the pieces it replaces, at every inner knot and
+    every piece's middle, within :data:`MERGE_TOL`, and kept split where it is not one.
+    """
     h = np.diff(times)[:, None]
-    a0, a1, jerk = _hermite_ends(pos[:-1], vel[:-1], pos[1:], vel[1:], h)
-    scale_a = 1e-6 + 1e-9 * (np.abs(a1[:-1]) + np.abs(a0[1:])).max(axis=1)
-    same = (np.abs(a1[:-1] - a0[1:]).max(axis=1) <= scale_a) \
-        & (np.abs(jerk[:-1] - jerk[1:]).max(axis=1) <= 1e-6 + 1e-9 * np.abs(jerk).max())
+    p0, p1, v0, v1 = pos[:-1], pos[1:], vel[:-1], vel[1:]
+    d = p1 - p0
+    a0 = (6.0 * d - h * (4.0 * v0 + 2.0 * v1)) / h**2
+    a1 = (-6.0 * d + h * (2.0 * v0 + 4.0 * v1)) / h**2
+    jerk = (a1 - a0) / h
+    # What float rounding of this piece's numbers can make of its acceleration and jerk.
+    size = np.abs(np.concatenate([p0, p1], axis=1)).max(axis=1, keepdims=True) \
+        + h * np.abs(np.concatenate([v0, v1], axis=1)).max(axis=1, keepdims=True)
+    eps = 64.0 * np.finfo(float).eps * size
+    err_a, err_j = (eps / h**2)[:, 0], (eps / h**3)[:, 0]
+    same = (np.abs(a1[:-1] - a0[1:]).max(axis=1) <= 1e-9 + err_a[:-1] + err_a[1:]) \
+        & (np.abs(jerk[:-1] - jerk[1:]).max(axis=1) <= 1e-9 + 2 * (err_j[:-1] + err_j[1:]))
     cuts = np.concatenate([[0], np.flatnonzero(~same) + 1, [len(times) - 1]])
-    keep: list[int] = [0]
-    for i0, i1 in itertools.pairwise(cuts):
-        if i1 - i0 > 1:
-            inner = np.arange(i0 + 1, i1)
-            tr = Trajectories(np.array([times[i0], times[i1]]),
-                              np.stack([pos[i0], pos[i1]])[None], np.stack([vel[i0],
-                                                                            vel[i1]])[None])
-            mid = 0.5 * (times[i0:i1] + times[i0 + 1:i1 + 1])
-            p_in, _, _ = tr.evaluate(times[inner])
-            p_mid, _, _ = tr.evaluate(mid)
-            orig = Trajectories(times, pos[None], vel[None]).evaluate(mid)[0]
-            off = max(float(np.abs(p_in[0] - pos[inner]).max()),
-                      float(np.abs(p_mid[0] - orig[0]).max()))
-            if off > MERGE_TOL:
-                keep.extend(int(k) for k in inner)
-        keep.append(int(i1))
-    return np.array(sorted(set(keep)), dtype=np.intp)
+    starts, ends = cuts[:-1], cuts[1:]
+    # Each run's one cubic, against the pieces it replaces (all runs at once).
+    piece = np.arange(len(times) - 1)
+    run = np.searchsorted(ends, piece, side="right")
+    i0, i1 = starts[run], ends[run]
+    hh = (times[i1] - times[i0])[:, None]
+    off = np.zeros(len(piece))
+    for s_frac in (0.0, 0.5):
+        t = times[piece] + s_frac * h[:, 0]
+        mine = _hermite_at(p0, v0, p1, v1, h, np.full((len(piece), 1), s_frac))
+        theirs = _hermite_at(pos[i0], vel[i0], pos[i1], vel[i1], hh,
+                             ((t - times[i0]) / hh[:, 0])[:, None])
+        off = np.maximum(off, np.abs(mine - theirs).max(axis=1))
+    bad_runs = np.unique(run[off > MERGE_TOL])
+    keep = set(cuts.tolist())
+    for r in bad_runs:
+        keep.update(range(int(starts[r]) + 1, int(ends[r])))
+    return _without_slivers(times, pos, vel, sorted(keep))
 
 
-def plan_to_sky(plan: Plan) -> tuple[SkyShow, float]:
+#: Shortest segment an export keeps, s: Skybrush counts durations in whole milliseconds
+#: (its server rounds each to the millisecond, and refuses one that rounds to none).
+SLIVER_S = 0.001
+#: How far joining a sliver to its neighbour may move the trajectory, m.
+SLIVER_TOL = 1e-3
+
+
+def _without_slivers(times: FloatArray, pos: FloatArray, vel: FloatArray,
+                     keep: list[int]) -> NDArray[np.intp]:
+    """``keep`` without the knots that end segments shorter than :data:`SLIVER_S` (where
+    two blends, or a drone's own knots and the show's start, fall a fraction of a
+    millisecond apart): the sliver and its neighbour become one cubic Hermite segment
+    between their outer knots, if that stays within :data:`SLIVER_TOL` of both (checked at
+    the joint and at both pieces' midpoints); otherwise the sliver stays, and the export
+    refuses it in one line."""
+    k = list(keep)
+    i = 0
+    while i < len(k) - 1 and len(k) > 2:
+        if times[k[i + 1]] - times[k[i]] >= SLIVER_S:
+            i += 1
+            continue
+        # Drop the knot between the sliver and its shorter neighbour.
+        left = times[k[i]] - times[k[i - 1]] if i > 0 else math.inf
+        right = times[k[i + 2]] - times[k[i + 1]] if i + 2 < len(k) else math.inf
+        drop = i if left <= right else i + 1
+        a, m, b = k[drop - 1], k[drop], k[drop + 1]
+        whole = Trajectories(np.array([times[a], times[b]]), np.stack([pos[a], pos[b]])[None],
+                             np.stack([vel[a], vel[b]])[None])
+        parts = Trajectories(times[a:b + 1], pos[None, a:b + 1], vel[None, a:b + 1])
+        at = np.array([times[m], 0.5 * (times[a] + times[m]), 0.5 * (times[m] + times[b])])
+        off = float(np.abs(whole.evaluate(at)[0] - parts.evaluate(at)[0]).max())
+        if off <= SLIVER_TOL:
+            del k[drop]
+            i = max(drop - 2, 0)
+        else:
+            i += 1
+    return np.array(k, dtype=np.intp)
+
+
+def _own_keys(times: FloatArray, rgb: NDArray[np.int_]) -> NDArray[np.intp]:
+    """Indices of one drone's colour keys (``rgb`` (F, 3) bytes at ``times``) that say
+    something: a key whose colour is the straight fade between its neighbours (a colour
+    held while another drone's changes) is left out, which the light program plays the
+    same."""
+    if len(times) <= 2:
+        return np.arange(len(times))
+    c = rgb.astype(float)
+    w = ((times[1:-1] - times[:-2]) / (times[2:] - times[:-2]))[:, None]
+    between = c[:-2] + w * (c[2:] - c[:-2])
+    inner = np.flatnonzero(np.abs(c[1:-1] - between).max(axis=1) > 1e-9) + 1
+    keep = np.concatenate([[0], inner, [len(times) - 1]])
+    # Leaving out a key changes its neighbours' neighbours: check the kept keys again
+    # until every one left out lies on the fade between the two kept around it.
+    while True:
+        k = np.arange(len(times))
+        right = np.searchsorted(keep, k, side="left")
+        right = np.clip(right, 1, len(keep) - 1)
+        lo, hi = keep[right - 1], keep[right]
+        ww = np.where(hi > lo, (times[k] - times[lo]) / np.maximum(times[hi] - times[lo],
+                                                                  1e-12), 0.0)[:, None]
+        off = np.abs(c[k] - (c[lo] + ww * (c[hi] - c[lo]))).max(axis=1)
+        missing = np.setdiff1d(np.flatnonzero(off > 0.5), keep)
+        if not len(missing):
+            return keep
+        keep = np.union1d(keep, missing)
+
+
+def plan_to_sky(plan: Plan, placed: bool = True, altitude: bool = True
+                ) -> tuple[SkyShow, float]:
     """``plan`` as a Skybrush show, and the climb's length (plan time 0 is that Skybrush
-    time)."""
+    time).  Its origin and heading are written as ``environment.location`` when
+    ``placed`` (not for an imported show groundctl anchored at its stand-in field), with
+    the altitude when ``altitude`` (not a stand-in either)."""
     tr = plan.trajectories
     start, end = tr.pos[:, 0], tr.pos[:, -1]
     climb = start - plan.home
@@ -405,16 +489,21 @@ def plan_to_sky(plan: Plan) -> tuple[SkyShow, float]:
                                  tr.vel[i, k[1:]], np.diff(t))
         times = np.concatenate([[0.0], t + climb_s, [tr.end + climb_s + descent_s]])
         ctrl = np.concatenate([up[i][None], body, down[i][None]])
-        keys = tuple(LightKey(float(t + climb_s), (int(c[0]), int(c[1]), int(c[2])))
-                     for t, c in zip(plan.color_times, rgb[i], strict=True))
+        # Its own colour keys: the plan's are every drone's together.
+        own = _own_keys(plan.color_times, rgb[i])
+        keys = tuple(LightKey(float(plan.color_times[k] + climb_s),
+                              (int(rgb[i, k, 0]), int(rgb[i, k, 1]), int(rgb[i, k, 2])))
+                     for k in own)
         drones.append(SkyDrone(name=plan.name_of(i) or f"drone_{i + 1}", home=plan.home[i].copy(),
                                track=BezierTrack(times, ctrl), lights=keys))
     sky = SkyShow(title=plan.show_name, drones=tuple(drones),
                   min_distance=lim.min_separation, max_altitude=lim.max_alt,
                   max_velocity_xy=lim.max_speed_h, max_velocity_z=lim.max_speed_down,
                   max_velocity_z_up=lim.max_speed_up, geofence=lim.geofence,
-                  cues=tuple((max(c.time + climb_s, 0.0), c.name) for c in plan.cues),
+                  cues=tuple((min(max(c.time + climb_s, 0.0), MAX_SHOW_SECONDS), c.name)
+                             for c in plan.cues),
                   location=SkyLocation(lat=plan.origin.lat, lon=plan.origin.lon,
-                                       amsl=plan.origin.alt,
-                                       orientation_deg=orientation_of(plan.origin.heading_deg)))
+                                       amsl=plan.origin.alt if altitude else None,
+                                       orientation_deg=orientation_of(plan.origin.heading_deg))
+                  if placed else None)
     return sky, climb_s

@@ -3,8 +3,8 @@
 The bytecode (libskybrush ``src/lights``): one command byte, then its arguments;
 durations are varints (7 bits a byte, least significant first, high bit "more")
 counting 20 ms frames, ``WAIT_UNTIL``'s deadline too (frames from the program's
-start, or from its last ``RESET_CLOCK``: libskybrush's player, skybrush.js and
-pyledctrl's compiler agree).  ``SET_*`` sets the
+start: libskybrush's player, skybrush.js and pyledctrl's compiler agree; or from its
+last ``RESET_CLOCK``, as libskybrush counts it).  ``SET_*`` sets the
 colour at once and then waits its duration; ``FADE_*`` fades linearly from the
 current colour to its colour over its duration.  Colours are bytes 0..255.
 

@@ -181,7 +181,15 @@ def _read(zf: SafeZip, stem: str) -> SkyShow:
                    max_velocity_z_up=opt("maxVelocityZUp", 50.0),
                    geofence=_geofence(settings.get("geofence")),
                    cues=_cues(settings.get("cues")),
-                   location=_location(_resolve(zf, doc.get("environment"), "environment")))
+                   location=_location(_environment(zf, doc.get("environment"))))
+
+
+def _environment(zf: SafeZip, raw: object) -> object:
+    """``environment`` with its ``location`` resolved too (either may be a ``$ref``)."""
+    env = _resolve(zf, raw, "environment")
+    if isinstance(env, dict) and env.get("location") is not None:
+        env = {**env, "location": _resolve(zf, env["location"], "environment.location")}
+    return env
 
 
 def _location(raw: object) -> SkyLocation | None:
@@ -215,22 +223,33 @@ def _location(raw: object) -> SkyLocation | None:
 
 def _cues(raw: object) -> tuple[tuple[float, str], ...]:
     """``settings.cues``: ``{"version": 1, "items": [{"time": s, "name": text}, ...]}``,
-    in time order (a cue without a usable name is called ``cue N``)."""
-    if raw is None:
+    in time order.  A cue only names a moment, so a bad one never refuses the show: one
+    without a usable time is left out, a time before the show's start (Skybrush Studio
+    shifts markers by the exported frame range) is taken as 0, a name that is not
+    printable text becomes ``cue N``, and past :data:`MAX_CUES` the rest are left out."""
+    if not isinstance(raw, dict):
         return ()
-    items = _object(raw, "'settings.cues'").get("items", [])
-    if not isinstance(items, list) or len(items) > MAX_CUES:
-        raise _Bad(f"'settings.cues.items' must be a list of at most {MAX_CUES} cues")
+    items = raw.get("items", [])
+    if not isinstance(items, list):
+        return ()
     out = []
-    for k, item in enumerate(items):
-        where = f"settings.cues item {k + 1}"
-        item = _object(item, where)
-        t = _number(item.get("time"), f"{where} time", 0.0, MAX_SHOW_SECONDS)
+    for k, item in enumerate(items[:MAX_CUES]):
+        if not isinstance(item, dict):
+            continue
+        t = item.get("time")
+        if isinstance(t, bool) or not isinstance(t, int | float):
+            continue
+        try:
+            t = float(t)
+        except OverflowError:
+            continue
+        if not math.isfinite(t) or t > MAX_SHOW_SECONDS:
+            continue
         name = item.get("name")
         if not isinstance(name, str) or not name.strip() or len(name) > MAX_NAME_CHARS \
                 or not name.isprintable():
             name = f"cue {k + 1}"
-        out.append((t, name))
+        out.append((max(t, 0.0), name))
     return tuple(sorted(out, key=lambda c: c[0]))
 
 

@@ -77,7 +77,9 @@ def trajectory_bytes(points: list[list[Any]]) -> int:
     (``points`` as :func:`drone_json` writes them, takeoff time 0): a scale byte, the
     start point (4 x int16), and per segment a format byte and a 16-bit duration in ms,
     then per axis nothing if it stays put, one int16 if straight, three if curved (the
-    coordinates in units of ``scale`` mm, truncated); segments over 65 s are split."""
+    coordinates in units of ``scale`` mm, truncated); segments over 65 s are split (an
+    axis that stays put there counted as straight: the split may round it into one, so
+    the figure is never below the server's)."""
     coords = [abs(x) for p in points for q in ([p[1], *list(p[2])]) for x in q]
     scale = math.ceil((math.ceil(max(coords) * 1000.0) + 1) / 32768)
     unit = 1000.0 / scale
@@ -94,6 +96,10 @@ def trajectory_bytes(points: list[list[Any]]) -> int:
             series = [int(q[axis] * unit) for q in [prev, *ctrl, end]]
             if any(x != series[0] for x in series[1:]):
                 per_axis += 2 if not ctrl else 6
+            elif pieces > 1:
+                # The server splits it by de Casteljau: rounding may move a piece's axis
+                # by a unit, which then costs a straight axis.  Counted, to stay below.
+                per_axis += 2
         size += pieces * (3 + per_axis)
         prev, prev_t = end, t
     return size
@@ -113,12 +119,17 @@ def check_for_skybrush(show: SkyShow, drones: list[dict[str, Any]]
         reach = max(abs(x) for p in points for q in ([p[1], *list(p[2])]) for x in q)
         if math.ceil((math.ceil(reach * 1000.0) + 1) / 32768) >= 128:
             return i + 1, (f"{who} flies {reach:.0f} m from the show's origin, more than the "
-                    "4,194 m Skybrush's binary show format holds")
+                           "4,161 m Skybrush's binary show format holds")
         for a, b in itertools.pairwise(points):
             if round(b[0] - a[0], 3) <= 0.0:
                 return i + 1, (f"{who} has a trajectory segment of {1e3 * (b[0] - a[0]):.3f} ms at "
                         f"t = {a[0]:.3f} s, shorter than the millisecond Skybrush counts "
                         "durations in")
+        light = len(base64.b64decode(entry["settings"]["lights"]["data"]))
+        if light > MAX_TRAJECTORY_BYTES:
+            return i + 1, (f"{who}'s light program is {light:,} bytes, more than the "
+                           f"{MAX_TRAJECTORY_BYTES:,} Skybrush's server sends to a drone: "
+                           "fewer colour changes")
         size = trajectory_bytes(points)
         if size > MAX_TRAJECTORY_BYTES:
             return i + 1, (f"{who}'s trajectory is {size:,} bytes in Skybrush's upload format "
