@@ -200,3 +200,19 @@ def test_a_bad_smooth_value_is_one_argparse_line(value: str, message: str) -> No
     errors = [ln for ln in out.stderr.splitlines() if "error:" in ln]
     assert len(errors) == 1 and "Traceback" not in out.stderr
     assert errors[0] == f"groundctl plan: error: argument --smooth: {message}"
+
+
+def test_a_smoothed_show_exported_reads_back_safe(tmp_path: Path) -> None:
+    # Blends put knots a few milliseconds (or less) apart: the export joins the slivers
+    # and writes enough decimals that reading it back is the same curve, within the
+    # same acceleration limit.
+    from groundctl.skybrush.importing import export_skyc
+    doc = show_doc([*circles(), ramp()])
+    r = import_show(write_skyc(tmp_path / "show.skyc", doc), smooth=0.15)
+    assert r.safe, r.lines()
+    out = export_skyc(r.plan, tmp_path / "out.skyc")
+    back = import_show(out, limits=r.plan.limits)
+    assert back.safe, back.lines()
+    ts = np.linspace(0.0, r.plan.duration, 40001)
+    err = np.abs(r.plan.trajectories.evaluate(ts)[0] - back.plan.trajectories.evaluate(ts)[0])
+    assert err.max() < 1e-3

@@ -349,7 +349,8 @@ def _hermite_at(p0: FloatArray, v0: FloatArray, p1: FloatArray, v1: FloatArray,
             + (-2 * s3 + 3 * s2) * p1 + (s3 - s2) * h * v1)
 
 
-def own_segments(times: FloatArray, pos: FloatArray, vel: FloatArray) -> NDArray[np.intp]:
+def own_segments(times: FloatArray, pos: FloatArray, vel: FloatArray,
+                 max_accel: float = math.inf) -> NDArray[np.intp]:
     """The knots of one drone's trajectory (``times`` (K+1,), ``pos``/``vel`` (K+1, 3) on
     the fleet's shared time grid) that are its own: indices of the knots where its
     polynomial changes, first and last included.
@@ -392,43 +393,55 @@ def own_segments(times: FloatArray, pos: FloatArray, vel: FloatArray) -> NDArray
     keep = set(cuts.tolist())
     for r in bad_runs:
         keep.update(range(int(starts[r]) + 1, int(ends[r])))
-    return _without_slivers(times, pos, vel, sorted(keep))
+    return _without_slivers(times, pos, vel, sorted(keep), max_accel)
 
 
-#: Shortest segment an export keeps, s: Skybrush counts durations in whole milliseconds
-#: (its server rounds each to the millisecond, and refuses one that rounds to none).
-SLIVER_S = 0.001
+#: Shortest segment an export keeps where it can, s: Skybrush counts durations in whole
+#: milliseconds (its server rounds each to the millisecond, and refuses one that rounds
+#: to none), and on a piece of a few milliseconds the written decimals of its control
+#: points become acceleration.
+SLIVER_S = 0.005
 #: How far joining a sliver to its neighbour may move the trajectory, m.
 SLIVER_TOL = 1e-3
 
 
 def _without_slivers(times: FloatArray, pos: FloatArray, vel: FloatArray,
-                     keep: list[int]) -> NDArray[np.intp]:
+                     keep: list[int], max_accel: float = math.inf) -> NDArray[np.intp]:
     """``keep`` without the knots that end segments shorter than :data:`SLIVER_S` (where
-    two blends, or a drone's own knots and the show's start, fall a fraction of a
-    millisecond apart): the sliver and its neighbour become one cubic Hermite segment
-    between their outer knots, if that stays within :data:`SLIVER_TOL` of both (checked at
-    the joint and at both pieces' midpoints); otherwise the sliver stays, and the export
-    refuses it in one line."""
+    two blends, or a drone's own knots and another's, fall a few milliseconds apart): the
+    sliver and a neighbour (the shorter first) become one cubic Hermite segment between
+    their outer knots where that stays within :data:`SLIVER_TOL` of both (at the joint
+    and both pieces' midpoints) and accelerates no harder than they do or than
+    ``max_accel`` (a cubic's acceleration is largest at an end); otherwise the sliver
+    stays (one under a millisecond is then refused in one line on export)."""
     k = list(keep)
-    i = 0
-    while i < len(k) - 1 and len(k) > 2:
-        if times[k[i + 1]] - times[k[i]] >= SLIVER_S:
-            i += 1
-            continue
-        # Drop the knot between the sliver and its shorter neighbour.
-        left = times[k[i]] - times[k[i - 1]] if i > 0 else math.inf
-        right = times[k[i + 2]] - times[k[i + 1]] if i + 2 < len(k) else math.inf
-        drop = i if left <= right else i + 1
+
+    def joined(drop: int) -> bool:
         a, m, b = k[drop - 1], k[drop], k[drop + 1]
         whole = Trajectories(np.array([times[a], times[b]]), np.stack([pos[a], pos[b]])[None],
                              np.stack([vel[a], vel[b]])[None])
         parts = Trajectories(times[a:b + 1], pos[None, a:b + 1], vel[None, a:b + 1])
         at = np.array([times[m], 0.5 * (times[a] + times[m]), 0.5 * (times[m] + times[b])])
         off = float(np.abs(whole.evaluate(at)[0] - parts.evaluate(at)[0]).max())
-        if off <= SLIVER_TOL:
-            del k[drop]
-            i = max(drop - 2, 0)
+        acc_whole = float(np.linalg.norm(
+            whole.evaluate(np.array([times[a], times[b]]))[2][0], axis=1).max())
+        ends = np.array([times[a], times[m] - 1e-9, times[m], times[b]])
+        acc_parts = float(np.linalg.norm(parts.evaluate(ends)[2][0], axis=1).max())
+        return off <= SLIVER_TOL and acc_whole <= max(acc_parts + 1e-6, max_accel)
+
+    i = 0
+    while i < len(k) - 1 and len(k) > 2:
+        if times[k[i + 1]] - times[k[i]] >= SLIVER_S:
+            i += 1
+            continue
+        left = times[k[i]] - times[k[i - 1]] if i > 0 else math.inf
+        right = times[k[i + 2]] - times[k[i + 1]] if i + 2 < len(k) else math.inf
+        sides = [i, i + 1] if left <= right else [i + 1, i]
+        for drop in sides:
+            if 0 < drop < len(k) - 1 and joined(drop):
+                del k[drop]
+                i = max(drop - 2, 0)
+                break
         else:
             i += 1
     return np.array(k, dtype=np.intp)
@@ -483,7 +496,7 @@ def plan_to_sky(plan: Plan, placed: bool = True, altitude: bool = True
     for i in range(plan.drones):
         # Each drone with its own knots: the plan's grid is every drone's knots together,
         # which would make each drone's trajectory as long as the whole fleet's.
-        k = own_segments(tr.times, tr.pos[i], tr.vel[i])
+        k = own_segments(tr.times, tr.pos[i], tr.vel[i], lim.max_accel)
         t = tr.times[k]
         body = hermite_to_bezier(tr.pos[i, k[:-1]], tr.vel[i, k[:-1]], tr.pos[i, k[1:]],
                                  tr.vel[i, k[1:]], np.diff(t))

@@ -1,8 +1,8 @@
 """Writing a Skybrush compiled show (``.skyc``): a zip with ``show.json`` (see :mod:`.reader`).
 
 Every segment is written as a cubic Bezier (two control points), or as a straight
-one (none) where it is one; positions are rounded to 0.1 mm and times to 1
-microsecond, lights are ``ledctrl`` bytecode (:mod:`.lights`) in base64.
+one (none) where it is one; positions are rounded to 0.1 um and times to 1
+nanosecond, lights are ``ledctrl`` bytecode (:mod:`.lights`) in base64.
 
 What Skybrush then does with it is checked before anything is written
 (:func:`check_for_skybrush`): Skybrush loads at most :data:`MAX_SKYBRUSH_DRONES`
@@ -28,10 +28,12 @@ from groundctl.errors import SkybrushExportError
 from groundctl.skybrush import lights as ledctrl
 from groundctl.skybrush.model import SkyDrone, SkyShow
 
-#: Decimals of positions, m (0.1 mm).
-POS_DECIMALS = 4
-#: Decimals of times, s.
-TIME_DECIMALS = 6
+#: Decimals of positions, m (0.1 um: on a segment of a few milliseconds, 0.1 mm of
+#: rounding is tens of m/s^2 of acceleration; Skybrush itself keeps millimetres).
+POS_DECIMALS = 7
+#: Decimals of times, s (a nanosecond: on a segment of a few milliseconds a
+#: microsecond would already bend its curve).
+TIME_DECIMALS = 9
 
 
 #: Most drones Skybrush loads (skybrush.js, packages/show-format MAX_DRONE_COUNT).
