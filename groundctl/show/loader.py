@@ -173,47 +173,39 @@ def load_vehicle_settings(path: str | Path) -> VehicleSettings | None:
     return read_vehicle_settings(data, str(p))
 
 
-def load_vehicle_file(path: str | Path) -> VehicleSettings:
-    """The ``[vehicle]`` table of any TOML file (``--vehicle FILE``: a show file, or one
-    with only that table); its fence is the flown plan's geofence."""
+def _table_file(path: str | Path, table: str, why: str) -> tuple[Path, Table]:
+    """The ``[table]`` of any TOML file given for one table alone (a show file, or one
+    with only that table); ShowFileError in one line, ``why`` saying what it is for."""
     p = Path(path)
     try:
         data = tomllib.loads(read_regular_file(p, MAX_SHOW_FILE_BYTES).decode("utf-8"))
     except FileProblem as exc:
         raise ShowFileError(p, "", str(exc)) from None
     except UnicodeDecodeError:
-        raise ShowFileError(p, "", "not UTF-8 text (a [vehicle] table is TOML)") from None
+        raise ShowFileError(p, "", f"not UTF-8 text (a [{table}] table is TOML)") from None
     except tomllib.TOMLDecodeError as exc:
         raise _syntax_error(p, exc) from None
     except RecursionError:
         raise ShowFileError(p, "", "TOML syntax error: arrays or inline tables nested too "
                                    "deeply") from None
-    if "vehicle" not in data:
-        raise ShowFileError(p, "", "no [vehicle] table (--vehicle takes the vehicles' own "
-                                   "settings from one)")
-    return _read_vehicle(_table(data, "vehicle", str(p)), None)
+    if table not in data:
+        raise ShowFileError(p, "", f"no [{table}] table ({why})")
+    return p, _table(data, table, str(p))
+
+
+def load_vehicle_file(path: str | Path) -> VehicleSettings:
+    """The ``[vehicle]`` table of any TOML file (``--vehicle FILE``: a show file, or one
+    with only that table); its fence is the flown plan's geofence."""
+    _, t = _table_file(path, "vehicle", "--vehicle takes the vehicles' own settings from one")
+    return _read_vehicle(t, None)
 
 
 def load_limits_file(path: str | Path) -> dict[str, Any]:
     """The keys the ``[limits]`` table of any TOML file gives (``--limits FILE`` for a
     Skybrush show: a show file, or one with only that table), as :class:`Limits` fields
     and values; each checked as a show file's are."""
-    p = Path(path)
-    try:
-        data = tomllib.loads(read_regular_file(p, MAX_SHOW_FILE_BYTES).decode("utf-8"))
-    except FileProblem as exc:
-        raise ShowFileError(p, "", str(exc)) from None
-    except UnicodeDecodeError:
-        raise ShowFileError(p, "", "not UTF-8 text (a [limits] table is TOML)") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise _syntax_error(p, exc) from None
-    except RecursionError:
-        raise ShowFileError(p, "", "TOML syntax error: arrays or inline tables nested too "
-                                   "deeply") from None
-    if "limits" not in data:
-        raise ShowFileError(p, "", "no [limits] table (--limits takes the envelope your "
-                                   "vehicles fly from one)")
-    t = _table(data, "limits", str(p))
+    _, t = _table_file(path, "limits", "--limits takes the envelope your vehicles fly "
+                                       "from one")
     limits = _read_limits(t)
     given = {field: getattr(limits, field) for key, field in _LIMIT_KEYS.items() if t.has(key)}
     if t.has("geofence"):
