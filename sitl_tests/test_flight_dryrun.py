@@ -103,6 +103,21 @@ def test_preflight_refuses_a_vehicle_off_its_slot() -> None:
     assert "from the nearest takeoff slot" in result.error.failures[4][0]
 
 
+def test_preflight_refuses_a_fleet_standing_far_above_the_shows_origin_altitude() -> None:
+    # The field is 200 m higher than the show's [origin] alt says: every setpoint would be
+    # 200 m off vertically (a show flown into the ground on a lower field).
+    def higher_field(config: SimConfig) -> SimConfig:
+        lat, lon, alt = config.origin
+        return replace(config, origin=(lat, lon, alt + 200.0))
+
+    result = dry_run(customise=higher_field)
+    assert isinstance(result.error, PreflightFailed) and not result.flown
+    assert sorted(result.error.failures) == list(range(1, 10))
+    line = result.error.failures[1][0]
+    assert "m from its slot but 200 m above it" in line
+    assert "the show's origin altitude is not the field's" in line
+
+
 def test_preflight_refuses_a_low_battery() -> None:
     async def drain(runner: ShowRunner, sim: SimProcess) -> None:
         sim.call("low_battery", 0.3, 6)

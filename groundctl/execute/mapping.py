@@ -21,6 +21,10 @@ from numpy.typing import ArrayLike
 from scipy.optimize import linear_sum_assignment
 
 DEFAULT_SLOT_TOLERANCE_M = 3.0
+#: Largest height of a vehicle on the ground above (or below) its slot, m: GPS and
+#: barometer put a vehicle a few metres off; a show whose origin altitude is not the
+#: field's puts every vehicle tens or hundreds of metres off, and its show there.
+DEFAULT_SLOT_HEIGHT_TOLERANCE_M = 10.0
 
 
 @dataclass(frozen=True)
@@ -37,6 +41,9 @@ class Assignment:
     """Tracks no vehicle will fly."""
     extra_vehicles: tuple[int, ...] = ()
     """Vehicles left over once every slot had a vehicle (or not in the fleet file)."""
+    heights: dict[int, float] = field(default_factory=dict)
+    """System id -> its height above its slot, m (show frame: from its EKF origin's
+    altitude and the show origin's), for every vehicle given a track."""
 
     def problems(self) -> list[str]:
         """Every issue as one line for the operator (empty when all is well)."""
@@ -113,7 +120,14 @@ def auto_assign(home: ArrayLike, positions: MappingABC[int, ArrayLike | None],
                 distances[sysid] = d
         extra = sorted(set(cand) - {cand[r] for r in rows})
     unassigned = tuple(sorted(set(range(len(slots))) - set(tracks.values())))
-    return Assignment(tracks, distances, refused, unassigned, tuple(extra))
+    return Assignment(tracks, distances, refused, unassigned, tuple(extra),
+                      _heights(tracks, pos, slots))
+
+
+def _heights(tracks: MappingABC[int, int], pos: MappingABC[int, np.ndarray | None],
+             slots: np.ndarray) -> dict[int, float]:
+    return {s: float(p[2] - slots[t, 2]) for s, t in tracks.items()
+            if (p := pos.get(s)) is not None}
 
 
 def explicit_assign(assignments: MappingABC[int, int], home: ArrayLike,
@@ -158,4 +172,5 @@ def explicit_assign(assignments: MappingABC[int, int], home: ArrayLike,
             tracks[sysid] = track
     unassigned = tuple(sorted(set(range(len(slots))) - set(tracks.values())))
     extra = tuple(sorted(set(pos) - set(assignments)))
-    return Assignment(tracks, distances, refused, unassigned, extra)
+    return Assignment(tracks, distances, refused, unassigned, extra,
+                      _heights(tracks, pos, slots))

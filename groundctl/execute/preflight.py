@@ -24,7 +24,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from groundctl.errors import PreflightFailed
-from groundctl.execute.mapping import DEFAULT_SLOT_TOLERANCE_M, Assignment
+from groundctl.execute.mapping import (
+    DEFAULT_SLOT_HEIGHT_TOLERANCE_M,
+    DEFAULT_SLOT_TOLERANCE_M,
+    Assignment,
+)
 from groundctl.link.state import VehicleState
 from groundctl.plan.plan import Plan
 from groundctl.vehicleid import spell_many
@@ -42,6 +46,9 @@ class Thresholds:
     """Min remaining battery, percent."""
     slot_tolerance_m: float = DEFAULT_SLOT_TOLERANCE_M
     """Max horizontal distance from the assigned takeoff slot, m."""
+    slot_height_tolerance_m: float = DEFAULT_SLOT_HEIGHT_TOLERANCE_M
+    """Max height above or below the assigned takeoff slot, m (the show's origin
+    altitude against the vehicles' own)."""
     max_loss_ratio: float = 0.2
     """Max fraction of packets lost."""
     max_rtt_s: float = 0.25
@@ -145,6 +152,15 @@ def check_slot(sysid: int, assignment: Assignment, th: Thresholds) -> CheckResul
     if d > th.slot_tolerance_m:
         return CheckResult("slot", False, f"track {track}, {d:.1f} m from its slot "
                                           f"(tolerance {th.slot_tolerance_m:.1f} m)")
+    dz = assignment.heights.get(sysid)
+    if dz is not None and abs(dz) > th.slot_height_tolerance_m:
+        # The show frame's altitude is not the field's: every setpoint would be that far
+        # off vertically (a show in the ground, or hundreds of metres up).
+        return CheckResult("slot", False, (
+            f"track {track}, {d:.1f} m from its slot but {abs(dz):.0f} m "
+            f"{'above' if dz > 0 else 'below'} it (tolerance "
+            f"{th.slot_height_tolerance_m:.0f} m): the show's origin altitude is not the "
+            "field's"))
     return CheckResult("slot", True, f"track {track}, {d:.1f} m from its slot")
 
 
