@@ -11,6 +11,11 @@ console would not be drawn at all, and its cost would not be measured.
 ``--stall S``: the terminal stops reading for S seconds after every 5 s of reading
 (a paused terminal, a stuck SSH connection), so the runs with the console are
 drawn into a terminal that keeps filling up: what it costs the control loop.
+
+``--view N [N ...]``: no flight; the view model alone, for a fleet of N ready vehicles
+(the tests' fabricated runner: a grid plan, each vehicle on its slot): ms per view with
+the pre-flight grid and without it, ms for every row's cells, and the refresh interval
+the console keeps at that cost (``MAX_SHARE`` of the loop at most).
 """
 
 from __future__ import annotations
@@ -38,7 +43,11 @@ def main() -> int:
     ap.add_argument("--repeat", default="2")
     ap.add_argument("--stall", type=float, default=0.0,
                     help="stop reading the terminal this long after every 5 s of reading")
+    ap.add_argument("--view", nargs="+", type=int, default=None, metavar="N",
+                    help="time the view model alone for fleets of N vehicles")
     args = ap.parse_args()
+    if args.view:
+        return view_costs(args.view)
     master, slave = pty.openpty()
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 60, 200, 0, 0))
     env = dict(os.environ, TERM="xterm-256color")
@@ -66,6 +75,39 @@ def main() -> int:
         out.seek(0)
         print(out.read(), end="")
     return code
+
+
+def view_costs(sizes: list[int], repeat: int = 20) -> int:
+    sys.path.insert(0, str(HERE.parent / "sitl_tests"))
+    from console_fixtures import fabricated_runner, grid_plan
+
+    from groundctl.console.app import MAX_SHARE, REFRESH_HZ
+    from groundctl.console.model import ConsoleModel
+
+    print(f"{'vehicles':>8} {'view+grid ms':>12} {'view ms':>8} {'cells ms':>8} "
+          f"{'interval s':>10}")
+    for n in sizes:
+        runner = fabricated_runner(grid_plan(n))
+        model = ConsoleModel()
+        model.attach(runner)
+        now = model.now()
+        ms = {}
+        for pre in (True, False):
+            model.view(now, preflight=pre)  # the grid's first build is not a refresh's
+            started = time.perf_counter()
+            for _ in range(repeat):
+                view = model.view(now, preflight=pre)
+            ms[pre] = (time.perf_counter() - started) / repeat * 1000.0
+        started = time.perf_counter()
+        for _ in range(repeat):
+            for row in view.rows:
+                row.cells()
+        cells = (time.perf_counter() - started) / repeat * 1000.0
+        worst = (max(ms.values()) + cells) / 1000.0
+        interval = max(1.0 / REFRESH_HZ, worst / MAX_SHARE)
+        print(f"{n:>8} {ms[True]:>12.2f} {ms[False]:>8.2f} {cells:>8.2f} {interval:>10.2f}",
+              flush=True)
+    return 0
 
 
 if __name__ == "__main__":

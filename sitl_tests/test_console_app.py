@@ -13,6 +13,7 @@ import asyncio
 from collections.abc import Awaitable, Callable
 from pathlib import Path
 
+import pytest
 from console_fixtures import fabricated_runner, grid_plan, refresh_preflight, screenshot_dir
 from flight_fixtures import FAST, quick_plan, show_time, until
 from textual.pilot import Pilot
@@ -20,7 +21,7 @@ from textual.widgets import DataTable
 
 from groundctl.commands.console_mode import console_config
 from groundctl.commands.flying import Interrupts
-from groundctl.console.app import ConsoleApp
+from groundctl.console.app import MAX_SHARE, REFRESH_HZ, ConsoleApp
 from groundctl.console.session import ConsoleSession
 from groundctl.console.table import FleetTable
 from groundctl.errors import NoGo
@@ -228,6 +229,23 @@ def test_exclude_in_preflight_and_quit_before_arming_is_a_no_go(tmp_path: Path) 
     events = read_events(tmp_path / "rec" / "events.jsonl")
     operator = [e["command"] for e in events if e["event"] == "operator"]
     assert operator == [f"exclude {picked['excluded']}", "no-go"]
+
+
+def test_refreshes_that_cost_more_than_their_share_are_spaced_out() -> None:
+    """A refresh costs the control loop's interpreter its time: past MAX_SHARE of the
+    period (a view of thousands of rows), the refreshes come less often, and as often as
+    before once they are cheap again."""
+    session = ConsoleSession(lambda label: None, linger_s=0.0)
+    app = session.app
+    assert app.refresh_interval == pytest.approx(1.0 / REFRESH_HZ)
+    app.refresh_s.extend([0.004, 0.006])  # within 5 % of 200 ms
+    assert app.refresh_interval == pytest.approx(1.0 / REFRESH_HZ)
+    app.refresh_s.append(0.030)  # 30 ms: at most every 0.6 s
+    assert app.refresh_interval == pytest.approx(0.030 / MAX_SHARE)
+    app.refresh_s.extend([0.005, 0.005])  # one slow refresh among the last three counts
+    assert app.refresh_interval == pytest.approx(0.030 / MAX_SHARE)
+    app.refresh_s.append(0.005)
+    assert app.refresh_interval == pytest.approx(1.0 / REFRESH_HZ)
 
 
 def test_fleet_table_of_200_vehicles_updates_in_place_and_bad_input_is_reported() -> None:

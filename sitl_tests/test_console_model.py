@@ -107,6 +107,30 @@ def test_preflight_view_has_every_check_of_every_vehicle_and_a_go_line() -> None
     assert row4.severity == "bad" and row4.alarm == "failed: battery"
 
 
+def test_the_preflight_grid_is_built_once_per_report_and_again_when_it_changes() -> None:
+    """1,000 vehicles' checks are ten thousand cells: built when a pre-flight pass gives a
+    new report (or the exclusions change), not on every refresh."""
+    plan = grid_plan(9)
+    runner = fabricated_runner(plan)
+    model = ConsoleModel()
+    model.attach(runner)
+    first = model.view(NOW).preflight
+    again = model.view(NOW).preflight
+    assert first is not None and again is not None
+    assert again.rows is first.rows  # the same report: the same grid
+    runner.link.vehicles[4].battery_remaining_pct = 35.0
+    assert model.view(NOW).preflight.rows is first.rows  # type: ignore[union-attr]
+    refresh_preflight(runner, NOW)  # the next pass sees it
+    after = model.view(NOW).preflight
+    assert after is not None and after.rows is not first.rows
+    assert next(r for r in after.rows if r.sysid == 4).status == "failed"
+    runner.exclude(4)
+    excluded = model.view(NOW).preflight
+    assert excluded is not None
+    assert next(r for r in excluded.rows if r.sysid == 4).status == "excluded"
+    assert excluded.go
+
+
 def test_go_line_once_every_vehicle_passes_and_exclusion_counts() -> None:
     plan = grid_plan(9)
     runner = fabricated_runner(plan)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import gc
+import itertools
 import time
 from collections import deque
 from typing import Any, ClassVar, cast
@@ -55,6 +56,12 @@ from groundctl.vehicleid import parse_vehicle, spell
 #: Refreshes per second at most: an operator reads no faster, and every refresh is
 #: time the control loop's interpreter is not ticking.
 REFRESH_HZ = 5.0
+#: The share of the control loop's interpreter the refreshes may take at most: a refresh
+#: that took longer than MAX_SHARE / REFRESH_HZ (10 ms; the view of 1,000 rows takes
+#: several) spaces the next ones out, so the console's cost stays bounded whatever the
+#: fleet, and the operator sees the picture a little less often instead of the flight
+#: being late.
+MAX_SHARE = 0.05
 _SEVERITY_STYLE: dict[Severity, str] = {"ok": "green", "warn": "bold yellow",
                                         "bad": "bold white on red", "off": "grey50"}
 _CHECK_STYLE = {"pass": "green", "fail": "bold white on red", "wait": "yellow"}
@@ -296,9 +303,16 @@ class ConsoleApp(App[None]):
         a refresh now, at most :data:`REFRESH_HZ`, lands in the idle part of the tick's
         period instead of on a setpoint's instant."""
         if self._mounted and not self._tick_queued \
-                and time.monotonic() - self._last_refresh >= 0.95 / REFRESH_HZ:
+                and time.monotonic() - self._last_refresh >= 0.95 * self.refresh_interval:
             self._tick_queued = True
             self.call_next(self._tick_refresh)  # on the app's own message pump
+
+    @property
+    def refresh_interval(self) -> float:
+        """Seconds between refreshes: 1 / REFRESH_HZ, or longer while the last refreshes
+        cost more than MAX_SHARE of that (the slowest of the last three counts)."""
+        recent = list(itertools.islice(reversed(self.refresh_s), 3))
+        return max(1.0 / REFRESH_HZ, max(recent, default=0.0) / MAX_SHARE)
 
     def _tick_refresh(self) -> None:
         self._tick_queued = False
@@ -306,7 +320,7 @@ class ConsoleApp(App[None]):
 
     def _idle_refresh(self) -> None:
         # The timer refreshes only while no tick does (connecting, pre-flight, a stall).
-        if time.monotonic() - self._last_refresh >= 2.5 / REFRESH_HZ:
+        if time.monotonic() - self._last_refresh >= 2.5 * self.refresh_interval:
             self.refresh_view()
 
     def _set(self, widget_id: str, content: Text) -> None:

@@ -10,12 +10,13 @@ without a terminal, and the same numbers the plain mode prints.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
+from groundctl.execute.preflight import PreflightReport
 from groundctl.execute.sequence import ShowPhase, VehiclePhase, VehicleRun
 from groundctl.flight.monitor import nearest_pair
 from groundctl.flight.runner import PERMANENT_CHECKS, ShowRunner
@@ -245,6 +246,10 @@ class ConsoleModel:
         self._show = show
         self._duration = duration_s
         self._limit = separation_limit_m
+        self._grid: tuple[Any, ...] = ()
+        """The pre-flight grid's inputs (report, assignment, excluded), its names and rows:
+        a report is replaced, never changed, so 1,000 vehicles' ten checks are built once
+        per pre-flight pass, not on every refresh."""
 
     def attach(self, runner: ShowRunner) -> None:
         """The runner to read from."""
@@ -449,26 +454,17 @@ class ConsoleModel:
             return "", "off"
         return "", "ok"
 
-    @staticmethod
-    def _preflight(runner: ShowRunner) -> PreflightView:
+    def _preflight(self, runner: ShowRunner) -> PreflightView:
         report = runner.preflight_report
         assert report is not None
         excluded = runner.config.excluded
-        names: list[str] = []
-        rows = []
-        for sysid in sorted(report.results):
-            cells = []
-            for r in report.results[sysid]:
-                if r.name not in names:
-                    names.append(r.name)
-                cells.append(CheckCell(r.name, "pass" if r.ok else _check_state(r.name,
-                                                                                  r.detail),
-                                       r.detail))
-            states = {c.state for c in cells}
-            status = "excluded" if sysid in excluded else "failed" if "fail" in states \
-                else "waiting" if "wait" in states else "ready"
-            track = runner.assignment.tracks.get(sysid) if runner.assignment else None
-            rows.append(PreflightRow(sysid, track, tuple(cells), sysid in excluded, status))
+        grid = self._grid
+        if grid and grid[0] is report and grid[1] is runner.assignment \
+                and grid[2] == excluded:
+            names, rows = grid[3], grid[4]
+        else:
+            names, rows = _grid(runner, report, excluded)
+            self._grid = (report, runner.assignment, frozenset(excluded), names, rows)
         go = not report.failures(excluded) and not _missing(runner)
         summary = report.summary(excluded)
         missing = _missing(runner)
@@ -483,7 +479,7 @@ class ConsoleModel:
         else:
             line = f"NO-GO: {summary}"
         ignored = tuple(f"vehicle {s}: {why}" for s, why in sorted(report.extra.items()))
-        return PreflightView(tuple(names), tuple(rows), go, line, runner.awaiting_go, ignored)
+        return PreflightView(names, rows, go, line, runner.awaiting_go, ignored)
 
     @staticmethod
     def _detail(runner: ShowRunner, sysid: int, errors: dict[int, float],
@@ -535,6 +531,26 @@ class ConsoleModel:
                 if not r.ok:
                     lines.append(f"check {r.name}: {r.detail}")
         return Detail(sysid, tuple(lines))
+
+
+def _grid(runner: ShowRunner, report: PreflightReport, excluded: Collection[int]
+          ) -> tuple[tuple[str, ...], tuple[PreflightRow, ...]]:
+    """The pre-flight grid of ``report``: check names in column order, a row per vehicle."""
+    names: list[str] = []
+    rows = []
+    for sysid in sorted(report.results):
+        cells = []
+        for r in report.results[sysid]:
+            if r.name not in names:
+                names.append(r.name)
+            cells.append(CheckCell(r.name, "pass" if r.ok else _check_state(r.name, r.detail),
+                                   r.detail))
+        states = {c.state for c in cells}
+        status = "excluded" if sysid in excluded else "failed" if "fail" in states \
+            else "waiting" if "wait" in states else "ready"
+        track = runner.assignment.tracks.get(sysid) if runner.assignment else None
+        rows.append(PreflightRow(sysid, track, tuple(cells), sysid in excluded, status))
+    return tuple(names), tuple(rows)
 
 
 def _check_state(name: str, detail: str) -> CheckState:
