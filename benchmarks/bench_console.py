@@ -81,7 +81,7 @@ def view_costs(sizes: list[int], repeat: int = 20) -> int:
     sys.path.insert(0, str(HERE.parent / "sitl_tests"))
     from console_fixtures import fabricated_runner, grid_plan
 
-    from groundctl.console.app import MAX_SHARE, REFRESH_HZ
+    from groundctl.console.app import refresh_interval
     from groundctl.console.model import ConsoleModel
 
     print(f"{'vehicles':>8} {'view+grid ms':>12} {'view ms':>8} {'cells ms':>8} "
@@ -103,8 +103,7 @@ def view_costs(sizes: list[int], repeat: int = 20) -> int:
             for row in view.rows:
                 row.cells()
         cells = (time.perf_counter() - started) / repeat * 1000.0
-        worst = (max(ms.values()) + cells) / 1000.0
-        interval = max(1.0 / REFRESH_HZ, worst / MAX_SHARE)
+        interval = refresh_interval((max(ms.values()) + cells) / 1000.0)
         print(f"{n:>8} {ms[True]:>12.2f} {ms[False]:>8.2f} {cells:>8.2f} {interval:>10.2f}",
               flush=True)
     return 0

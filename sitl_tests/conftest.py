@@ -55,9 +55,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     own = {item.nodeid: recorded.get(item.nodeid, UNKNOWN_S) for item in items}
     module: dict[str, float] = {}
     for item in items:
-        key = item.nodeid.split("::", 1)[0]
-        module[key] = module.get(key, 0.0) + own[item.nodeid]
-    items.sort(key=lambda item: (-module[item.nodeid.split("::", 1)[0]], -own[item.nodeid]))
+        module[item.location[0]] = module.get(item.location[0], 0.0) + own[item.nodeid]
+    items.sort(key=lambda item: (-module[item.location[0]], -own[item.nodeid]))
 
 
 _measured: dict[str, float] = {}

@@ -62,6 +62,13 @@ REFRESH_HZ = 5.0
 #: fleet, and the operator sees the picture a little less often instead of the flight
 #: being late.
 MAX_SHARE = 0.05
+
+
+def refresh_interval(cost_s: float) -> float:
+    """Seconds between refreshes that cost ``cost_s`` each: 1 / REFRESH_HZ, or longer
+    when that would give them more than MAX_SHARE of the loop."""
+    return max(1.0 / REFRESH_HZ, cost_s / MAX_SHARE)
+
 _SEVERITY_STYLE: dict[Severity, str] = {"ok": "green", "warn": "bold yellow",
                                         "bad": "bold white on red", "off": "grey50"}
 _CHECK_STYLE = {"pass": "green", "fail": "bold white on red", "wait": "yellow"}
@@ -311,8 +318,8 @@ class ConsoleApp(App[None]):
     def refresh_interval(self) -> float:
         """Seconds between refreshes: 1 / REFRESH_HZ, or longer while the last refreshes
         cost more than MAX_SHARE of that (the slowest of the last three counts)."""
-        recent = list(itertools.islice(reversed(self.refresh_s), 3))
-        return max(1.0 / REFRESH_HZ, max(recent, default=0.0) / MAX_SHARE)
+        return refresh_interval(max(itertools.islice(reversed(self.refresh_s), 3),
+                                    default=0.0))
 
     def _tick_refresh(self) -> None:
         self._tick_queued = False

@@ -10,12 +10,13 @@ without a terminal, and the same numbers the plain mode prints.
 from __future__ import annotations
 
 import math
-from collections.abc import Collection, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 
+from groundctl.execute.mapping import Assignment
 from groundctl.execute.preflight import PreflightReport
 from groundctl.execute.sequence import ShowPhase, VehiclePhase, VehicleRun
 from groundctl.flight.monitor import nearest_pair
@@ -246,10 +247,9 @@ class ConsoleModel:
         self._show = show
         self._duration = duration_s
         self._limit = separation_limit_m
-        self._grid: tuple[Any, ...] = ()
-        """The pre-flight grid's inputs (report, assignment, excluded), its names and rows:
-        a report is replaced, never changed, so 1,000 vehicles' ten checks are built once
-        per pre-flight pass, not on every refresh."""
+        self._grid: _Grid | None = None
+        """The last pre-flight grid: 1,000 vehicles' ten checks are built once per
+        pre-flight pass, not on every refresh."""
 
     def attach(self, runner: ShowRunner) -> None:
         """The runner to read from."""
@@ -457,29 +457,20 @@ class ConsoleModel:
     def _preflight(self, runner: ShowRunner) -> PreflightView:
         report = runner.preflight_report
         assert report is not None
-        excluded = runner.config.excluded
         grid = self._grid
-        if grid and grid[0] is report and grid[1] is runner.assignment \
-                and grid[2] == excluded:
-            names, rows = grid[3], grid[4]
-        else:
-            names, rows = _grid(runner, report, excluded)
-            self._grid = (report, runner.assignment, frozenset(excluded), names, rows)
-        go = not report.failures(excluded) and not _missing(runner)
-        summary = report.summary(excluded)
-        missing = _missing(runner)
-        if missing:
-            summary += f"; no vehicle for track(s) {missing}"
+        if grid is None or grid.report is not report or grid.assignment is not \
+                runner.assignment or grid.excluded is not runner.config.excluded:
+            grid = self._grid = _grid(runner, report)
         if runner.sequence is not None:
-            line = f"GO given: {summary}"
-        elif go and runner.awaiting_go:
-            line = f"GO: {summary}; press g to arm and fly"
-        elif go:
-            line = f"GO: {summary}"
+            line = f"GO given: {grid.summary}"
+        elif grid.go and runner.awaiting_go:
+            line = f"GO: {grid.summary}; press g to arm and fly"
+        elif grid.go:
+            line = f"GO: {grid.summary}"
         else:
-            line = f"NO-GO: {summary}"
-        ignored = tuple(f"vehicle {s}: {why}" for s, why in sorted(report.extra.items()))
-        return PreflightView(names, rows, go, line, runner.awaiting_go, ignored)
+            line = f"NO-GO: {grid.summary}"
+        return PreflightView(grid.checks, grid.rows, grid.go, line, runner.awaiting_go,
+                             grid.ignored)
 
     @staticmethod
     def _detail(runner: ShowRunner, sysid: int, errors: dict[int, float],
@@ -533,9 +524,25 @@ class ConsoleModel:
         return Detail(sysid, tuple(lines))
 
 
-def _grid(runner: ShowRunner, report: PreflightReport, excluded: Collection[int]
-          ) -> tuple[tuple[str, ...], tuple[PreflightRow, ...]]:
-    """The pre-flight grid of ``report``: check names in column order, a row per vehicle."""
+@dataclass(frozen=True)
+class _Grid:
+    """What the pre-flight view shows of one report, and what it was built from (the
+    runner replaces a report, its assignment and its exclusions, never changes them)."""
+
+    report: PreflightReport
+    assignment: Assignment | None
+    excluded: frozenset[int]
+    checks: tuple[str, ...]
+    rows: tuple[PreflightRow, ...]
+    go: bool
+    summary: str
+    ignored: tuple[str, ...]
+
+
+def _grid(runner: ShowRunner, report: PreflightReport) -> _Grid:
+    """The pre-flight grid of ``report``: check names in column order, a row per vehicle,
+    the go / no-go and its fleet-wide summary."""
+    excluded = runner.config.excluded
     names: list[str] = []
     rows = []
     for sysid in sorted(report.results):
@@ -550,7 +557,13 @@ def _grid(runner: ShowRunner, report: PreflightReport, excluded: Collection[int]
             else "waiting" if "wait" in states else "ready"
         track = runner.assignment.tracks.get(sysid) if runner.assignment else None
         rows.append(PreflightRow(sysid, track, tuple(cells), sysid in excluded, status))
-    return tuple(names), tuple(rows)
+    missing = _missing(runner)
+    summary = report.summary(excluded)
+    if missing:
+        summary += f"; no vehicle for track(s) {missing}"
+    ignored = tuple(f"vehicle {s}: {why}" for s, why in sorted(report.extra.items()))
+    return _Grid(report, runner.assignment, excluded, tuple(names), tuple(rows),
+                 not report.failures(excluded) and not missing, summary, ignored)
 
 
 def _check_state(name: str, detail: str) -> CheckState:
