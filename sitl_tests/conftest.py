@@ -18,20 +18,30 @@ def pytest_configure() -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-# -- the longest first ------------------------------------------------------------------
-# xdist's worksteal hands each worker a contiguous third of the collection and lets a
-# worker that runs dry take the second half of the longest queue.  In file order the
-# half-minute flights (fly against `groundctl sim`, the console) came wherever their
-# module fell, sometimes last, and the run ended with one worker flying them while the
-# other two idled.  Ordered by the last recorded durations (whole modules, longest
-# first, so that a module's fixtures are still set up once per worker; within a module,
-# its longest test first), the long flights start at once and the run ends on short
-# tests.  The durations are a schedule, never a bound: an unknown test counts as
-# UNKNOWN_S, and a stale file costs only balance.
+# -- the longest first, list-scheduled -----------------------------------------------
+# Tests are collected longest first, by the last recorded durations (DURATIONS), and
+# `--dist load` hands them out with :class:`LongestFirst`: each worker takes the next
+# unit of the collection whenever it has one test left, so the half-minute flights start
+# at once, a free worker always takes the longest test not yet started (list
+# scheduling), and the run ends on short tests instead of on one worker's flight while
+# the others idle.  (In file order, or with worksteal handing each worker a contiguous
+# quarter of the collection, the long flights came wherever their module fell.)
+#
+# A unit is one test, except a module in ONE_WORKER: its module fixture is a flight, a
+# Ray cluster or a pool of planning processes, set up once on the one worker that runs
+# the whole module.  (xdist's own `loadgroup` would do this from `xdist_group` marks,
+# but with pytest 9.2 it no longer tags the tests, and the modules were spread over
+# every worker, each flying the fixture's flight again.)
+#
+# The durations are a schedule, never a bound: an unknown test counts as UNKNOWN_S, and
+# a stale file costs only balance.
 
 DURATIONS = Path(__file__).with_name("durations.json")
 #: The duration assumed for a test the file does not know, s.
 UNKNOWN_S = 1.0
+#: Modules run whole by one worker (their module-scoped fixture is expensive).
+ONE_WORKER = frozenset({"sitl_tests/test_record_rerun.py", "sitl_tests/test_plan_ray.py",
+                        "sitl_tests/test_flight_workers.py"})
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -48,15 +58,60 @@ def _recorded() -> dict[str, float]:
     return {str(k): float(v) for k, v in data.items()} if isinstance(data, dict) else {}
 
 
+def unit_of(nodeid: str) -> str:
+    """The unit of work a test belongs to: its module for a module in ONE_WORKER,
+    else the test itself."""
+    module = nodeid.split("::", 1)[0]
+    return module if module in ONE_WORKER else nodeid
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     recorded = _recorded()
     if not recorded:
         return
     own = {item.nodeid: recorded.get(item.nodeid, UNKNOWN_S) for item in items}
-    module: dict[str, float] = {}
+    weight: dict[str, float] = {}
     for item in items:
-        module[item.location[0]] = module.get(item.location[0], 0.0) + own[item.nodeid]
-    items.sort(key=lambda item: (-module[item.location[0]], -own[item.nodeid]))
+        unit = unit_of(item.nodeid)
+        weight[unit] = weight.get(unit, 0.0) + own[item.nodeid]
+    items.sort(key=lambda item: (-weight[unit_of(item.nodeid)], unit_of(item.nodeid),
+                                 -own[item.nodeid]))
+
+
+try:
+    from xdist.scheduler import LoadScopeScheduling
+except ImportError:  # without xdist the suite runs in one process, in the same order
+    pass
+else:
+    class LongestFirst(LoadScopeScheduling):
+        """xdist's scope scheduling with :func:`unit_of` as the scope, the units in
+        collection order (the longest first), and the next unit sent as soon as a worker
+        is down to its last test (xdist's scope scheduling waits for two: a deeper
+        queue, so a long test could wait behind a busy worker while another was free).
+        A worker holds one test beside the one it runs: it runs a test only once it
+        knows the next (for fixture teardown)."""
+
+        def __init__(self, config: pytest.Config, log: object = None) -> None:
+            super().__init__(config, log)  # type: ignore[arg-type]
+            config.option.loadscopereorder = False  # the collection's order is the plan
+
+        def _split_scope(self, nodeid: str) -> str:
+            return unit_of(nodeid)
+
+        def _reschedule(self, node: object) -> None:
+            if node.shutting_down:  # type: ignore[attr-defined]
+                return
+            if not self.workqueue:
+                node.shutdown()  # type: ignore[attr-defined]
+                return
+            if self._pending_of(self.assigned_work[node]) > 1:  # type: ignore[index]
+                return
+            self._assign_work_unit(node)  # type: ignore[arg-type]
+
+    def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | None:
+        if config.getvalue("dist") != "load":
+            return None  # another --dist: xdist's own
+        return LongestFirst(config, log)
 
 
 _measured: dict[str, float] = {}

@@ -523,6 +523,48 @@ def test_a_slow_forged_stream_beside_the_vehicles_own_never_restarts_the_numberi
     assert set(verdicts) <= {Seq.HELD, Seq.CONFLICT} and Seq.HELD in verdicts, verdicts
 
 
+@pytest.mark.parametrize("ahead", [20, 60, 127])
+def test_a_forgers_numbering_is_not_counted_as_the_vehicles_loss(ahead: int) -> None:
+    # Forged EKF origins in pre-flight, numbered by the forger's own codec (``ahead`` of
+    # the vehicle's, beyond MAX_STEP), one every 0.3 s beside the vehicle's stream:
+    # counted as gaps in the vehicle's numbering, they read as 33-64 % loss here and as
+    # 36-46 % in the spoofing dry-run, failing every vehicle's link check.  Loss is the
+    # vehicle's own numbering's.
+    f = Flight()
+    f.vehicle.armed, f.vehicle.mode = False, "STABILIZE"
+    f.vehicle.pos = [0.0, 0.0, 0.0]
+    f.fly(1.0)
+    attacker = Autopilot(first_seq=(f.vehicle.mav.seq + ahead) % 256)
+    forged = (ORIGIN[0] + 0.0005, ORIGIN[1], ORIGIN[2])
+    for _ in range(20):
+        f.feed(attacker.gps_origin(forged))
+        attacker.mav.seq = (attacker.mav.seq + 7) % 256
+        f.fly(0.3)
+    assert f.state.link_conflicts >= 1 and f.state.ekf_origin is None
+    assert f.state.quality.lost == 0 and f.state.loss_ratio == 0.0
+    # A real loss still counts, and so does a packet the numbering reaches after it
+    # arrived early (a reordered burst): no loss for it.
+    f.drop_next = True
+    f.fly(0.5)
+    assert f.state.quality.lost == 1
+    c, state = f.vehicle, f.state
+    first = c.mav.seq
+    early = [c.local(f.t) for _ in range(MAX_STEP + 3)]  # numbered first .. first+14
+    for msg in [early[-1], *early[:-1]]:  # the last one first: far ahead, held
+        f.feed(msg)
+    assert state.quality.lost == 1, (first, state.quality)
+
+
+def test_a_new_numbering_starts_the_loss_count_afresh() -> None:
+    # A reboot without a silence: the numbering goes on from held packets (RESTART).
+    # The jump between the two numberings is not a loss.
+    f = Flight()
+    f.fly(2.0)
+    f.vehicle.mav.seq = (f.vehicle.mav.seq + 100) % 256
+    f.fly(1.0)
+    assert f.state.quality.restarts == 1 and f.state.quality.lost == 0
+
+
 def _s(t: float, x: float, vx: float = 0.0, at: float | None = None) -> Sample:
     return Sample(t, (x, 0.0, -5.0), (vx, 0.0, 0.0), t if at is None else at)
 

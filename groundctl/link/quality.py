@@ -95,6 +95,12 @@ class SequenceTracker:
         self._count_restart(stream, seq)
         return 0
 
+    def restart(self, component: int) -> None:
+        """``component`` numbers its packets afresh (a reboot, or a new numbering the link
+        took over): its next packet starts the count, with nothing lost in between."""
+        if self._streams.pop(component, None) is not None:
+            self.restarts += 1
+
     def _count_restart(self, stream: _Stream, seq: int) -> None:
         # A reboot restarts the numbering (at 0, usually) behind the newest packet: every
         # packet after it would read as a duplicate until the new numbering caught up.

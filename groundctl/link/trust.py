@@ -207,6 +207,10 @@ class SequenceCheck:
     blame: list[tuple[str, frozenset[str]]] = field(default_factory=list)
     """Set by :meth:`check` when held packets turned out not to be the vehicle's: why,
     and the type of each (one conflict each).  The caller counts them and clears it."""
+    placed: list[int] = field(default_factory=list)
+    """Set by :meth:`check` when held packets turned out to be the vehicle's own (the
+    numbering got to them, or went on from them): their numbers, in arrival order.  The
+    caller counts them as received and clears it."""
 
     def check(self, seq: int, digest: int, kind: str = "", at: float = 0.0) -> Seq:
         """Account for packet number ``seq`` of type ``kind`` whose bytes hash to
@@ -248,6 +252,7 @@ class SequenceCheck:
                            "a second sender)")
             for h in chain:
                 self._put(h[0], h[1], h[2])
+                self.placed.append(h[0])
             self.held = [h for h in self.held if h not in chain]
             self._put(seq, digest, kind)
             self.newest, self.newest_at, self.late_run = seq, at, 0
@@ -270,6 +275,7 @@ class SequenceCheck:
                 old = self.slots[number]
                 if old is None:
                     self._put(number, digest, kind)  # early, and now in its place
+                    self.placed.append(number)
                 elif old != digest:
                     self.slots[number] = _CONTESTED
                     self._blame(h, f"two different packets numbered {number}")
