@@ -22,7 +22,7 @@ from sim_fixtures import GcsPeer, manual_fleet
 from groundctl.clock import ScaledClock
 from groundctl.link import Flavour, FleetLink
 from groundctl.sim import SimConfig, SimFleet
-from groundctl.sim.config import ARDUPILOT_DYNAMICS
+from groundctl.sim.config import ARDUPILOT_DYNAMICS, dynamics_profile
 
 AP = Flavour.ARDUPILOT
 PX4 = Flavour.PX4
@@ -201,8 +201,20 @@ def test_px4_sys_status_has_no_geofence_bits() -> None:
 # -- 3. Parameters an operator checks -------------------------------------------------------
 
 
-def test_ardupilot_parameter_fetch_has_what_an_operator_checks() -> None:
-    with manual_fleet(1) as (fleet, peer):
+#: The names ArduCopter 4.8 gave the parameters below (SI units), and before it (cm, cm/s).
+_RENAMED = {"RTL_ALT": "RTL_ALT_M", "RTL_ALT_FINAL": "RTL_ALT_FINAL_M",
+            "RTL_SPEED": "RTL_SPEED_MS", "WPNAV_SPEED": "WP_SPD", "WPNAV_SPEED_UP": "WP_SPD_UP",
+            "WPNAV_SPEED_DN": "WP_SPD_DN", "WPNAV_ACCEL": "WP_ACC", "WPNAV_RADIUS": "WP_RADIUS_M",
+            "LAND_SPEED": "LAND_SPD_MS", "LAND_SPEED_HIGH": "LAND_SPD_HIGH_MS"}
+
+
+@pytest.mark.parametrize("profile", ["ardupilot-4.8", "ardupilot-4.7"])
+def test_ardupilot_parameter_fetch_has_what_an_operator_checks(profile: str) -> None:
+    dyn = dynamics_profile(profile)
+    new = dyn.firmware >= (4, 8, 0)
+    name = (lambda old: _RENAMED.get(old, old)) if new else (lambda old: old)
+    unit = 0.01 if new else 1.0  # a renamed parameter's value in m or m/s, not cm
+    with manual_fleet(1, dynamics=dyn) as (fleet, peer):
         values = _params(fleet, peer)
         count = values["ARMING_CHECK"].param_count
         assert count == len(values) > 50
@@ -214,22 +226,35 @@ def test_ardupilot_parameter_fetch_has_what_an_operator_checks() -> None:
                   "RTL_LOIT_TIME", "WPNAV_SPEED", "WPNAV_SPEED_UP", "WPNAV_SPEED_DN",
                   "WPNAV_ACCEL", "WPNAV_RADIUS", "LAND_SPEED", "LAND_SPEED_HIGH",
                   "SYSID_THISMAV", "SYSID_MYGCS", "DISARM_DELAY", "GUID_TIMEOUT"}
-        assert wanted <= values.keys()
+        assert {name(w) for w in wanted} <= values.keys()
+        # Under one name only: a 4.8 vehicle does not answer to the old ones, nor 4.7 to
+        # the new (a ground station asking the wrong one gets no PARAM_VALUE).
+        other = set(_RENAMED) if new else set(_RENAMED.values())
+        assert other.isdisjoint(values)
         real = {"ARMING_CHECK": 1, "FENCE_ENABLE": 0, "FENCE_TYPE": 7, "FENCE_ACTION": 1,
                 "FENCE_ALT_MAX": 100, "FENCE_RADIUS": 300, "FENCE_MARGIN": 2,
                 "FS_GCS_TIMEOUT": 5, "FS_THR_ENABLE": 1, "FS_EKF_ACTION": 1,
                 "FS_EKF_THRESH": 0.8, "FS_OPTIONS": 16, "FS_CRASH_CHECK": 1, "RTL_ALT": 1500,
                 "RTL_LOIT_TIME": 5000, "WPNAV_RADIUS": 200, "LAND_SPEED_HIGH": 0,
                 "SYSID_MYGCS": 255, "SYSID_THISMAV": 1}
-        for name, value in real.items():
-            assert values[name].param_value == pytest.approx(value), name
+        for old, value in real.items():
+            scale = unit if old in _RENAMED else 1.0
+            assert values[name(old)].param_value == pytest.approx(value * scale), old
         assert values["ARMING_CHECK"].param_type == mavlink.MAV_PARAM_TYPE_INT32
         assert values["FENCE_ALT_MAX"].param_type == mavlink.MAV_PARAM_TYPE_REAL32
-        # The dynamics limits report what the simulated vehicle really flies (cm/s).
-        dyn = fleet.physics.dyn
-        assert values["WPNAV_SPEED"].param_value == pytest.approx(dyn.max_speed_xy * 100)
-        assert values["WPNAV_SPEED_UP"].param_value == pytest.approx(dyn.max_speed_up * 100)
-        assert values["LAND_SPEED"].param_value == pytest.approx(dyn.land_speed * 100)
+        assert values[name("RTL_ALT")].param_type == (mavlink.MAV_PARAM_TYPE_REAL32 if new
+                                                      else mavlink.MAV_PARAM_TYPE_INT32)
+        # The dynamics limits report what the simulated vehicle really flies.
+        assert values[name("WPNAV_SPEED")].param_value == pytest.approx(
+            dyn.max_speed_xy * 100 * unit)
+        assert values[name("WPNAV_SPEED_UP")].param_value == pytest.approx(
+            dyn.max_speed_up * 100 * unit)
+        assert values[name("LAND_SPEED")].param_value == pytest.approx(
+            dyn.land_speed * 100 * unit)
+        # The version it reports is the one whose names it answers to.
+        texts = [m.text for m in _texts(peer)]
+        major, minor, patch = dyn.firmware
+        assert any(t.startswith(f"ArduCopter V{major}.{minor}.{patch}") for t in texts), texts
         # Read back by index: the same parameter at the same index.
         index = values["FENCE_RADIUS"].param_index
         peer.clear()
@@ -238,12 +263,16 @@ def test_ardupilot_parameter_fetch_has_what_an_operator_checks() -> None:
         assert (m.param_id, m.param_index, m.param_count) == ("FENCE_RADIUS", index, count)
 
 
-def test_rtl_alt_set_by_the_ground_station_is_flown() -> None:
-    with manual_fleet(1) as (fleet, peer):
-        peer.send(mavlink.MAVLink_param_set_message(
-            1, 1, b"RTL_ALT", 800.0, mavlink.MAV_PARAM_TYPE_INT32), 1)
-        reply = peer.wait("PARAM_VALUE", 1, lambda m: m.param_id == "RTL_ALT", steps=5)
-        assert reply.param_value == 800.0
+@pytest.mark.parametrize("profile", ["ardupilot-4.8", "ardupilot-4.7"])
+def test_rtl_alt_set_by_the_ground_station_is_flown(profile: str) -> None:
+    dyn = dynamics_profile(profile)
+    param, wire, ptype = ((b"RTL_ALT_M", 8.0, mavlink.MAV_PARAM_TYPE_REAL32)
+                          if dyn.firmware >= (4, 8, 0)
+                          else (b"RTL_ALT", 800.0, mavlink.MAV_PARAM_TYPE_INT32))
+    with manual_fleet(1, dynamics=dyn) as (fleet, peer):
+        peer.send(mavlink.MAVLink_param_set_message(1, 1, param, wire, ptype), 1)
+        reply = peer.wait("PARAM_VALUE", 1, lambda m: m.param_id == param.decode(), steps=5)
+        assert reply.param_value == wire
         _fly_ardupilot(fleet, peer, 3.0)
         for _ in range(40):
             _setpoint(peer, POS_ONLY, (6.0, 0.0, -3.0))

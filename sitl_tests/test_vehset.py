@@ -27,11 +27,12 @@ from groundctl.flight.dryrun import Push
 from groundctl.flight.runner import RunnerConfig
 from groundctl.link import Flavour, FleetLink
 from groundctl.link.fence import FenceDownload, FenceUpload, inclusion_items, upload_fence
-from groundctl.link.params import ParamClient, decode_wire, encode_wire
+from groundctl.link.params import ParamClient, decode_wire, encode_wire, run_params
 from groundctl.record.events import read_events
 from groundctl.show.loader import load_show, load_vehicle_file
 from groundctl.show.model import GeoOrigin, Limits, VehicleSettings
 from groundctl.sim import SimConfig, SimFleet
+from groundctl.sim.config import dynamics_profile
 from groundctl.sim.fence import FenceServer
 
 AP, PX4 = Flavour.ARDUPILOT, Flavour.PX4
@@ -126,7 +127,12 @@ def test_operator_keys_map_to_each_autopilots_parameters() -> None:
     ap = {t.name: t.value for t in targets_for(s, AP, limits)}
     assert ap == {"FENCE_ENABLE": 1, "FENCE_TYPE": 5, "FENCE_ALT_MAX": 42.0, "FENCE_ACTION": 2,
                   "FS_GCS_ENABLE": 1, "FS_GCS_TIMEOUT": 4.5, "RTL_ALT": 2500.0,
-                  "LAND_SPEED": 60}
+                  "LAND_SPD_MS": 0.6}
+    # ArduCopter 4.8 renamed land_speed's parameter to m/s; before, LAND_SPEED in cm/s.
+    land = next(t for t in targets_for(s, AP, limits) if t.name == "LAND_SPD_MS")
+    assert land.names == ("LAND_SPD_MS", "LAND_SPEED") and land.under("LAND_SPEED").value == 60
+    rtl = next(t for t in targets_for(VehicleSettings(rtl_alt=20.0), AP, limits))
+    assert (rtl.name, rtl.value, rtl.under("RTL_ALT").value) == ("RTL_ALT_M", 20.0, 2000)
     px4 = {t.name: t.value for t in targets_for(s, PX4, limits)}
     assert px4 == {"GF_MAX_VER_DIST": 42.0, "GF_ACTION": 5, "NAV_DLL_ACT": 2,
                    "COM_DL_LOSS_T": 5, "RTL_RETURN_ALT": 20.0, "MPC_LAND_SPEED": 0.6,
@@ -264,8 +270,8 @@ async def test_fence_upload_and_parameters_against_the_simulator(flavour: Flavou
         assert all(not o.problems and o.fence for o in out.values()), out
         v = fleet.vehicles[1]
         if flavour is AP:
-            assert (v.params["FENCE_ACTION"], v.params["FENCE_ENABLE"], v.params["RTL_ALT"],
-                    v.params["FS_GCS_ENABLE"], v.params["FENCE_TOTAL"]) == (2, 1, 2000, 5, 4)
+            assert (v.params["FENCE_ACTION"], v.params["FENCE_ENABLE"], v.params["RTL_ALT_M"],
+                    v.params["FS_GCS_ENABLE"], v.params["FENCE_TOTAL"]) == (2, 1, 20.0, 5, 4)
             assert "FENCE_ACTION 1 -> 2" in out[2].changed
         else:
             assert (v.params["GF_ACTION"], v.params["NAV_DLL_ACT"], v.params["RTL_RETURN_ALT"],
@@ -276,6 +282,49 @@ async def test_fence_upload_and_parameters_against_the_simulator(flavour: Flavou
         # A second pass finds everything as the show needs it: nothing changed.
         again = await enforce(link, link.clock, {1: flavour}, settings, ORIGIN, limits)
         assert again[1].changed == [] and again[1].problems == []
+    finally:
+        fleet.stop()
+        await link.close()
+
+
+@pytest.mark.parametrize("profile", ["ardupilot-4.8", "ardupilot-4.7"])
+@run
+async def test_rtl_alt_and_land_speed_are_set_under_the_names_the_firmware_knows(
+        profile: str) -> None:
+    # Real ArduCopter 4.8 refused a show asking rtl_alt and land_speed: it has no RTL_ALT
+    # or LAND_SPEED any more (RTL_ALT_M in m, LAND_SPD_MS in m/s); 4.5-4.7 have only those.
+    new = profile.endswith("4.8")
+    link, fleet = await _with_fleet(AP, count=1, dynamics=dynamics_profile(profile))
+    try:
+        settings = VehicleSettings(rtl_alt=20.0, land_speed=0.6)
+        out = await enforce(link, link.clock, {1: AP}, settings, ORIGIN, Limits(max_alt=40.0))
+        assert out[1].problems == [], out
+        params = fleet.vehicles[0].params
+        if new:
+            assert out[1].names == {"RTL_ALT_M": "RTL_ALT_M", "LAND_SPD_MS": "LAND_SPD_MS"}
+            assert (params["RTL_ALT_M"], params["LAND_SPD_MS"]) == (20.0, pytest.approx(0.6))
+            assert "RTL_ALT_M 15 -> 20" in out[1].changed
+        else:
+            assert out[1].names == {"RTL_ALT_M": "RTL_ALT", "LAND_SPD_MS": "LAND_SPEED"}
+            assert (params["RTL_ALT"], params["LAND_SPEED"]) == (2000, 60)
+            assert "RTL_ALT 1500 -> 2000" in out[1].changed
+        assert fleet.vehicles[0].params.si("RTL_ALT") == 20.0  # what its RTL climbs to
+    finally:
+        fleet.stop()
+        await link.close()
+
+
+@run
+async def test_a_parameter_no_firmware_name_answers_is_one_line_naming_both() -> None:
+    link, fleet = await _with_fleet(AP, count=1)
+    try:
+        client = ParamClient(1, AP, timeout_s=0.2, attempts=2)
+        client.read_any(("NO_SUCH_M", "NO_SUCH"))
+        client.read_any(("LAND_SPEED", "LAND_SPD_MS"))
+        await run_params(link, client, link.clock, 5.0)
+        assert client.failed == {"NO_SUCH_M": "no PARAM_VALUE for NO_SUCH_M or NO_SUCH after "
+                                              "2 tries of 0.2 s"}
+        assert "LAND_SPD_MS" in client.values and "LAND_SPEED" not in client.failed
     finally:
         fleet.stop()
         await link.close()
@@ -371,7 +420,8 @@ def _fenced_plan():  # type: ignore[no-untyped-def]
 @pytest.mark.parametrize("flavour", [AP, PX4], ids=str)
 def test_a_vehicle_pushed_out_of_the_fence_is_landed_by_its_own_fence(
         flavour: Flavour, tmp_path: Path) -> None:
-    settings = VehicleSettings(fence=True, fence_action="land", fence_margin=1.0)
+    settings = VehicleSettings(fence=True, fence_action="land", fence_margin=1.0,
+                               rtl_alt=15.0)
     # Vehicle 6 is at x = 3.1 m at show time 1 s and its fence at x = 10 m. Carried 11 m
     # in 1 s, its autopilot braking against the push all the while, its telemetry shows it
     # 0.3-0.7 m past the fence still at 9-10 m/s (an 8 m push peaked 0.1-0.3 m past it
@@ -382,6 +432,9 @@ def test_a_vehicle_pushed_out_of_the_fence_is_landed_by_its_own_fence(
     events = list(read_events(tmp_path / "events.jsonl"))
     uploaded = [e for e in events if e.get("event") == "vehicle_settings_set"]
     assert sorted(e["system_id"] for e in uploaded if e["fence"]) == list(range(1, 10))
+    # rtl_alt under the name the simulated ArduCopter 4.8 knows, said once for all nine.
+    names = [e["names"] for e in events if e.get("event") == "vehicle_settings_names"]
+    assert names == ([{"RTL_ALT_M": list(range(1, 10))}] if flavour is AP else []), names
     text = "Fence Breached" if flavour is AP else "Geofence violated"
     breach = [e for e in events if e.get("event") == "statustext" and e.get("system_id") == 6
               and e.get("text") == text]

@@ -21,15 +21,25 @@ PX4 v1.15 (``geofence_params``, ``commander_params``, ``navigator_params``):
 * ``gcs_timeout``: ArduPilot FS_GCS_TIMEOUT (s); PX4 COM_DL_LOSS_T (whole s).
 * ``offboard_loss``: PX4 COM_OBL_RC_ACT land 4, rtl 3, hold 5 (ArduPilot's GUIDED has
   no such action: GUID_TIMEOUT, which the runner sets).
-* ``rtl_alt``: ArduPilot RTL_ALT (cm); PX4 RTL_RETURN_ALT (m).
-* ``land_speed``: ArduPilot LAND_SPEED (cm/s); PX4 MPC_LAND_SPEED (m/s).
+* ``rtl_alt``: ArduPilot RTL_ALT_M (m, ArduCopter 4.8 and later) or RTL_ALT (cm, before);
+  PX4 RTL_RETURN_ALT (m).
+* ``land_speed``: ArduPilot LAND_SPD_MS (m/s, 4.8 and later) or LAND_SPEED (cm/s, before);
+  PX4 MPC_LAND_SPEED (m/s).
+
+The PX4 names are those of PX4-Autopilot's main branch too (its parameter definitions:
+``commander_params.yaml``, ``geofence_params.yaml``, ``rtl_params.yaml``,
+``multicopter_takeoff_land_params.yaml``): none renamed since v1.15.
+
+A setting whose parameter a firmware version renamed (:attr:`ParamTarget.alternatives`)
+is read under every name at once, and the name the vehicle answers to is the one set,
+in that name's unit; :attr:`VehicleOutcome.names` says which was used.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -69,9 +79,21 @@ class ParamTarget:
     """The value needed, in the parameter's own unit."""
     why: str = ""
     """What it means, for messages ("land", "[vehicle] rtl_alt 20 m")."""
+    alternatives: tuple[ParamTarget, ...] = ()
+    """The same setting under the names other firmware versions give it, each with the
+    value in its own unit (RTL_ALT_M 20 m; before ArduCopter 4.8, RTL_ALT 2000 cm)."""
 
     def needs(self) -> str:
         return f"{self.value:g}" + (f" ({self.why})" if self.why else "")
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """Every name the setting may have, this one first."""
+        return (self.name, *(a.name for a in self.alternatives))
+
+    def under(self, name: str) -> ParamTarget:
+        """The setting under the name ``name`` (one of :attr:`names`)."""
+        return next(t for t in (self, *self.alternatives) if t.name == name)
 
 
 def targets_for(settings: VehicleSettings, flavour: Flavour, limits: Limits) -> list[ParamTarget]:
@@ -90,10 +112,13 @@ def targets_for(settings: VehicleSettings, flavour: Flavour, limits: Limits) -> 
             out.append(ParamTarget("FS_GCS_ENABLE", _ARDU_GCS[s.gcs_failsafe], s.gcs_failsafe))
         if s.gcs_timeout is not None:
             out.append(ParamTarget("FS_GCS_TIMEOUT", s.gcs_timeout, "s"))
+        # ArduCopter 4.8 renamed these to SI units; 4.5-4.7 still use centimetres.
         if s.rtl_alt is not None:
-            out.append(ParamTarget("RTL_ALT", round(s.rtl_alt * 100), "cm"))
+            out.append(ParamTarget("RTL_ALT_M", s.rtl_alt, "m", (
+                ParamTarget("RTL_ALT", round(s.rtl_alt * 100), "cm"),)))
         if s.land_speed is not None:
-            out.append(ParamTarget("LAND_SPEED", round(s.land_speed * 100), "cm/s"))
+            out.append(ParamTarget("LAND_SPD_MS", s.land_speed, "m/s", (
+                ParamTarget("LAND_SPEED", round(s.land_speed * 100), "cm/s"),)))
         raw = s.params_ardupilot
     else:
         if s.fence:
@@ -111,10 +136,10 @@ def targets_for(settings: VehicleSettings, flavour: Flavour, limits: Limits) -> 
         if s.land_speed is not None:
             out.append(ParamTarget("MPC_LAND_SPEED", s.land_speed, "m/s"))
         raw = s.params_px4
-    names = {t.name for t in out}
+    names = {n for t in out for n in t.names}
     for name, value in (*s.params, *raw):
         if name in names:  # a raw parameter wins over the operator-level key
-            out = [t for t in out if t.name != name]
+            out = [t for t in out if name not in t.names]
         out.append(ParamTarget(name, value, "[vehicle] params"))
         names.add(name)
     return out
@@ -162,6 +187,9 @@ class VehicleOutcome:
     """Parameters set and confirmed, ``NAME a -> b``."""
     fence: bool = False
     """The fence was uploaded and accepted."""
+    names: dict[str, str] = field(default_factory=dict)
+    """For each setting a firmware version renamed: the name first asked for -> the name
+    the vehicle answered to (``{"RTL_ALT_M": "RTL_ALT"}`` on ArduCopter 4.7)."""
 
 
 async def _fence_matches(link: FleetLink, clock: Clock, sysid: int,
@@ -208,15 +236,22 @@ async def _one(link: FleetLink, clock: Clock, sysid: int, flavour: Flavour,
     # reads at 20 % loss each way, against 4.7 % with three).
     client = ParamClient(sysid, flavour, attempts=5)
     for t in targets:
-        client.read(t.name)
+        if t.alternatives:
+            client.read_any(t.names)
+        else:
+            client.read(t.name)
     await run_params(link, client, clock, deadline_s)
     wanted: dict[str, ParamTarget] = {}
-    for t in targets:
-        got = client.values.get(t.name)
-        if got is None:
-            out.problems.append(client.failed.get(t.name, f"{t.name} not read") +
-                                f" (show needs {t.needs()})")
+    for asked in targets:
+        name = next((n for n in asked.names if n in client.values), None)
+        if name is None:
+            out.problems.append(client.failed.get(asked.name, f"{asked.name} not read") +
+                                f" (show needs {asked.needs()})")
             continue
+        if asked.alternatives:
+            out.names[asked.name] = name
+        t = asked.under(name)
+        got = client.values[name]
         if same_value(got.value, t.value, got.type):
             continue
         if not settings.set:

@@ -98,6 +98,8 @@ class _Request:
     attempts: int = 0
     deadline: float = -math.inf
     """When the outstanding try times out (-inf: not sent yet)."""
+    others: tuple[str, ...] = ()
+    """A read's other names: any of them answering answers it (firmware renames)."""
 
 
 @dataclass
@@ -139,6 +141,18 @@ class ParamClient:
         """Ask for ``name`` (PARAM_REQUEST_READ by id); its answer lands in :attr:`values`."""
         _check_name(name)
         self._queue.append(_Request("read", name))
+
+    def read_any(self, names: tuple[str, ...]) -> None:
+        """Ask for a parameter that firmware versions name differently (ArduCopter 4.8's
+        RTL_ALT_M was RTL_ALT): every name is asked for on each try, and the request is
+        answered by whichever the vehicle has (an autopilot does not answer for a name it
+        does not know).  Its answer lands in :attr:`values` under that name; a failure in
+        :attr:`failed` under the first."""
+        if not names:
+            raise ValueError("`names` must not be empty")
+        for name in names:
+            _check_name(name)
+        self._queue.append(_Request("read", names[0], others=tuple(names[1:])))
 
     def set(self, name: str, value: float, ptype: int) -> None:
         """Set ``name`` (of MAV_PARAM_TYPE ``ptype``, as read) to ``value``; done when the
@@ -193,7 +207,7 @@ class ParamClient:
         if msg.param_count > 0:
             self.count = int(msg.param_count)
         for req in list(self._active):
-            if req.kind == "read" and req.name == name:
+            if req.kind == "read" and (req.name == name or name in req.others):
                 self._active.remove(req)
             elif req.kind == "set" and req.name == name and same_value(
                     value.value, req.value, ptype):
@@ -221,7 +235,8 @@ class ParamClient:
         req.deadline = now + self.timeout_s
         if req.kind == "read":
             return [mavlink.MAVLink_param_request_read_message(
-                self.sysid, AUTOPILOT, req.name.encode("ascii"), -1)]
+                self.sysid, AUTOPILOT, name.encode("ascii"), -1)
+                for name in (req.name, *req.others)]
         if req.kind == "set":
             return [mavlink.MAVLink_param_set_message(
                 self.sysid, AUTOPILOT, req.name.encode("ascii"),
@@ -236,7 +251,8 @@ class ParamClient:
         tries = f"{req.attempts} tr{'y' if req.attempts == 1 else 'ies'}"
         wait = f"{self.timeout_s:g} s"
         if req.kind == "read":
-            self.failed[req.name] = f"no PARAM_VALUE for {req.name} after {tries} of {wait}"
+            asked = " or ".join((req.name, *req.others))
+            self.failed[req.name] = f"no PARAM_VALUE for {asked} after {tries} of {wait}"
         elif req.kind == "set":
             got = self.values.get(req.name)
             now_is = "" if got is None else f" (the vehicle says {got.value:g})"

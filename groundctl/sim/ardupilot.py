@@ -52,8 +52,11 @@ from groundctl.sim.vehicle import (
     as_int,
 )
 
-#: Firmware string of the boot text and the first STATUSTEXT.
-FIRMWARE = "ArduCopter V4.8.0-dev (groundctl sim)"
+
+def firmware_text(version: tuple[int, int, int]) -> str:
+    """Firmware string of the boot text and the first STATUSTEXT."""
+    major, minor, patch = version
+    return f"ArduCopter V{major}.{minor}.{patch}-dev (groundctl sim)"
 
 #: Modes that need a position estimate (Mode::requires_GPS()).
 _NEEDS_POSITION = frozenset({"GUIDED", "LOITER", "RTL", "AUTO", "POSHOLD", "BRAKE", "CIRCLE",
@@ -103,7 +106,9 @@ class ArduPilotVehicle(Vehicle):
                                                         "SMART_RTL"})
     #: What SITL prints on its first serial port while it boots ("\n\nInit %s\n\nFree RAM:
     #: %u\n" of the vehicle's init), before the port speaks MAVLink.
-    boot_text: ClassVar[tuple[str, ...]] = (f"Init {FIRMWARE}", "Free RAM: 131072")
+    @property
+    def boot_text(self) -> tuple[str, ...]:  # type: ignore[override]
+        return (f"Init {firmware_text(self.ph.dyn.firmware)}", "Free RAM: 131072")
 
     def __init__(self, *args: object, **kwargs: object) -> None:
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
@@ -116,7 +121,7 @@ class ArduPilotVehicle(Vehicle):
 
     def _boot_messages(self, now: float) -> None:
         info = mavlink.MAV_SEVERITY_INFO
-        self.statustext(info, FIRMWARE)
+        self.statustext(info, firmware_text(self.ph.dyn.firmware))
         self.statustext(info, "Frame: QUAD/X")
 
     def _on_origin_set(self, now: float) -> None:
@@ -161,7 +166,7 @@ class ArduPilotVehicle(Vehicle):
         if int(self.params["WP_YAW_BEHAVIOR"]) == 3:
             threshold = _LOOK_AHEAD_MIN_SPEED
         else:
-            threshold = 0.05 * self.params["WPNAV_SPEED"] / 100.0
+            threshold = 0.05 * self.params.si("WPNAV_SPEED")
         if speed <= threshold:
             return None
         return math.atan2(float(vned[1]), float(vned[0]))
@@ -220,7 +225,7 @@ class ArduPilotVehicle(Vehicle):
     def _rtl_height(self) -> float:
         """ModeRTL's return height above home (m): RTL_ALT, but not above the altitude
         fence less its margin (a vehicle already higher returns at its height)."""
-        height = self.params["RTL_ALT"] / 100.0
+        height = self.params.si("RTL_ALT")
         if self._fence_enabled_types() & FENCE_ALT_MAX:
             height = min(height, self.params["FENCE_ALT_MAX"] - self.params["FENCE_MARGIN"])
         return height

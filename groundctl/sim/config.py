@@ -34,6 +34,11 @@ class Dynamics:
     4.7-dev calibration (``ARDUPILOT_47_DYNAMICS``).
     """
 
+    firmware: tuple[int, int, int] = (4, 7, 0)
+    """The autopilot version the calibration imitates (major, minor, patch): what the
+    simulated vehicle reports (AUTOPILOT_VERSION, its boot text) and the parameter names
+    it answers to (ArduCopter 4.8 renamed its speeds and heights to SI units)."""
+
     max_speed_xy: float = 10.0
     """Horizontal speed limit, m/s (ArduCopter WPNAV_SPEED, PX4 MPC_XY_VEL_MAX)."""
     max_speed_up: float = 2.5
@@ -139,6 +144,7 @@ class Dynamics:
 #: spool-up before lift-off and the land detector's delay, fitted to the takeoff and LAND
 #: times.
 ARDUPILOT_DYNAMICS = Dynamics(
+    firmware=(4, 8, 0),
     max_accel_z=1.0,
     thrust_accel_z=5.0,
     max_jerk=6.0,
@@ -169,6 +175,7 @@ ARDUPILOT_47_DYNAMICS = Dynamics()
 #: Trajectory setpoints are flown as they come (mc_pos_control takes each one as is, no
 #: advancing between them, no shaping in OFFBOARD); the same airframe drag as ArduPilot's.
 PX4_DYNAMICS = Dynamics(
+    firmware=(1, 15, 0),
     max_speed_xy=12.0,
     max_speed_up=3.0,
     max_speed_down=1.5,

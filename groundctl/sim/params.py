@@ -217,9 +217,55 @@ DYNAMICS_PARAMS: dict[Flavour, dict[str, tuple[str, float]]] = {
 }
 
 
-def specs_for(flavour: Flavour) -> tuple[ParamSpec, ...]:
-    """The parameter table of ``flavour``, in PARAM_VALUE index order."""
-    return ARDUPILOT_PARAMS if flavour is Flavour.ARDUPILOT else PX4_PARAMS
+#: ArduCopter 4.8 renamed its speeds, heights and accelerations to SI units: the name
+#: before (4.7 and earlier, the table above) -> (the 4.8 name, the old unit's count per
+#: SI unit: cm -> m, cm/s -> m/s, cm/s/s -> m/s/s).  Checked against the ArduCopter
+#: V4.8.0-dev SITL build in ../shared/sitl (its parameter names).
+ARDUPILOT_48_RENAMES: dict[str, tuple[str, float]] = {
+    "RTL_ALT": ("RTL_ALT_M", 100.0),
+    "RTL_ALT_FINAL": ("RTL_ALT_FINAL_M", 100.0),
+    "RTL_CLIMB_MIN": ("RTL_CLIMB_MIN_M", 100.0),
+    "RTL_SPEED": ("RTL_SPEED_MS", 100.0),
+    "WPNAV_SPEED": ("WP_SPD", 100.0),
+    "WPNAV_SPEED_UP": ("WP_SPD_UP", 100.0),
+    "WPNAV_SPEED_DN": ("WP_SPD_DN", 100.0),
+    "WPNAV_ACCEL": ("WP_ACC", 100.0),
+    "WPNAV_ACCEL_Z": ("WP_ACC_Z", 100.0),
+    "WPNAV_RADIUS": ("WP_RADIUS_M", 100.0),
+    "LAND_SPEED": ("LAND_SPD_MS", 100.0),
+    "LAND_SPEED_HIGH": ("LAND_SPD_HIGH_MS", 100.0),
+    "LAND_ALT_LOW": ("LAND_ALT_LOW_M", 100.0),
+}
+#: Parameters of the table above that the 4.8 build no longer has under any name found.
+ARDUPILOT_48_GONE = frozenset({"WPNAV_JERK", "PILOT_SPEED_UP", "PILOT_SPEED_DN"})
+
+
+def _renamed(spec: ParamSpec) -> ParamSpec:
+    new, scale = ARDUPILOT_48_RENAMES[spec.name]
+    unit = "m/s/s" if "ACC" in new else "m/s" if ("SPD" in new or "SPEED" in new) else "m"
+    return ParamSpec(new, spec.default / scale, REAL32,
+                     f"{spec.doc} [ArduCopter 4.8 name, in {unit}; {spec.name} before]")
+
+
+def renames_for(flavour: Flavour, firmware: tuple[int, int, int] | None
+                ) -> dict[str, tuple[str, float]]:
+    """The renamed parameters of ``flavour`` at version ``firmware`` (see
+    ARDUPILOT_48_RENAMES; empty for PX4 and ArduCopter before 4.8)."""
+    if flavour is Flavour.ARDUPILOT and firmware is not None and firmware >= (4, 8, 0):
+        return ARDUPILOT_48_RENAMES
+    return {}
+
+
+def specs_for(flavour: Flavour, firmware: tuple[int, int, int] | None = None
+              ) -> tuple[ParamSpec, ...]:
+    """The parameter table of ``flavour`` at version ``firmware`` (None: the names before
+    ArduCopter 4.8), in PARAM_VALUE index order."""
+    if flavour is not Flavour.ARDUPILOT:
+        return PX4_PARAMS
+    if not renames_for(flavour, firmware):
+        return ARDUPILOT_PARAMS
+    return tuple(_renamed(s) if s.name in ARDUPILOT_48_RENAMES else s
+                 for s in ARDUPILOT_PARAMS if s.name not in ARDUPILOT_48_GONE)
 
 
 class ParamStore:
@@ -233,7 +279,9 @@ class ParamStore:
                  overrides: Mapping[str, float] | None = None,
                  dynamics: Dynamics | None = None) -> None:
         self.flavour = flavour
-        specs = specs_for(flavour)
+        firmware = dynamics.firmware if dynamics is not None else None
+        self._renames = renames_for(flavour, firmware)
+        specs = specs_for(flavour, firmware)
         self.specs: dict[str, ParamSpec] = {s.name: s for s in specs}
         self._names = [s.name for s in specs]
         self._index = {name: i for i, name in enumerate(self._names)}
@@ -241,6 +289,8 @@ class ParamStore:
         self.values["SYSID_THISMAV" if flavour is Flavour.ARDUPILOT else "MAV_SYS_ID"] = sysid
         if dynamics is not None:
             for name, (attr, scale) in DYNAMICS_PARAMS[flavour].items():
+                if name in self._renames:
+                    name, scale = self._renames[name][0], scale / self._renames[name][1]
                 self.values[name] = self._stored(self.specs[name],
                                                  float(getattr(dynamics, attr)) * scale)
         for name, value in (overrides or {}).items():
@@ -250,6 +300,16 @@ class ParamStore:
 
     def __getitem__(self, name: str) -> float:
         return self.values[name]
+
+    def si(self, name: str) -> float:
+        """The value of the parameter called ``name`` before ArduCopter 4.8, in SI units
+        (m, m/s) whichever name this vehicle's firmware gives it: ``si("RTL_ALT")`` is
+        RTL_ALT / 100 on 4.7 and RTL_ALT_M on 4.8."""
+        renamed = self._renames.get(name)
+        if renamed is not None:
+            return self.values[renamed[0]]
+        scale = ARDUPILOT_48_RENAMES.get(name, (name, 1.0))[1]
+        return self.values[name] / scale
 
     def __len__(self) -> int:
         return len(self._names)

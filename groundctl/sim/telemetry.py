@@ -40,9 +40,9 @@ _CAPABILITIES = (mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FLOAT
                  | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
                  | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
 
-#: Firmware versions reported (major, minor, patch, FIRMWARE_VERSION_TYPE).
-_VERSIONS = {Flavour.ARDUPILOT: (4, 8, 0, mavlink.FIRMWARE_VERSION_TYPE_DEV),
-             Flavour.PX4: (1, 15, 0, mavlink.FIRMWARE_VERSION_TYPE_OFFICIAL)}
+#: The FIRMWARE_VERSION_TYPE reported with the calibration's version (Dynamics.firmware).
+_VERSION_TYPE = {Flavour.ARDUPILOT: mavlink.FIRMWARE_VERSION_TYPE_DEV,
+                 Flavour.PX4: mavlink.FIRMWARE_VERSION_TYPE_OFFICIAL}
 
 
 def _ms(v: Vehicle, now: float) -> int:
@@ -259,7 +259,8 @@ def gps_global_origin(v: Vehicle, now: float) -> Msg:
 
 def autopilot_version(v: Vehicle, now: float) -> Msg:
     """AUTOPILOT_VERSION: capabilities and a firmware version of the imitated autopilot."""
-    major, minor, patch, kind = _VERSIONS[v.flavour]
+    major, minor, patch = v.ph.dyn.firmware
+    kind = _VERSION_TYPE[v.flavour]
     caps = _CAPABILITIES | (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
                             if v.flavour is Flavour.PX4
                             else mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST)

@@ -207,6 +207,17 @@ class Preflight(RunnerState):
         self._say(f"vehicle settings: checking {len(flavours)} vehicle(s)", "vehicle_settings")
         outcomes = await enforce(self.link, self.clock, flavours, self.config.vehicle,
                                  self.plan.origin, self.plan.limits)
+        # Which name each renamed setting went by (ArduCopter 4.8's RTL_ALT_M, or RTL_ALT
+        # in cm before it): said once per name, with the vehicles that answered to it.
+        used: dict[str, list[int]] = {}
+        for sysid, out in sorted(outcomes.items()):
+            for name in out.names.values():
+                used.setdefault(name, []).append(sysid)
+        if used:
+            self._say("vehicle settings: parameter names as the vehicles know them: " +
+                      ", ".join(f"{name} on vehicle(s) {_ids(ids)}"
+                                for name, ids in sorted(used.items())),
+                      "vehicle_settings_names", names=used)
         for sysid, out in sorted(outcomes.items()):
             if out.changed or out.fence:
                 self._say(f"vehicle {spell(sysid)}: " + ", ".join(
