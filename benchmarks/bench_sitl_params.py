@@ -37,6 +37,15 @@ async def _measure(sitl: Path, port: int, rtl_alt: float, land_speed: float) -> 
     link = FleetLink(("127.0.0.1", port), clock=clock, heartbeat_period=0.5)
     await link.start()
     work = Path(tempfile.mkdtemp(prefix="sitl-params-"))
+    try:
+        return await _settings(sitl, port, rtl_alt, land_speed, link, clock, work)
+    finally:
+        await link.close()
+        shutil.rmtree(work, ignore_errors=True)
+
+
+async def _settings(sitl: Path, port: int, rtl_alt: float, land_speed: float,
+                    link: FleetLink, clock: ScaledClock, work: Path) -> int:
     proc = subprocess.Popen(
         [str(sitl / "arducopter"), "--model", "quad", "--speedup", "1", "-I0", "--sysid", "1",
          "-w", "--defaults", str(sitl / "copter.parm"),
@@ -67,8 +76,6 @@ async def _measure(sitl: Path, port: int, rtl_alt: float, land_speed: float) -> 
             proc.wait(timeout=10)
         except subprocess.TimeoutExpired:
             proc.kill()
-        await link.close()
-        shutil.rmtree(work, ignore_errors=True)
 
 
 def main() -> int:

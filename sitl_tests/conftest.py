@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import signal
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -20,18 +21,19 @@ def pytest_configure() -> None:
 
 # -- the longest first, list-scheduled -----------------------------------------------
 # Tests are collected longest first, by the last recorded durations (DURATIONS), and
-# `--dist load` hands them out with :class:`LongestFirst`: each worker takes the next
-# unit of the collection whenever it has one test left, so the half-minute flights start
-# at once, a free worker always takes the longest test not yet started (list
-# scheduling), and the run ends on short tests instead of on one worker's flight while
-# the others idle.  (In file order, or with worksteal handing each worker a contiguous
-# quarter of the collection, the long flights came wherever their module fell.)
+# `--dist load` hands them out with :class:`LongestFirst`: each worker is handed the
+# next unit of the collection whenever it finishes a test (it holds one more than it
+# runs), so the half-minute flights start at once, the longest tests not yet handed
+# out go to the first workers free (list scheduling, one test ahead), and the run ends
+# on short tests instead of on one worker's flight while the others idle.  (In file
+# order, or with worksteal handing each worker a contiguous quarter of the collection,
+# the long flights came wherever their module fell.)
 #
 # A unit is one test, except a module in ONE_WORKER: its module fixture is a flight, a
-# Ray cluster or a pool of planning processes, set up once on the one worker that runs
-# the whole module.  (xdist's own `loadgroup` would do this from `xdist_group` marks,
-# but with pytest 9.2 it no longer tags the tests, and the modules were spread over
-# every worker, each flying the fixture's flight again.)
+# Ray cluster, a pool of planning processes or a planned show, set up once on the one
+# worker that runs the whole module.  (xdist's own `loadgroup` would do this from
+# `xdist_group` marks, but with pytest 9.2 it no longer tags the tests, and the modules
+# were spread over every worker, each flying the fixture's flight again.)
 #
 # The durations are a schedule, never a bound: an unknown test counts as UNKNOWN_S, and
 # a stale file costs only balance.
@@ -41,7 +43,7 @@ DURATIONS = Path(__file__).with_name("durations.json")
 UNKNOWN_S = 1.0
 #: Modules run whole by one worker (their module-scoped fixture is expensive).
 ONE_WORKER = frozenset({"sitl_tests/test_record_rerun.py", "sitl_tests/test_plan_ray.py",
-                        "sitl_tests/test_flight_workers.py"})
+                        "sitl_tests/test_flight_workers.py", "sitl_tests/test_skybrush.py"})
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -84,31 +86,50 @@ except ImportError:  # without xdist the suite runs in one process, in the same 
     pass
 else:
     class LongestFirst(LoadScopeScheduling):
-        """xdist's scope scheduling with :func:`unit_of` as the scope, the units in
-        collection order (the longest first), and the next unit sent as soon as a worker
-        is down to its last test (xdist's scope scheduling waits for two: a deeper
-        queue, so a long test could wait behind a busy worker while another was free).
-        A worker holds one test beside the one it runs: it runs a test only once it
-        knows the next (for fixture teardown)."""
+        """xdist's scope scheduling with :func:`unit_of` as the scope and the units in
+        collection order (the longest first).  A worker holds two tests: the one it runs
+        and the next (it runs a test only once it knows the next, for fixture teardown);
+        when it finishes one it is handed the next unit of the queue.  (xdist's scope
+        scheduling tops a worker up only below three, a deeper queue behind a busy
+        worker.)  A worker that crashes: the test it ran is reported and not run again,
+        its other tests go back to the front of the queue."""
 
-        def __init__(self, config: pytest.Config, log: object = None) -> None:
-            super().__init__(config, log)  # type: ignore[arg-type]
+        def __init__(self, config: pytest.Config, log: Any = None) -> None:
+            super().__init__(config, log)
             config.option.loadscopereorder = False  # the collection's order is the plan
 
         def _split_scope(self, nodeid: str) -> str:
             return unit_of(nodeid)
 
-        def _reschedule(self, node: object) -> None:
-            if node.shutting_down:  # type: ignore[attr-defined]
+        def _reschedule(self, node: Any) -> None:
+            if node.shutting_down:
                 return
+            # A unit whose tests all ran (put back after a crash) sends nothing: go on.
+            while self.workqueue and self._pending_of(self.assigned_work[node]) < 2:
+                self._assign_work_unit(node)
             if not self.workqueue:
-                node.shutdown()  # type: ignore[attr-defined]
-                return
-            if self._pending_of(self.assigned_work[node]) > 1:  # type: ignore[index]
-                return
-            self._assign_work_unit(node)  # type: ignore[arg-type]
+                node.shutdown()  # it runs what it holds, then stops
 
-    def pytest_xdist_make_scheduler(config: pytest.Config, log: object) -> object | None:
+        def remove_node(self, node: Any) -> str | None:
+            workload = self.assigned_work.pop(node)
+            left = {scope: {nodeid: False for nodeid, done in unit.items() if not done}
+                    for scope, unit in workload.items()}
+            left = {scope: unit for scope, unit in left.items() if unit}
+            if not left:
+                return None
+            first = next(iter(left))
+            crashed = next(iter(left[first]))
+            del left[first][crashed]  # reported as the crash, not run again
+            queued = list(self.workqueue.items())
+            self.workqueue.clear()
+            self.workqueue.update((scope, unit) for scope, unit in left.items() if unit)
+            self.workqueue.update(queued)
+            for other in list(self.assigned_work):
+                self._reschedule(other)
+            return crashed
+
+    @pytest.hookimpl(optionalhook=True)  # `-p no:xdist` leaves the hook without a spec
+    def pytest_xdist_make_scheduler(config: pytest.Config, log: Any) -> Any:
         if config.getvalue("dist") != "load":
             return None  # another --dist: xdist's own
         return LongestFirst(config, log)

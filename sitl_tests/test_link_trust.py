@@ -548,11 +548,13 @@ def test_a_forgers_numbering_is_not_counted_as_the_vehicles_loss(ahead: int) -> 
     f.fly(0.5)
     assert f.state.quality.lost == 1
     c, state = f.vehicle, f.state
-    first = c.mav.seq
-    early = [c.local(f.t) for _ in range(MAX_STEP + 3)]  # numbered first .. first+14
+    received = state.quality.received
+    early = [c.local(f.t) for _ in range(MAX_STEP + 3)]  # 15 packets
     for msg in [early[-1], *early[:-1]]:  # the last one first: far ahead, held
         f.feed(msg)
-    assert state.quality.lost == 1, (first, state.quality)
+    f.feed(c.local(f.t))  # and the next: the numbering has passed the early one
+    # All 16 counted (the early one once the numbering reached it), none lost.
+    assert state.quality.lost == 1 and state.quality.received == received + 16, state.quality
 
 
 def test_a_new_numbering_starts_the_loss_count_afresh() -> None:
@@ -560,9 +562,12 @@ def test_a_new_numbering_starts_the_loss_count_afresh() -> None:
     # The jump between the two numberings is not a loss.
     f = Flight()
     f.fly(2.0)
+    received, packets = f.state.quality.received, f.state.packets
     f.vehicle.mav.seq = (f.vehicle.mav.seq + 100) % 256
     f.fly(1.0)
     assert f.state.quality.restarts == 1 and f.state.quality.lost == 0
+    # Every packet of the new numbering counted, the ones held before the restart too.
+    assert f.state.quality.received - received == f.state.packets - packets, f.state.quality
 
 
 def _s(t: float, x: float, vx: float = 0.0, at: float | None = None) -> Sample:

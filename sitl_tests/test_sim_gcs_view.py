@@ -23,6 +23,7 @@ from groundctl.clock import ScaledClock
 from groundctl.link import Flavour, FleetLink
 from groundctl.sim import SimConfig, SimFleet
 from groundctl.sim.config import ARDUPILOT_DYNAMICS, dynamics_profile
+from groundctl.sim.params import ParamStore
 
 AP = Flavour.ARDUPILOT
 PX4 = Flavour.PX4
@@ -261,6 +262,17 @@ def test_ardupilot_parameter_fetch_has_what_an_operator_checks(profile: str) -> 
         peer.send(mavlink.MAVLink_param_request_read_message(1, 1, b"", index), 1)
         m = peer.wait("PARAM_VALUE", 1, steps=5)
         assert (m.param_id, m.param_index, m.param_count) == ("FENCE_RADIUS", index, count)
+
+
+def test_a_parameter_override_under_the_other_versions_name_is_taken_in_this_ones() -> None:
+    # `groundctl sim --param RTL_ALT=3000` on a 4.8 vehicle (RTL_ALT_M in m), and the
+    # other way round.
+    new = ParamStore(Flavour.ARDUPILOT, 1, {"RTL_ALT": 3000, "WPNAV_SPEED": 800},
+                     dynamics_profile("ardupilot-4.8"))
+    assert (new["RTL_ALT_M"], new["WP_SPD"], new.si("RTL_ALT")) == (30.0, 8.0, 30.0)
+    old = ParamStore(Flavour.ARDUPILOT, 1, {"RTL_ALT_M": 12.5},
+                     dynamics_profile("ardupilot-4.7"))
+    assert (old["RTL_ALT"], old.si("RTL_ALT")) == (1250, 12.5)
 
 
 @pytest.mark.parametrize("profile", ["ardupilot-4.8", "ardupilot-4.7"])

@@ -126,8 +126,16 @@ def test_operator_keys_map_to_each_autopilots_parameters() -> None:
     limits = Limits(max_alt=40.0, geofence=SQUARE)
     ap = {t.name: t.value for t in targets_for(s, AP, limits)}
     assert ap == {"FENCE_ENABLE": 1, "FENCE_TYPE": 5, "FENCE_ALT_MAX": 42.0, "FENCE_ACTION": 2,
-                  "FS_GCS_ENABLE": 1, "FS_GCS_TIMEOUT": 4.5, "RTL_ALT": 2500.0,
+                  "FS_GCS_ENABLE": 1, "FS_GCS_TIMEOUT": 4.5, "RTL_ALT_M": 25.0,
                   "LAND_SPD_MS": 0.6}
+    # The raw RTL_ALT (cm) won over rtl_alt, and is asked under both names: on 4.8 as
+    # RTL_ALT_M in m.
+    raw = next(t for t in targets_for(s, AP, limits) if t.name == "RTL_ALT_M")
+    assert raw.names == ("RTL_ALT_M", "RTL_ALT") and raw.under("RTL_ALT").value == 2500.0
+    mixed = replace(s, params=(("RTL_ALT_M", 30.0), ("WPNAV_SPEED", 800.0)))
+    wanted = {t.name: (t.value, t.names) for t in targets_for(mixed, AP, limits)}
+    assert wanted["RTL_ALT_M"] == (30.0, ("RTL_ALT_M", "RTL_ALT"))
+    assert wanted["WP_SPD"] == (8.0, ("WP_SPD", "WPNAV_SPEED"))
     # ArduCopter 4.8 renamed land_speed's parameter to m/s; before, LAND_SPEED in cm/s.
     land = next(t for t in targets_for(s, AP, limits) if t.name == "LAND_SPD_MS")
     assert land.names == ("LAND_SPD_MS", "LAND_SPEED") and land.under("LAND_SPEED").value == 60

@@ -30,8 +30,9 @@ The PX4 names are those of PX4-Autopilot's main branch too (its parameter defini
 ``commander_params.yaml``, ``geofence_params.yaml``, ``rtl_params.yaml``,
 ``multicopter_takeoff_land_params.yaml``): none renamed since v1.15.
 
-A setting whose parameter a firmware version renamed (:attr:`ParamTarget.alternatives`)
-is read under every name at once, and the name the vehicle answers to is the one set,
+A setting whose parameter a firmware version renamed (:attr:`ParamTarget.alternatives`,
+:mod:`groundctl.link.paramnames`), raw ``params`` under either name included, is read
+under every name at once, and the name the vehicle answers to is the one set,
 in that name's unit; :attr:`VehicleOutcome.names` says which was used.
 """
 
@@ -54,6 +55,7 @@ from groundctl.link.fence import (
 )
 from groundctl.link.flavours import Flavour
 from groundctl.link.fleet import FleetLink
+from groundctl.link.paramnames import ARDUCOPTER_OLD_NAMES, si_name
 from groundctl.link.params import ParamClient, run_params, same_value
 from groundctl.link.window import per_network
 from groundctl.show.model import GeoOrigin, Limits, VehicleSettings
@@ -114,11 +116,9 @@ def targets_for(settings: VehicleSettings, flavour: Flavour, limits: Limits) -> 
             out.append(ParamTarget("FS_GCS_TIMEOUT", s.gcs_timeout, "s"))
         # ArduCopter 4.8 renamed these to SI units; 4.5-4.7 still use centimetres.
         if s.rtl_alt is not None:
-            out.append(ParamTarget("RTL_ALT_M", s.rtl_alt, "m", (
-                ParamTarget("RTL_ALT", round(s.rtl_alt * 100), "cm"),)))
+            out.append(_either("RTL_ALT_M", s.rtl_alt, "m", "cm"))
         if s.land_speed is not None:
-            out.append(ParamTarget("LAND_SPD_MS", s.land_speed, "m/s", (
-                ParamTarget("LAND_SPEED", round(s.land_speed * 100), "cm/s"),)))
+            out.append(_either("LAND_SPD_MS", s.land_speed, "m/s", "cm/s"))
         raw = s.params_ardupilot
     else:
         if s.fence:
@@ -138,11 +138,26 @@ def targets_for(settings: VehicleSettings, flavour: Flavour, limits: Limits) -> 
         raw = s.params_px4
     names = {n for t in out for n in t.names}
     for name, value in (*s.params, *raw):
-        if name in names:  # a raw parameter wins over the operator-level key
-            out = [t for t in out if name not in t.names]
-        out.append(ParamTarget(name, value, "[vehicle] params"))
-        names.add(name)
+        # A raw ArduCopter parameter under either version's name is asked under both.
+        renamed = si_name(name) if flavour is Flavour.ARDUPILOT else None
+        if renamed is None:
+            target = ParamTarget(name, value, "[vehicle] params")
+        else:
+            new, _, scale = renamed
+            si = value if name == new else value / scale
+            target = _either(new, si, "[vehicle] params", "[vehicle] params")
+        if names & set(target.names):  # a raw parameter wins over the operator-level key
+            out = [t for t in out if not set(t.names) & set(target.names)]
+        out.append(target)
+        names.update(target.names)
     return out
+
+
+def _either(name: str, si: float, why: str, old_why: str) -> ParamTarget:
+    """An ArduCopter setting under its 4.8 name ``name`` (``si`` in SI units), with the
+    name it had before 4.8 as the alternative (in its own unit)."""
+    old, scale = ARDUCOPTER_OLD_NAMES[name]
+    return ParamTarget(name, si, why, (ParamTarget(old, round(si * scale, 6), old_why),))
 
 
 def offset_polygon(xy: np.ndarray, margin: float) -> np.ndarray:

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from groundctl.link.flavours import Flavour
+from groundctl.link.paramnames import ARDUCOPTER_48_RENAMES, ARDUCOPTER_SI_NAMES, si_name
 from groundctl.sim.config import Dynamics
 
 REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
@@ -217,25 +218,8 @@ DYNAMICS_PARAMS: dict[Flavour, dict[str, tuple[str, float]]] = {
 }
 
 
-#: ArduCopter 4.8 renamed its speeds, heights and accelerations to SI units: the name
-#: before (4.7 and earlier, the table above) -> (the 4.8 name, the old unit's count per
-#: SI unit: cm -> m, cm/s -> m/s, cm/s/s -> m/s/s).  Checked against the ArduCopter
-#: V4.8.0-dev SITL build in ../shared/sitl (its parameter names).
-ARDUPILOT_48_RENAMES: dict[str, tuple[str, float]] = {
-    "RTL_ALT": ("RTL_ALT_M", 100.0),
-    "RTL_ALT_FINAL": ("RTL_ALT_FINAL_M", 100.0),
-    "RTL_CLIMB_MIN": ("RTL_CLIMB_MIN_M", 100.0),
-    "RTL_SPEED": ("RTL_SPEED_MS", 100.0),
-    "WPNAV_SPEED": ("WP_SPD", 100.0),
-    "WPNAV_SPEED_UP": ("WP_SPD_UP", 100.0),
-    "WPNAV_SPEED_DN": ("WP_SPD_DN", 100.0),
-    "WPNAV_ACCEL": ("WP_ACC", 100.0),
-    "WPNAV_ACCEL_Z": ("WP_ACC_Z", 100.0),
-    "WPNAV_RADIUS": ("WP_RADIUS_M", 100.0),
-    "LAND_SPEED": ("LAND_SPD_MS", 100.0),
-    "LAND_SPEED_HIGH": ("LAND_SPD_HIGH_MS", 100.0),
-    "LAND_ALT_LOW": ("LAND_ALT_LOW_M", 100.0),
-}
+#: ArduCopter 4.8's SI names (see :mod:`groundctl.link.paramnames`).
+ARDUPILOT_48_RENAMES = ARDUCOPTER_48_RENAMES
 #: Parameters of the table above that the 4.8 build no longer has under any name found.
 ARDUPILOT_48_GONE = frozenset({"WPNAV_JERK", "PILOT_SPEED_UP", "PILOT_SPEED_DN"})
 
@@ -251,7 +235,8 @@ def renames_for(flavour: Flavour, firmware: tuple[int, int, int] | None
                 ) -> dict[str, tuple[str, float]]:
     """The renamed parameters of ``flavour`` at version ``firmware`` (see
     ARDUPILOT_48_RENAMES; empty for PX4 and ArduCopter before 4.8)."""
-    if flavour is Flavour.ARDUPILOT and firmware is not None and firmware >= (4, 8, 0):
+    if flavour is Flavour.ARDUPILOT and firmware is not None and \
+            firmware >= ARDUCOPTER_SI_NAMES:
         return ARDUPILOT_48_RENAMES
     return {}
 
@@ -294,9 +279,15 @@ class ParamStore:
                 self.values[name] = self._stored(self.specs[name],
                                                  float(getattr(dynamics, attr)) * scale)
         for name, value in (overrides or {}).items():
+            renamed = si_name(name) if flavour is Flavour.ARDUPILOT else None
+            if name not in self.specs and renamed is not None:
+                # The other version's name for it: in this version's name and unit.
+                new, old, scale = renamed
+                name, value = (new, float(value) / scale) if new in self.specs \
+                    else (old, float(value) * scale)
             if name not in self.specs:
                 continue  # the other flavour's parameter in a fleet-wide dict
-            self.values[name] = float(value)
+            self.values[name] = self._stored(self.specs[name], float(value))
 
     def __getitem__(self, name: str) -> float:
         return self.values[name]
