@@ -72,11 +72,11 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     if not recorded:
         return
     own = {item.nodeid: recorded.get(item.nodeid, UNKNOWN_S) for item in items}
+    unit = {item.nodeid: unit_of(item.nodeid) for item in items}
     weight: dict[str, float] = {}
-    for item in items:
-        unit = unit_of(item.nodeid)
-        weight[unit] = weight.get(unit, 0.0) + own[item.nodeid]
-    items.sort(key=lambda item: (-weight[unit_of(item.nodeid)], unit_of(item.nodeid),
+    for nodeid, u in unit.items():
+        weight[u] = weight.get(u, 0.0) + own[nodeid]
+    items.sort(key=lambda item: (-weight[unit[item.nodeid]], unit[item.nodeid],
                                  -own[item.nodeid]))
 
 
@@ -104,7 +104,7 @@ else:
         def _reschedule(self, node: Any) -> None:
             if node.shutting_down:
                 return
-            # A unit whose tests all ran (put back after a crash) sends nothing: go on.
+            # Topped up to two (a unit may be a whole module: then it holds more).
             while self.workqueue and self._pending_of(self.assigned_work[node]) < 2:
                 self._assign_work_unit(node)
             if not self.workqueue:

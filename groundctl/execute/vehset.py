@@ -55,7 +55,7 @@ from groundctl.link.fence import (
 )
 from groundctl.link.flavours import Flavour
 from groundctl.link.fleet import FleetLink
-from groundctl.link.paramnames import ARDUCOPTER_OLD_NAMES, si_name
+from groundctl.link.paramnames import ARDUCOPTER_OLD_NAMES, convert, si_name
 from groundctl.link.params import ParamClient, run_params, same_value
 from groundctl.link.window import per_network
 from groundctl.show.model import GeoOrigin, Limits, VehicleSettings
@@ -143,9 +143,9 @@ def targets_for(settings: VehicleSettings, flavour: Flavour, limits: Limits) -> 
         if renamed is None:
             target = ParamTarget(name, value, "[vehicle] params")
         else:
-            new, _, scale = renamed
-            si = value if name == new else value / scale
-            target = _either(new, si, "[vehicle] params", "[vehicle] params")
+            new = renamed[0]
+            target = _either(new, convert(name, value, new), "[vehicle] params",
+                             "[vehicle] params")
         if names & set(target.names):  # a raw parameter wins over the operator-level key
             out = [t for t in out if not set(t.names) & set(target.names)]
         out.append(target)
@@ -156,8 +156,9 @@ def targets_for(settings: VehicleSettings, flavour: Flavour, limits: Limits) -> 
 def _either(name: str, si: float, why: str, old_why: str) -> ParamTarget:
     """An ArduCopter setting under its 4.8 name ``name`` (``si`` in SI units), with the
     name it had before 4.8 as the alternative (in its own unit)."""
-    old, scale = ARDUCOPTER_OLD_NAMES[name]
-    return ParamTarget(name, si, why, (ParamTarget(old, round(si * scale, 6), old_why),))
+    old = ARDUCOPTER_OLD_NAMES[name][0]
+    return ParamTarget(name, si, why,
+                       (ParamTarget(old, round(convert(name, si, old), 6), old_why),))
 
 
 def offset_polygon(xy: np.ndarray, margin: float) -> np.ndarray:

@@ -47,3 +47,15 @@ def si_name(name: str) -> tuple[str, str, float] | None:
         old, scale = ARDUCOPTER_OLD_NAMES[name]
         return name, old, scale
     return None
+
+
+def convert(name: str, value: float, to: str) -> float:
+    """``value`` of ArduCopter parameter ``name`` in the unit of ``to``: ``name`` itself
+    or its name in the other version (``convert("RTL_ALT", 2000, "RTL_ALT_M")`` is 20)."""
+    if to == name:
+        return value
+    renamed = si_name(name)
+    if renamed is None or to not in renamed[:2]:
+        raise ValueError(f"{to} is not {name} under another name")
+    new, _, scale = renamed
+    return value / scale if to == new else value * scale

@@ -337,10 +337,11 @@ def _received(state: VehicleState, comp: int, seq: int, digest: int, kind: str,
     # goes on from is counted then; a new numbering starts the count afresh.
     if verdict is Seq.RESTART:
         state.quality.restart(comp)
-    newest = numbering.newest if numbering.newest is not None else seq
-    for number in sorted(numbering.placed, key=lambda n: -((newest - n) % 256)):
-        state.quality.update(comp, number)  # along the ring, the oldest first
-    numbering.placed.clear()
+    if numbering.placed:  # rare: most packets come in their place
+        newest = seq if numbering.newest is None else numbering.newest
+        for number in sorted(numbering.placed, key=lambda n: -((newest - n) % 256)):
+            state.quality.update(comp, number)  # along the ring, the oldest first
+        numbering.placed.clear()
     if verdict is not Seq.HELD and verdict is not Seq.CONFLICT:
         state.quality.update(comp, seq)
     for why, kinds in numbering.blame:

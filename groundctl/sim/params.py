@@ -27,7 +27,12 @@ from dataclasses import dataclass
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from groundctl.link.flavours import Flavour
-from groundctl.link.paramnames import ARDUCOPTER_48_RENAMES, ARDUCOPTER_SI_NAMES, si_name
+from groundctl.link.paramnames import (
+    ARDUCOPTER_48_RENAMES,
+    ARDUCOPTER_SI_NAMES,
+    convert,
+    si_name,
+)
 from groundctl.sim.config import Dynamics
 
 REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
@@ -218,27 +223,20 @@ DYNAMICS_PARAMS: dict[Flavour, dict[str, tuple[str, float]]] = {
 }
 
 
-#: ArduCopter 4.8's SI names (see :mod:`groundctl.link.paramnames`).
-ARDUPILOT_48_RENAMES = ARDUCOPTER_48_RENAMES
 #: Parameters of the table above that the 4.8 build no longer has under any name found.
 ARDUPILOT_48_GONE = frozenset({"WPNAV_JERK", "PILOT_SPEED_UP", "PILOT_SPEED_DN"})
 
 
 def _renamed(spec: ParamSpec) -> ParamSpec:
-    new, scale = ARDUPILOT_48_RENAMES[spec.name]
-    unit = "m/s/s" if "ACC" in new else "m/s" if ("SPD" in new or "SPEED" in new) else "m"
+    new, scale = ARDUCOPTER_48_RENAMES[spec.name]
     return ParamSpec(new, spec.default / scale, REAL32,
-                     f"{spec.doc} [ArduCopter 4.8 name, in {unit}; {spec.name} before]")
+                     f"{spec.doc} [ArduCopter 4.8 name, SI unit: {spec.name} / {scale:g}]")
 
 
-def renames_for(flavour: Flavour, firmware: tuple[int, int, int] | None
-                ) -> dict[str, tuple[str, float]]:
-    """The renamed parameters of ``flavour`` at version ``firmware`` (see
-    ARDUPILOT_48_RENAMES; empty for PX4 and ArduCopter before 4.8)."""
-    if flavour is Flavour.ARDUPILOT and firmware is not None and \
-            firmware >= ARDUCOPTER_SI_NAMES:
-        return ARDUPILOT_48_RENAMES
-    return {}
+#: The ArduCopter table under 4.8's names and SI units (see :mod:`groundctl.link.paramnames`).
+ARDUPILOT_48_PARAMS: tuple[ParamSpec, ...] = tuple(
+    _renamed(s) if s.name in ARDUCOPTER_48_RENAMES else s
+    for s in ARDUPILOT_PARAMS if s.name not in ARDUPILOT_48_GONE)
 
 
 def specs_for(flavour: Flavour, firmware: tuple[int, int, int] | None = None
@@ -247,10 +245,9 @@ def specs_for(flavour: Flavour, firmware: tuple[int, int, int] | None = None
     ArduCopter 4.8), in PARAM_VALUE index order."""
     if flavour is not Flavour.ARDUPILOT:
         return PX4_PARAMS
-    if not renames_for(flavour, firmware):
-        return ARDUPILOT_PARAMS
-    return tuple(_renamed(s) if s.name in ARDUPILOT_48_RENAMES else s
-                 for s in ARDUPILOT_PARAMS if s.name not in ARDUPILOT_48_GONE)
+    if firmware is not None and firmware >= ARDUCOPTER_SI_NAMES:
+        return ARDUPILOT_48_PARAMS
+    return ARDUPILOT_PARAMS
 
 
 class ParamStore:
@@ -264,9 +261,7 @@ class ParamStore:
                  overrides: Mapping[str, float] | None = None,
                  dynamics: Dynamics | None = None) -> None:
         self.flavour = flavour
-        firmware = dynamics.firmware if dynamics is not None else None
-        self._renames = renames_for(flavour, firmware)
-        specs = specs_for(flavour, firmware)
+        specs = specs_for(flavour, dynamics.firmware if dynamics is not None else None)
         self.specs: dict[str, ParamSpec] = {s.name: s for s in specs}
         self._names = [s.name for s in specs]
         self._index = {name: i for i, name in enumerate(self._names)}
@@ -274,20 +269,26 @@ class ParamStore:
         self.values["SYSID_THISMAV" if flavour is Flavour.ARDUPILOT else "MAV_SYS_ID"] = sysid
         if dynamics is not None:
             for name, (attr, scale) in DYNAMICS_PARAMS[flavour].items():
-                if name in self._renames:
-                    name, scale = self._renames[name][0], scale / self._renames[name][1]
-                self.values[name] = self._stored(self.specs[name],
-                                                 float(getattr(dynamics, attr)) * scale)
+                self._put(name, float(getattr(dynamics, attr)) * scale)
         for name, value in (overrides or {}).items():
-            renamed = si_name(name) if flavour is Flavour.ARDUPILOT else None
-            if name not in self.specs and renamed is not None:
-                # The other version's name for it: in this version's name and unit.
-                new, old, scale = renamed
-                name, value = (new, float(value) / scale) if new in self.specs \
-                    else (old, float(value) * scale)
-            if name not in self.specs:
-                continue  # the other flavour's parameter in a fleet-wide dict
-            self.values[name] = self._stored(self.specs[name], float(value))
+            self._put(name, float(value))  # the other flavour's names are skipped
+
+    def _held_as(self, name: str) -> str | None:
+        """The name this vehicle holds parameter ``name`` under: itself, its name in the
+        other ArduCopter version (RTL_ALT_M for RTL_ALT on 4.8), or None."""
+        if name in self.specs:
+            return name
+        renamed = si_name(name) if self.flavour is Flavour.ARDUPILOT else None
+        if renamed is None:
+            return None
+        return next((n for n in renamed[:2] if n in self.specs), None)
+
+    def _put(self, name: str, value: float) -> None:
+        """Set ``name`` to ``value`` (in ``name``'s unit) under the name this vehicle
+        holds it by; a name it does not know is skipped."""
+        held = self._held_as(name)
+        if held is not None:
+            self.values[held] = self._stored(self.specs[held], convert(name, value, held))
 
     def __getitem__(self, name: str) -> float:
         return self.values[name]
@@ -296,11 +297,11 @@ class ParamStore:
         """The value of the parameter called ``name`` before ArduCopter 4.8, in SI units
         (m, m/s) whichever name this vehicle's firmware gives it: ``si("RTL_ALT")`` is
         RTL_ALT / 100 on 4.7 and RTL_ALT_M on 4.8."""
-        renamed = self._renames.get(name)
-        if renamed is not None:
-            return self.values[renamed[0]]
-        scale = ARDUPILOT_48_RENAMES.get(name, (name, 1.0))[1]
-        return self.values[name] / scale
+        held = self._held_as(name)
+        if held is None:
+            raise KeyError(name)
+        renamed = si_name(name)
+        return convert(held, self.values[held], renamed[0]) if renamed else self.values[held]
 
     def __len__(self) -> int:
         return len(self._names)
