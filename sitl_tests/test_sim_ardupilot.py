@@ -10,7 +10,8 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from sim_fixtures import GcsPeer, manual_fleet, ready_and_flying, running_fleet, wait_until
 
-from groundctl.link.flavours import Flavour, decode_mode
+from groundctl.clock import ManualClock
+from groundctl.link.flavours import Flavour, decode_mode, mode_request
 from groundctl.sim import SimFleet
 
 AP = Flavour.ARDUPILOT
@@ -306,6 +307,33 @@ def test_timesync_answers_with_time_since_boot_in_ns() -> None:
         own = peer.all("TIMESYNC", 1)
         requests = [m for m in own if m.tc1 == 0]
         assert len(requests) == 1 and abs(requests[0].ts1 / 1e9 - 10.0) < 0.05
+
+
+def test_physics_behind_its_clock_answers_timesync_with_the_clock_and_acts_on_arrival(
+        ) -> None:
+    """A busy machine: the clock ran on 2 s while the physics stood at 5 s.  The vehicle's
+    own clock never lags -- a TIMESYNC answer carries the clock's time, not the physics'
+    last step (read by the ground station as its clock offset, it dated every sample
+    that much wrong) -- and a message is acted on from the step it arrived in, never at
+    a step before it (a setpoint taken early flew the vehicle ahead of its plan)."""
+    with manual_fleet(1) as (fleet, peer):
+        fleet.run_until(5.0)
+        assert isinstance(fleet.clock, ManualClock)
+        fleet.clock.advance(2.0)  # the physics is still at 5 s
+        arrived = fleet.clock.now()
+        peer.send(mavlink.MAVLink_timesync_message(0, 42), 1)
+        req = mode_request(AP, "GUIDED")
+        peer.send(mavlink.MAVLink_command_long_message(
+            1, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, req.param1, req.param2, req.param3,
+            0, 0, 0, 0), 1)
+        reply = peer.wait("TIMESYNC", 1, lambda m: m.ts1 == 42, steps=3)
+        assert reply.tc1 / 1e9 == pytest.approx(arrived - fleet.boot_time, abs=1e-6)
+        assert fleet.clock.now() - fleet.t > 1.9  # answered while the physics lagged
+        assert fleet.state(1).mode != "GUIDED" and not peer.all("COMMAND_ACK", 1)
+        peer.wait("COMMAND_ACK", 1, lambda m: m.command == mavlink.MAV_CMD_DO_SET_MODE,
+                  steps=200)
+        assert fleet.state(1).mode == "GUIDED"
+        assert arrived <= fleet.t <= arrived + 2 * fleet.dt
 
 
 @pytest.mark.parametrize("target", [1, 0])

@@ -100,6 +100,9 @@ class SimFleet:
         self._gcs: list[tuple[str, int]] = [config.gcs_of(i) for i in range(config.count)]
         self._lock = threading.RLock()
         self._inbox: list[tuple[float, int, int, bytes, tuple[str, int]]] = []
+        # Messages that arrived, to be acted on once the physics gets there: (arrival on the
+        # clock, order, vehicle index, messages).
+        self._arrived: list[tuple[float, int, int, list[mavlink.MAVLink_message]]] = []
         self._outbox: list[tuple[float, int, int, bytes]] = []
         self._timers: list[tuple[float, int, Callable[[], None]]] = []
         self._seq = 0
@@ -369,9 +372,11 @@ class SimFleet:
         target = self.t + dt
         with self._lock:
             while self.t + self.dt <= target + 1e-9:
-                if isinstance(self.clock, ManualClock):
-                    self.clock.advance(max(0.0, self.t + self.dt - self.clock.now()))
+                # The step reads what arrived up to its start, then the clock moves on to
+                # its end (a message sent before step() is in it, not the next one).
                 self._tick()
+                if isinstance(self.clock, ManualClock):
+                    self.clock.advance(max(0.0, self.t - self.clock.now()))
 
     def run_until(self, t: float) -> None:
         """Advance until simulated time ``t`` (seconds since boot)."""
@@ -444,8 +449,13 @@ class SimFleet:
         # out, is kept in the same time as the delivery is scheduled in).
         arrived = max(now, self.clock.now())
         rel = arrived - self.boot_time
+        # What the link delayed, as it arrives on the clock (not as the physics gets there:
+        # a TIMESYNC answer must not wait for a lagging physics).
+        while self._inbox and self._inbox[0][0] <= arrived:
+            due, _, i, data, addr = heapq.heappop(self._inbox)
+            self._deliver(i, data, addr, now, due)
         for key, _ in self._selector.select(0):
-            i: int = key.data
+            i = key.data
             sock = self._sockets[i]
             link = self._links[i]
             while True:
@@ -457,23 +467,45 @@ class SimFleet:
                     break  # e.g. an ICMP error reported on the socket: nothing to read
                 for delay in link.deliveries(rel, self._link_rng, self._jitter[i][0]):
                     if delay == 0:
-                        self._deliver(i, data, addr, now)
+                        self._deliver(i, data, addr, now, arrived)
                     else:
                         self._seq += 1
                         heapq.heappush(self._inbox, (arrived + delay, self._seq, i, data, addr))
-        while self._inbox and self._inbox[0][0] <= now:
-            _, _, i, data, addr = heapq.heappop(self._inbox)
-            self._deliver(i, data, addr, now)
+        # Acted on in the order they arrived, from the first step at or after arrival.
+        while self._arrived and self._arrived[0][0] <= now:
+            _, _, i, msgs = heapq.heappop(self._arrived)
+            self._handle(i, msgs, now)
 
-    def _deliver(self, i: int, data: bytes, addr: tuple[str, int], now: float) -> None:
+    def _deliver(self, i: int, data: bytes, addr: tuple[str, int], now: float,
+                 arrived: float) -> None:
+        """Datagram ``data`` reached vehicle ``i`` at clock time ``arrived``; the physics
+        is at ``now``.
+
+        The vehicle's own clock never lags: a TIMESYNC request is answered at once, with
+        the clock's time.  The rest is acted on from the first physics step at or after its
+        arrival, never before: a message arrives between two steps, and the physics lags a
+        clock that ran on (a busy machine).  A setpoint taken at the step before flew the
+        vehicle ahead of its plan (by up to a step; on a busy machine by the whole lag: the
+        dry-run at x60 140-190 ms ahead, and MPC set off by it), and its response to
+        setpoints read as negative (issue 33)."""
         msgs = self.codecs[i].decode(data)
         if not msgs:
             return
         # Like a real autopilot's UDP link: reply to whoever last talked to us.
         self._gcs[i] = addr
+        timesync = [m for m in msgs if m.get_type() == "TIMESYNC"]
+        if timesync:
+            self._handle(i, timesync, now)
+            msgs = [m for m in msgs if m.get_type() != "TIMESYNC"]
+            if not msgs:
+                return
+        self._seq += 1
+        heapq.heappush(self._arrived, (arrived, self._seq, i, msgs))
+
+    def _handle(self, i: int, msgs: list[mavlink.MAVLink_message], now: float) -> None:
         vehicle = self.vehicles[i]
         for msg in msgs:
-            out = vehicle.handle(msg, now)
+            out = vehicle.handle(msg, now, self.clock.now())
             if out:
                 self._send(i, out, now)
 

@@ -61,6 +61,10 @@ class ShowRunner(Streaming):
         await self._configure(seq)
         await self._planner_ready()
         now = self.clock.now()
+        # The first tick is due now: a dry-run's paced clock waits for it from here, not
+        # from the loop's first look (the arming commands below took 120 ms of a x60
+        # clock on a busy machine, and that tick was as late).
+        self.clock.idle_until(now)
         self._say(f"arming {len(seq.vehicles)} vehicle(s)", "sequence_started")
         self._perform(seq.start(now))
         budget = (cfg.sequence.takeoff_timeout_s + 2 * cfg.sequence.step_timeout_s
