@@ -74,7 +74,9 @@ class SimFleet:
         self._boot_text_due = boot_text
         self.clock: Clock = clock if clock is not None else ScaledClock(1.0)
         self.dt = 1.0 / config.physics_rate_hz
-        seeds = np.random.SeedSequence(config.seed).spawn(2)
+        # (a third stream, not a longer first one: adding it left the others' draws as
+        # they were)
+        seeds = np.random.SeedSequence(config.seed).spawn(3)
         self._link_rng = np.random.default_rng(seeds[1])
         homes = config.homes_enu()
         self.frames = FleetFrames.build(
@@ -82,7 +84,8 @@ class SimFleet:
             list(config.ekf_origins) if config.ekf_origins is not None else None)
         self.physics = FleetPhysics(homes, config.resolved_dynamics(),
                                     np.random.default_rng(seeds[0]), config.wind,
-                                    config.gust_std, config.gps_noise_m)
+                                    config.gust_std, config.gps_noise_m,
+                                    np.random.default_rng(seeds[2]))
         self.sysids = config.sysids()
         self.t = self.clock.now()
         self.boot_time = self.t
@@ -517,15 +520,27 @@ class SimFleet:
     def _queue(self, i: int, data: bytes, now: float) -> None:
         """Send one datagram of vehicle ``i`` through its link faults."""
         rel = now - self.boot_time
+        left: float | None = None
         for delay in self._links[i].deliveries(rel, self._link_rng, self._jitter[i][1]):
             if delay == 0:
                 self._sendto(i, data)
             else:
+                # Its latency runs from when it really leaves, on the clock: a physics
+                # lagging the clock would shorten it by the lag (a TIMESYNC answer came
+                # back sooner than the link's latency allows, and the round trip read as
+                # less than twice the one-way delay).
+                if left is None:
+                    left = max(now, self.clock.now())
                 self._seq += 1
-                heapq.heappush(self._outbox, (now + delay, self._seq, i, data))
+                heapq.heappush(self._outbox, (left + delay, self._seq, i, data))
 
     def _flush_outbox(self, now: float) -> None:
-        while self._outbox and self._outbox[0][0] <= now:
+        """Send what the link delayed and is due on the clock (not on the physics, which
+        may lag it)."""
+        if not self._outbox:
+            return
+        due = max(now, self.clock.now())
+        while self._outbox and self._outbox[0][0] <= due:
             _, _, i, data = heapq.heappop(self._outbox)
             self._sendto(i, data)
 

@@ -134,7 +134,8 @@ class FleetPhysics:
 
     def __init__(self, homes_enu: np.ndarray, dynamics: Dynamics, rng: np.random.Generator,
                  wind: tuple[float, float, float] | Wind = (0.0, 0.0, 0.0),
-                 gust_std: float = 0.0, gps_noise_m: float = 0.0) -> None:
+                 gust_std: float = 0.0, gps_noise_m: float = 0.0,
+                 bias_rng: np.random.Generator | None = None) -> None:
         n = homes_enu.shape[0]
         self.n = n
         self.dyn = dynamics
@@ -219,6 +220,13 @@ class FleetPhysics:
         """Per-vehicle factor on ``gps_noise_m`` (its GPS fix type: RTK)."""
         self.glitch = np.zeros((n, 3))
         """Injected GPS glitch offset (m)."""
+        self.vel_bias = np.zeros((n, 3))
+        """Bias of each autopilot's velocity estimate (horizontal, m/s): its position loop
+        holds it ``bias / pos_p`` off its target (:attr:`Dynamics.velocity_bias`)."""
+        self._bias_rng = bias_rng if bias_rng is not None else np.random.default_rng(0)
+        if self.dyn.velocity_bias > 0:  # from the stationary distribution: no settling
+            self.vel_bias[:, :2] = self.dyn.velocity_bias * self._bias_rng.standard_normal(
+                (n, 2))
 
     # -- derived ----------------------------------------------------------------------------
 
@@ -350,7 +358,7 @@ class FleetPhysics:
         # Velocity loop: P + I, the path's acceleration fed forward, the whole command
         # limited once, at the lean-angle limit (nothing is clipped before the sum, so
         # the integrator can carry a steady wind up to the airframe's authority).
-        v_err = v_dem - self.vel
+        v_err = v_dem - (self.vel + self.vel_bias)
         a_dem = self.des_acc + np.array([d.vel_p, d.vel_p, d.vel_p_z]) * v_err + self._vint
         a_lim = a_dem.copy()
         a_lim[:, :2] = _limit_norm(a_dem[:, :2], d.max_tilt_accel * auth)
@@ -405,6 +413,11 @@ class FleetPhysics:
             k = dt / GPS_TAU
             self.gps_err += -self.gps_err * k + (self.gps_noise_m * self.gps_noise_scale)[
                 :, None] * np.sqrt(2 * k) * self.rng.standard_normal((n, 3))
+
+        if d.velocity_bias > 0:
+            k = dt / d.velocity_bias_tau
+            self.vel_bias[:, :2] += -self.vel_bias[:, :2] * k + d.velocity_bias * np.sqrt(
+                2 * k) * self._bias_rng.standard_normal((n, 2))
 
         # Battery: hover draw when flying, a tenth of it idling armed.
         draw = np.where(powered & ~self.on_ground, 1.0, np.where(self.mode > CTRL_OFF, 0.1, 0.0))
