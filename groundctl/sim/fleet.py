@@ -89,6 +89,11 @@ class SimFleet:
         self.sysids = config.sysids()
         self.t = self.clock.now()
         self.boot_time = self.t
+        # A dry-run's paced clock waits for this fleet from the moment it has vehicles,
+        # not from its loop's first report: it ran free meanwhile, and on a busy machine at
+        # x60 the fleet's first heartbeats then came seconds of clock behind it (seven
+        # vehicles "lost" before the flight began, silent 3 s that were 50 ms of wall).
+        self.clock.idle_until(self.t)
         unix = time.time()
         cls: type[Vehicle] = (ArduPilotVehicle if config.flavour is Flavour.ARDUPILOT
                               else PX4Vehicle)
