@@ -29,18 +29,19 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from groundctl.plan.plan import Plan
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
 
-def _slots(show: Path) -> list[tuple[float, float, float]]:
+def _slots(plan: Plan) -> list[tuple[float, float, float]]:
     """Each drone's takeoff slot as (lat, lon, alt AMSL), in drone order."""
-    from groundctl.commands.flying import load_or_plan
     from groundctl.execute.frames import show_to_geodetic
 
-    plan = load_or_plan(show, quiet=True)
     lat, lon, alt = show_to_geodetic(plan.origin, plan.home)
     return [(float(a), float(b), float(c)) for a, b, c in zip(lat, lon, alt, strict=True)]
 
@@ -73,10 +74,12 @@ def _stop(procs: list[subprocess.Popen[bytes]]) -> None:
             p.kill()
 
 
-def fly_real(show: Path, sitl: Path, port: int, record: Path) -> dict[str, Any] | None:
-    """``groundctl fly`` against one SITL instance per drone; its report (None if none)."""
+def fly_real(show: Path, plan: Plan, sitl: Path, port: int, record: Path
+             ) -> dict[str, Any] | None:
+    """``groundctl fly`` against one SITL instance per drone standing on ``plan``'s slots;
+    its report (None if none)."""
     work = Path(tempfile.mkdtemp(prefix="bench-sitl-"))
-    slots = _slots(show)
+    slots = _slots(plan)
     procs = _start_sitl(sitl, work, slots, port)
     started = time.monotonic()
     try:
@@ -98,12 +101,10 @@ def fly_real(show: Path, sitl: Path, port: int, record: Path) -> dict[str, Any] 
         shutil.rmtree(work, ignore_errors=True)
 
 
-def fly_dry(show: Path, record: Path) -> dict[str, Any]:
+def fly_dry(plan: Plan, record: Path) -> dict[str, Any]:
     """The same plan in the dry-run at x1, recorded like the real flight."""
-    from groundctl.commands.flying import load_or_plan
     from groundctl.flight.dryrun import DryRunOptions, fly_dry_run
 
-    plan = load_or_plan(show, quiet=True)
     print("dry-run: x1", flush=True)
     result = asyncio.run(fly_dry_run(plan, DryRunOptions(speed=1.0, record_dir=record)))
     return result.report
@@ -164,8 +165,11 @@ def main() -> int:
     out = args.keep or Path(tempfile.mkdtemp(prefix="bench-sitl-rec-"))
     os.environ.setdefault("PYTHONUNBUFFERED", "1")
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(130))  # SITL stopped in finally
-    real = fly_real(show, args.sitl.resolve(), args.port, out / "real")
-    dry = None if args.no_dry_run else fly_dry(show, out / "dry")
+    from groundctl.commands.flying import load_or_plan
+
+    plan = load_or_plan(show, quiet=True)  # planned once, for the slots and the dry-run
+    real = fly_real(show, plan, args.sitl.resolve(), args.port, out / "real")
+    dry = None if args.no_dry_run else fly_dry(plan, out / "dry")
     print(table(real, dry))
     print(f"recordings: {out}")
     return 0 if real is not None and real["safe"] else 1

@@ -150,7 +150,7 @@ class Dynamics:
 #: drag, quadratic only (a linear term would make the fleet lag its setpoints, which SITL's
 #: ArduCopter does not; 0.02/m: 1.3 m/s² in 8 m/s of wind, fitted to the line flown in it);
 #: spool-up before lift-off and the land detector's delay, fitted to the takeoff and LAND
-#: times; the velocity estimate's bias, 2 cm/s wandering over 20 s, fitted to nine SITL
+#: times; the velocity estimate's bias, 2 cm/s wandering over 40 s, fitted to nine SITL
 #: instances flying the quick show (benchmarks/bench_sitl.py: per-vehicle RMS 0.031-0.043
 #: m, across the path 0.028 m, formations held within 2 cm of their slots' offsets; the
 #: hover drift over 4 s stays SITL's 0.012 m).

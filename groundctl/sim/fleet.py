@@ -455,13 +455,13 @@ class SimFleet:
         # lags the clock (a loaded machine), stamping it with the physics time
         # would shorten the latency by the lag (and the link's queue, first in first
         # out, is kept in the same time as the delivery is scheduled in).
-        arrived = max(now, self.clock.now())
-        rel = arrived - self.boot_time
+        read_at = max(now, self.clock.now())
+        rel = read_at - self.boot_time
         # What the link delayed, as it arrives on the clock (not as the physics gets there:
         # a TIMESYNC answer must not wait for a lagging physics).
-        while self._inbox and self._inbox[0][0] <= arrived:
+        while self._inbox and self._inbox[0][0] <= read_at:
             due, _, i, data, addr = heapq.heappop(self._inbox)
-            self._deliver(i, data, addr, now, due)
+            self._deliver(i, data, addr, now, due, read_at)
         for key, _ in self._selector.select(0):
             i = key.data
             sock = self._sockets[i]
@@ -475,27 +475,29 @@ class SimFleet:
                     break  # e.g. an ICMP error reported on the socket: nothing to read
                 for delay in link.deliveries(rel, self._link_rng, self._jitter[i][0]):
                     if delay == 0:
-                        self._deliver(i, data, addr, now, arrived)
+                        self._deliver(i, data, addr, now, read_at, read_at)
                     else:
                         self._seq += 1
-                        heapq.heappush(self._inbox, (arrived + delay, self._seq, i, data, addr))
+                        heapq.heappush(self._inbox, (read_at + delay, self._seq, i, data, addr))
         # Acted on in the order they arrived, from the first step at or after arrival.
         while self._arrived and self._arrived[0][0] <= now:
             _, _, i, msgs = heapq.heappop(self._arrived)
             self._handle(i, msgs, now)
 
     def _deliver(self, i: int, data: bytes, addr: tuple[str, int], now: float,
-                 arrived: float) -> None:
-        """Datagram ``data`` reached vehicle ``i`` at clock time ``arrived``; the physics
-        is at ``now``.
+                 arrived: float, read_at: float) -> None:
+        """Datagram ``data`` reached vehicle ``i`` at clock time ``arrived`` and is read at
+        ``read_at``; the physics is at ``now``.
 
         The vehicle's own clock never lags: a TIMESYNC request is answered at once, with
-        the clock's time.  The rest is acted on from the first physics step at or after its
-        arrival, never before: a message arrives between two steps, and the physics lags a
-        clock that ran on (a busy machine).  A setpoint taken at the step before flew the
-        vehicle ahead of its plan (by up to a step; on a busy machine by the whole lag: the
-        dry-run at x60 140-190 ms ahead, and MPC set off by it), and its response to
-        setpoints read as negative (issue 33)."""
+        the clock's time as it is read (the physics' last step was up to a step and the
+        physics' lag behind: read as the ground station's clock offset, it dated every
+        sample carried to "now" that much wrong).  The rest is acted on from the first
+        physics step at or after its arrival, never before: a message arrives between two
+        steps, and the physics lags a clock that ran on (a busy machine).  A setpoint taken
+        at the step before flew the vehicle ahead of its plan (by up to a step; on a busy
+        machine by the whole lag: the dry-run at x60 140-190 ms ahead, and MPC set off by
+        it), and its response to setpoints read as negative (issue 33)."""
         msgs = self.codecs[i].decode(data)
         if not msgs:
             return
@@ -503,7 +505,7 @@ class SimFleet:
         self._gcs[i] = addr
         timesync = [m for m in msgs if m.get_type() == "TIMESYNC"]
         if timesync:
-            self._handle(i, timesync, now)
+            self._handle(i, timesync, read_at)
             msgs = [m for m in msgs if m.get_type() != "TIMESYNC"]
             if not msgs:
                 return
@@ -513,7 +515,7 @@ class SimFleet:
     def _handle(self, i: int, msgs: list[mavlink.MAVLink_message], now: float) -> None:
         vehicle = self.vehicles[i]
         for msg in msgs:
-            out = vehicle.handle(msg, now, self.clock.now())
+            out = vehicle.handle(msg, now)
             if out:
                 self._send(i, out, now)
 
@@ -524,18 +526,20 @@ class SimFleet:
 
     def _queue(self, i: int, data: bytes, now: float) -> None:
         """Send one datagram of vehicle ``i`` through its link faults."""
-        rel = now - self.boot_time
-        left: float | None = None
-        for delay in self._links[i].deliveries(rel, self._link_rng, self._jitter[i][1]):
+        link = self._links[i]
+        if link.is_clean:
+            self._sendto(i, data)
+            return
+        # The link's delay runs from when the datagram really leaves, on the clock, and its
+        # queue (first in, first out) is kept in that time too: a physics lagging the clock
+        # shortened the latency by the lag (a TIMESYNC answer came back sooner than the link
+        # allows), and a physics catching up let later datagrams overtake earlier ones.
+        left = max(now, self.clock.now())
+        for delay in link.deliveries(left - self.boot_time, self._link_rng,
+                                     self._jitter[i][1]):
             if delay == 0:
                 self._sendto(i, data)
             else:
-                # Its latency runs from when it really leaves, on the clock: a physics
-                # lagging the clock would shorten it by the lag (a TIMESYNC answer came
-                # back sooner than the link's latency allows, and the round trip read as
-                # less than twice the one-way delay).
-                if left is None:
-                    left = max(now, self.clock.now())
                 self._seq += 1
                 heapq.heappush(self._outbox, (left + delay, self._seq, i, data))
 

@@ -198,7 +198,6 @@ class Vehicle:
         self._next_timesync = boot_time + TIMESYNC_PERIOD
         self._origin_announced = False
         self._booted = False
-        self._heard_at = boot_time  # the clock when the message being handled was read
         self.fence = FenceServer(sysid)
         """The uploaded fence (mission protocol, MAV_MISSION_TYPE_FENCE)."""
         self._fence_enu: tuple[int, np.ndarray | None] = (-1, None)
@@ -255,13 +254,8 @@ class Vehicle:
 
     # -- I/O-free interface -------------------------------------------------------------------
 
-    def handle(self, msg: Msg, now: float, heard_at: float | None = None) -> list[Msg]:
-        """React to one decoded message from the ground station; returns the replies.
-
-        ``now`` is the physics' time; ``heard_at`` the clock's when the vehicle reads the
-        message (later while the physics catches up with a clock that ran on: a real
-        autopilot's clock never lags, and a TIMESYNC answer carries it)."""
-        self._heard_at = now if heard_at is None else max(heard_at, now)
+    def handle(self, msg: Msg, now: float) -> list[Msg]:
+        """React to one decoded message from the ground station; returns the replies."""
         try:
             handler = self._HANDLERS.get(msg.get_type())
             if handler is not None:
@@ -670,12 +664,9 @@ class Vehicle:
 
     def _on_timesync(self, msg: Msg, now: float) -> None:
         if msg.tc1 == 0:
-            # A request: answer with our time since boot in ns, echoing ts1 -- the clock's
-            # as the answer leaves, not the physics' last step (up to a step and the
-            # physics' lag behind: it read as the ground station's clock offset, and every
-            # sample carried to "now" by it was dated that much wrong).
-            self._out.append(mavlink.MAVLink_timesync_message(self._now_ns(self._heard_at),
-                                                              msg.ts1))
+            # A request: answer with our time since boot in ns, echoing ts1 (the fleet
+            # hands it over with the clock's time as it is read: SimFleet._deliver).
+            self._out.append(mavlink.MAVLink_timesync_message(self._now_ns(now), msg.ts1))
 
     def _on_led_control(self, msg: Msg, now: float) -> None:
         # Stock ArduPilot reads custom_len 3 (RGB) or 4 (RGB + blink Hz) from custom_bytes,
