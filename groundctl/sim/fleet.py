@@ -105,6 +105,11 @@ class SimFleet:
         self._links: list[LinkFaults] = [config.link_faults] * config.count
         # Each link direction's wandering queueing delay: (to the vehicle, from it).
         self._jitter = [(Jitter(), Jitter()) for _ in range(config.count)]
+        # ... and when its last delayed datagram is due, on the clock: the jitter keeps
+        # each direction first in, first out in the link's own time base, and a due time
+        # rounded a hair earlier in the clock's would let a datagram overtake the one
+        # before it (bursts sent back to back on a busy machine: 3 in 1,700 reordered).
+        self._last_due = [[-math.inf, -math.inf] for _ in range(config.count)]
         self._gcs: list[tuple[str, int]] = [config.gcs_of(i) for i in range(config.count)]
         self._lock = threading.RLock()
         self._inbox: list[tuple[float, int, int, bytes, tuple[str, int]]] = []
@@ -474,11 +479,12 @@ class SimFleet:
                 except OSError:
                     break  # e.g. an ICMP error reported on the socket: nothing to read
                 for delay in link.deliveries(rel, self._link_rng, self._jitter[i][0]):
-                    if delay == 0:
+                    due = self._last_due[i][0] = max(read_at + delay, self._last_due[i][0])
+                    if due <= read_at:
                         self._deliver(i, data, addr, now, read_at, read_at)
                     else:
                         self._seq += 1
-                        heapq.heappush(self._inbox, (read_at + delay, self._seq, i, data, addr))
+                        heapq.heappush(self._inbox, (due, self._seq, i, data, addr))
         # Acted on in the order they arrived, from the first step at or after arrival.
         while self._arrived and self._arrived[0][0] <= now:
             _, _, i, msgs = heapq.heappop(self._arrived)
@@ -537,11 +543,17 @@ class SimFleet:
         left = max(now, self.clock.now())
         for delay in link.deliveries(left - self.boot_time, self._link_rng,
                                      self._jitter[i][1]):
-            if delay == 0:
+            due = self._last_due[i][1] = max(left + delay, self._last_due[i][1])
+            if due <= left:
+                # Not ahead of what is due and still waits for the step's end (first in,
+                # first out: those of this vehicle all are, when nothing is later).  A
+                # burst answered between steps overtook them: 31 parameters behind the
+                # next 24, read as a second sender's packets on a busy machine.
+                self._flush_outbox(left)
                 self._sendto(i, data)
             else:
                 self._seq += 1
-                heapq.heappush(self._outbox, (left + delay, self._seq, i, data))
+                heapq.heappush(self._outbox, (due, self._seq, i, data))
 
     def _flush_outbox(self, now: float) -> None:
         """Send what the link delayed and is due on the clock (not on the physics, which
