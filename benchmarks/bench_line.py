@@ -58,6 +58,7 @@ class Link:
         self.samples: list[tuple[float, float, float, float]] = []  # (t_boot, x, y, z)
         self.offset_s: float | None = None  # our monotonic clock - the vehicle's boot clock
         self._asked: dict[int, float] = {}
+        self._best_rtt = float("inf")
 
     def pump(self, seconds: float = 0.0, want: str | None = None) -> Any:
         end = time.monotonic() + seconds
