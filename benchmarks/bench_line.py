@@ -147,29 +147,26 @@ def fly_line(link: Link) -> tuple[float, float]:
     return float(np.sqrt(np.mean(err**2))), float(err.max())
 
 
-def run_sitl(sitl: Path, port: int) -> tuple[float, float]:
-    work = Path(tempfile.mkdtemp(prefix="bench-line-"))
+def sitl_command(sitl: Path, port: int) -> list[str]:
+    """One real ArduCopter at SITL's default home, sending to ``port``."""
     lat, lon, alt = HOME
-    proc = subprocess.Popen(
-        [str(sitl / "arducopter"), "--model", "quad", "--speedup", "1", "-I0", "--sysid", "1",
-         "-w", "--defaults", str(sitl / "copter.parm"), "--home", f"{lat},{lon},{alt},0",
-         "--sim-address=127.0.0.1", "--serial0", f"udpclient:127.0.0.1:{port}",
-         "--serial1", "none", "--serial2", "none"],
-        cwd=work, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
-    link = Link(port)
-    try:
-        return fly_line(link)
-    finally:
-        link.m.close()
-        proc.terminate()
-        proc.wait(timeout=10)
+    return [str(sitl / "arducopter"), "--model", "quad", "--speedup", "1", "-I0", "--sysid",
+            "1", "-w", "--defaults", str(sitl / "copter.parm"), "--home",
+            f"{lat},{lon},{alt},0", "--sim-address=127.0.0.1", "--serial0",
+            f"udpclient:127.0.0.1:{port}", "--serial1", "none", "--serial2", "none"]
 
 
-def run_sim(port: int) -> tuple[float, float]:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "groundctl", "sim", "--count", "1", "--gcs",
-         f"127.0.0.1:{port}", "--ready-delay", "4", "--seed", str(port)],
-        cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+def sim_command(port: int) -> list[str]:
+    """One vehicle of ``groundctl sim`` (its default profile, ArduCopter 4.8)."""
+    return [sys.executable, "-m", "groundctl", "sim", "--count", "1", "--gcs",
+            f"127.0.0.1:{port}", "--ready-delay", "4", "--seed", str(port)]
+
+
+def run(command: list[str], port: int) -> tuple[float, float]:
+    """Start the vehicle, fly the line against it, stop it."""
+    work = Path(tempfile.mkdtemp(prefix="bench-line-"))  # SITL writes its logs here
+    proc = subprocess.Popen(command, cwd=work, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)
     link = Link(port)
     try:
         return fly_line(link)
@@ -195,7 +192,9 @@ def main() -> int:
     for side in sides:
         for k in range(args.runs):
             port = args.port + k
-            figure = run_sitl(args.sitl.resolve(), port) if side == "sitl" else run_sim(port)
+            command = sitl_command(args.sitl.resolve(), port) if side == "sitl" \
+                else sim_command(port)
+            figure = run(command, port)
             print(f"{side} run {k + 1}: RMS {figure[0]:.3f} m, max {figure[1]:.3f} m",
                   flush=True)
             results.setdefault(side, []).append(figure)
