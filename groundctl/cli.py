@@ -74,8 +74,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _error_line(text: str) -> None:
-    """The one line on stderr; a terminal that is gone (the operator's closed, a
-    dropped SSH connection) changes no exit code."""
+    """The one line on stderr, after the lines queued before it (for a moment: they
+    are written by a thread of their own, and the error line came out above the line
+    it ends); a terminal that is gone (the operator's closed, a dropped SSH connection)
+    changes no exit code."""
+    from groundctl.console.terminal import stderr_lines
+
+    stderr_lines().wait_written()
     with contextlib.suppress(OSError, ValueError):
         print(text, file=sys.stderr, flush=True)
 
