@@ -112,6 +112,19 @@ def test_dry_run_refuses_bad_options(args: list[str], message: str) -> None:
     assert message in out.stderr
 
 
+@pytest.mark.parametrize("option, value", [("--gust-on", "12@5:9@270"),
+                                            ("--push", "2:3@5:0,0,3"), ("--weak", "10:0.5")])
+def test_a_fault_on_a_vehicle_the_fleet_does_not_have_is_one_line_before_the_flight(
+        option: str, value: str) -> None:
+    out = _run("dry-run", str(QUICK_SHOW), option, value, "--no-record")
+    assert out.returncode == EXIT_USAGE
+    lines = out.stderr.strip().splitlines()  # the planning's progress, then the refusal
+    who = value.split("@")[0].split(":0.5")[0]
+    assert lines[-1] == (f"groundctl dry-run: error: {option} names vehicle {who}, which "
+                         "this fleet does not have (1-9)")
+    assert not any("arm" in line for line in lines)
+
+
 def test_fly_without_vehicles_gives_up_with_a_link_error(tmp_path: Path) -> None:
     show = tmp_path / "four.toml"
     show.write_text(FLY_SHOW)

@@ -22,6 +22,7 @@ from groundctl.execute.guard import GuardConfig
 from groundctl.execute.preflight import Thresholds
 from groundctl.execute.sequence import VehiclePhase
 from groundctl.execute.wind import WindConfig
+from groundctl.flight.dryrun import Gust
 from groundctl.flight.runner import RunnerConfig, ShowRunner
 from groundctl.link.flavours import Flavour
 from groundctl.record.events import read_events
@@ -303,11 +304,11 @@ def test_a_wind_above_the_limit_mid_show_holds_the_show_until_it_drops(
 
 def test_a_gust_that_blows_a_drone_off_its_path_holds_the_show_and_takes_it_out(
         tmp_path: Path) -> None:
-    async def blow(runner: ShowRunner, sim: SimProcess) -> None:
-        await until(runner, lambda: show_time(runner) > 9.0)
-        sim.call("gust", (0.0, 30.0, 0.0), 2.0, 5)  # a violent gust on vehicle 5 alone
-
-    result = dry_run(tmp_path, during=blow)
+    # A violent gust on vehicle 5 alone (--gust-on 5@9:30@180,2): 30 m/s from the south.
+    result = dry_run(tmp_path, gusts=(Gust(5, 9.0, 30.0, 180.0, 2.0),))
+    (gust,) = _events(tmp_path, "gust")
+    assert gust == {**gust, "system_id": 5, "speed_ms": 30.0, "from_deg": 180.0,
+                    "duration_s": 2.0, "show_time": 9.0}
     report = result.report
     assert report["true_min_separation_m"] >= report["separation_limit_m"], \
         report["unsafe_reasons"]

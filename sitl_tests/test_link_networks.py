@@ -14,7 +14,7 @@ import pytest
 from link_fixtures import EventList, eventually, run
 
 from groundctl.clock import ScaledClock
-from groundctl.commands.options import push, vehicle, weak
+from groundctl.commands.options import gust_on, push, vehicle, weak
 from groundctl.errors import SimulatorError
 from groundctl.flight.dryrun import network_count, network_layout
 from groundctl.link import FleetLink
@@ -71,6 +71,19 @@ def test_the_command_line_spellings() -> None:
     assert weak("3:0.5") == [(3, 0.5)]
     with pytest.raises(argparse.ArgumentTypeError):
         weak("2:1:1.5")
+    assert gust_on("2:5@20:9@270,2.5") == (1005, 20.0, 9.0, 270.0, 2.5)
+    assert gust_on("5@20:15@-90") == (5, 20.0, 15.0, 270.0, 4.0)  # 4 s unless told
+
+
+@pytest.mark.parametrize("text", ["5@20:9", "5@20:9@", "5@20:9@w", "5:9@270", "5@x:9@270",
+                                  "5@-1:9@270", "5@20:-9@270", "5@20:9@270,0",
+                                  "5@20:9@270,nan", "5@20:inf@270", "0@20:9@270"])
+def test_a_malformed_gust_gets_one_line_with_an_example(text: str) -> None:
+    with pytest.raises(argparse.ArgumentTypeError) as info:
+        gust_on(text)
+    message = str(info.value)
+    assert "\n" not in message and "SYSID@T:SPEED@FROM[,DURATION_S]" in message
+    assert repr(text) in message
 
 
 def test_a_large_show_is_spread_over_as_many_networks_as_it_needs() -> None:

@@ -48,6 +48,9 @@ def test_cli_fleet_is_seen_by_a_ground_station_and_stops_on_ctrl_c(stop: int) ->
     (["--profile", "ardupilot-9"], "invalid choice: 'ardupilot-9'"),
     (["--push", "1@x:0,0,3"], "--push must be SYSID@T:E,N,U (e.g. 5@20:3,0,0), not '1@x:0,0,3'"),
     (["--weak", "3:1.5"], "--weak must be SYSID[,SYSID...]:FACTOR with FACTOR in (0, 1]"),
+    (["--gust-on", "1@5:9"], "--gust-on must be SYSID@T:SPEED@FROM[,DURATION_S] (e.g. "
+                             "5@20:9@270,4: 9 m/s from the west for 4 s), not '1@5:9'"),
+    (["--count", "2", "--gust-on", "3@5:9@270"], "system id 3"),
     (["--count", "2", "--weak", "9:0.5"], "system id 9"),
 ])
 def test_cli_rejects_bad_arguments(args: list[str], message: str,

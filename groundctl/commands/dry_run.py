@@ -24,7 +24,16 @@ from groundctl.commands.flying import (
     start_live_rerun,
     then,
 )
-from groundctl.commands.options import non_negative, positive, probability, push, weak, wind
+from groundctl.commands.options import (
+    GUST_DURATION_S,
+    gust_on,
+    non_negative,
+    positive,
+    probability,
+    push,
+    weak,
+    wind,
+)
 from groundctl.errors import GroundctlError
 from groundctl.link.flavours import Flavour
 from groundctl.sim.config import PROFILE_NAMES
@@ -61,7 +70,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                         "origin comes at half of it")
     p.add_argument("--push", type=push, action="append", default=[], metavar="SYSID@T:E,N,U",
                    help="displace a vehicle by E,N,U metres (show frame) over one second at "
-                        "show time T (repeatable): a gust, a bird, a GPS jump")
+                        "show time T (repeatable), whatever its autopilot does: kinematic, "
+                        "a GPS jump or a bird strike (a gust is --gust-on)")
+    p.add_argument("--gust-on", type=gust_on, action="append", default=[],
+                   metavar="SYSID@T:SPEED@FROM[,DURATION_S]",
+                   help="blow on one vehicle from show time T: SPEED m/s from compass "
+                        "direction FROM degrees for DURATION_S s (default "
+                        f"{GUST_DURATION_S:g}), a force through the simulated airframe's "
+                        "drag that its autopilot fights, up to its lean angle (repeatable)")
     p.add_argument("--weak", type=weak, action="append", default=[],
                    metavar="SYSID[,SYSID...]:FACTOR",
                    help="scale those vehicles' maximum speed and acceleration by FACTOR "
@@ -92,7 +108,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 
 def run(args: argparse.Namespace) -> int:
-    from groundctl.flight.dryrun import DryRunOptions, Push, fly_dry_run
+    from groundctl.flight.dryrun import DryRunOptions, Gust, Push, fly_dry_run
     from groundctl.record.recording import default_directory
 
     console = console_wanted(args)
@@ -105,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
         signing_key=args.signing_key, ekf_origin_delay_s=args.ready_delay / 2,
         ready_delay_s=args.ready_delay, runner=runner_config(args), record_dir=record,
         pushes=tuple(Push(s, t, v) for s, t, v in args.push),
+        gusts=tuple(Gust(*g) for g in args.gust_on),
         weak=tuple(w for group in args.weak for w in group), profile=args.profile,
         rtk=args.rtk, gcs_sysid=args.gcs_sysid, paced=args.paced, networks=args.networks,
         link_workers=args.link_workers, sim_processes=args.sim_processes)

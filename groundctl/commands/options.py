@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from groundctl.sim.config import wind_from
 from groundctl.vehicleid import parse_vehicle
 
 
@@ -57,8 +58,7 @@ def wind(text: str) -> tuple[float, float, float]:
     try:
         if "@" in text:
             speed_text, _, from_text = text.partition("@")
-            speed, frm = float(speed_text), math.radians(float(from_text))
-            return (-speed * math.sin(frm), -speed * math.cos(frm), 0.0)
+            return wind_from(float(speed_text), float(from_text))
         parts = [float(x) for x in text.split(",")]
     except ValueError:
         parts = []
@@ -92,6 +92,34 @@ def push(text: str) -> tuple[int, float, tuple[float, float, float]]:
             or not all(math.isfinite(x) for x in (t, *offset)):
         raise argparse.ArgumentTypeError(usage)
     return sysid, t, (offset[0], offset[1], offset[2])
+
+
+#: How long a ``--gust-on`` blows when its text gives no duration, s (the step gust the
+#: real ArduCopter figures of issue 32 were measured with).
+GUST_DURATION_S = 4.0
+
+
+def gust_on(text: str) -> tuple[int, float, float, float, float]:
+    """``--gust-on SYSID@T:SPEED@FROM[,DURATION_S]``: (vehicle id, time s, speed m/s,
+    the compass direction it blows from in degrees, duration s)."""
+    usage = (f"--gust-on must be SYSID@T:SPEED@FROM[,DURATION_S] (e.g. 5@20:9@270,4: "
+             f"9 m/s from the west for 4 s), not {text!r} (SYSID 2:5 is network 2's "
+             "system id 5)")
+    who, at, rest = text.partition("@")
+    when, colon, spec = rest.partition(":")
+    speed_text, at2, tail = spec.partition("@")
+    from_text, comma, duration_text = tail.partition(",")
+    try:
+        sysid, t = parse_vehicle(who), float(when)
+        speed, frm = float(speed_text), float(from_text)
+        duration = float(duration_text) if comma else GUST_DURATION_S
+    except ValueError:
+        raise argparse.ArgumentTypeError(usage) from None
+    numbers = (t, speed, frm, duration)
+    if not (at and colon and at2) or not all(math.isfinite(x) for x in numbers) \
+            or t < 0 or speed < 0 or duration <= 0:
+        raise argparse.ArgumentTypeError(usage)
+    return sysid, t, speed, frm % 360.0, duration
 
 
 def weak(text: str) -> list[tuple[int, float]]:

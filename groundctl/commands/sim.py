@@ -23,13 +23,20 @@ import numpy as np
 from numpy.typing import NDArray
 
 from groundctl.clock import ScaledClock
-from groundctl.commands.options import add_points_dir, push, signing_key, weak
+from groundctl.commands.options import (
+    GUST_DURATION_S,
+    add_points_dir,
+    gust_on,
+    push,
+    signing_key,
+    weak,
+)
 from groundctl.errors import EXIT_OK, SimulatorError
 from groundctl.execute.frames import show_to_enu
 from groundctl.link.flavours import Flavour
 from groundctl.show.model import GeoOrigin
 from groundctl.sim import LinkFaults, SimConfig, SimFleet, grid_layout
-from groundctl.sim.config import PROFILE_NAMES, profile_for
+from groundctl.sim.config import PROFILE_NAMES, profile_for, wind_from
 from groundctl.vehicleid import VehicleId, network_layout, networks_for
 
 #: Grid spacing of the homes when neither ``--layout`` nor ``--show`` places them, m.
@@ -173,7 +180,15 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    help="flight-dynamics calibration (default: ardupilot-4.8 or px4-1.15)")
     p.add_argument("--push", type=push, action="append", default=[], metavar="SYSID@T:E,N,U",
                    help="carry a vehicle E,N,U metres (east, north, up) over one second at T "
-                        "simulated seconds after boot (repeatable)")
+                        "simulated seconds after boot, whatever its autopilot does: "
+                        "kinematic, a GPS jump or a bird strike (repeatable; a gust is "
+                        "--gust-on)")
+    p.add_argument("--gust-on", type=gust_on, action="append", default=[],
+                   metavar="SYSID@T:SPEED@FROM[,DURATION_S]",
+                   help="blow on one vehicle T simulated seconds after boot: SPEED m/s from "
+                        "compass direction FROM degrees for DURATION_S s (default "
+                        f"{GUST_DURATION_S:g}), a force through the airframe's drag that its "
+                        "autopilot fights, up to its lean angle (repeatable)")
     p.add_argument("--weak", type=weak, action="append", default=[],
                    metavar="SYSID[,SYSID...]:FACTOR",
                    help="scale those vehicles' speed and acceleration authority by FACTOR")
@@ -297,6 +312,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         for sysid, at, offset in args.push:
             fleet.push(offset, sysid, at=at)
+        for sysid, at, speed, frm, duration in args.gust_on:
+            fleet.gust(wind_from(speed, frm), duration, sysid, at=at)
         for sysid, factor in (w for group in args.weak for w in group):
             fleet.weaken(factor, sysid)
         fleet.start()

@@ -46,7 +46,7 @@ from groundctl.record.recording import Recording
 from groundctl.rtk.forwarder import RtkForwarder
 from groundctl.rtk.sources import RtkSource, SourceSpec
 from groundctl.sim import LinkFaults, SimConfig
-from groundctl.sim.config import profile_for
+from groundctl.sim.config import profile_for, wind_from
 from groundctl.sim.group import SimGroup, split_config
 from groundctl.sim.process import SimProcess
 from groundctl.vehicleid import (
@@ -54,6 +54,8 @@ from groundctl.vehicleid import (
     VehicleId,
     network_layout,
     networks_for,
+    spell,
+    spell_many,
     vehicle_id,
 )
 
@@ -73,6 +75,28 @@ class Push:
     """Displacement, show-frame metres (east, north, up before the show's heading)."""
     duration: float = 1.0
     """Over this many seconds."""
+
+
+@dataclass(frozen=True)
+class Gust:
+    """Wind on one vehicle mid-show, ``--gust-on``: a force through its airframe's drag,
+    which its autopilot fights (up to its lean angle) -- unlike a :class:`Push`."""
+
+    sysid: int
+    """The vehicle."""
+    show_time: float
+    """Show time it starts, s."""
+    speed: float
+    """m/s."""
+    from_deg: float
+    """The compass direction it blows from, degrees."""
+    duration: float
+    """How long it blows, s."""
+
+    @property
+    def wind(self) -> tuple[float, float, float]:
+        """The gust as a wind vector (east, north, up m/s)."""
+        return wind_from(self.speed, self.from_deg)
 
 
 @dataclass(frozen=True)
@@ -107,6 +131,8 @@ class DryRunOptions:
     """Where flight.tlog, events.jsonl and report.json go (None: nothing recorded)."""
     pushes: tuple[Push, ...] = ()
     """Vehicles displaced mid-show (``--push``)."""
+    gusts: tuple[Gust, ...] = ()
+    """Wind on single vehicles mid-show (``--gust-on``)."""
     weak: tuple[tuple[int, float], ...] = ()
     """(system id, factor): vehicles whose speed and acceleration authority is scaled
     from the start (``--weak``)."""
@@ -212,6 +238,18 @@ def sim_config(plan: Plan, options: DryRunOptions,
         dynamics=profile_for(options.flavour, options.profile))
 
 
+def _check_named(options: DryRunOptions, ids: set[int]) -> None:
+    """Every vehicle a push, a gust or a weakness names is in the fleet: one line before
+    anything starts, not a failure mid-show."""
+    named = [("--push", p.sysid) for p in options.pushes] \
+        + [("--gust-on", g.sysid) for g in options.gusts] \
+        + [("--weak", w[0]) for w in options.weak]
+    for option, sysid in named:
+        if sysid not in ids:
+            raise SimulatorError(f"{option} names vehicle {spell(sysid)}, which this fleet "
+                                 f"does not have ({spell_many(sorted(ids))})")
+
+
 During = Callable[[ShowRunner, Any], Coroutine[Any, Any, None]]
 """``during(runner, fleet)``: the fleet a :class:`SimProcess` (or a :class:`SimGroup`,
 which answers as one)."""
@@ -232,6 +270,8 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
     the simulator's process id (a benchmark counts its CPU).
     """
     networks = network_count(plan.drones, options.networks)
+    nets, local = network_layout(plan.drones, networks)
+    _check_named(options, {vehicle_id(n, s) for n, s in zip(nets, local, strict=True)})
     processes = sim_processes(plan.drones, networks, options.sim_processes)
     workers = use_workers(options.link_workers, plan.drones)
     # Participants: the ground station's loop, each simulator process, each network's
@@ -256,7 +296,6 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
                                                       wall=_recording_wall(clock, paced))
     tlogs = None if recording is None else recording.network_tlogs(networks)
     events = None if recording is None else recording.events
-    nets, local = network_layout(plan.drones, networks)
     link = FleetLink([(LOOPBACK, 0)] * networks, clock=clock,
                      expected_ids=[vehicle_id(n, s) for n, s in zip(nets, local, strict=True)],
                      signing_key=options.signing_key, tlog=tlogs, events=events,
@@ -307,8 +346,9 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
                            if networks > 1 else {}))
         for sysid, factor in options.weak:
             fleet.call("weaken", factor, sysid)
-        if during is not None or options.pushes:
-            helper = asyncio.create_task(_alongside(runner, fleet, options.pushes, during))
+        if during is not None or options.pushes or options.gusts:
+            helper = asyncio.create_task(_alongside(runner, fleet, options.pushes,
+                                                    options.gusts, during))
         await runner.run()
     except GroundctlError as exc:
         error = exc
@@ -399,9 +439,11 @@ def _pacing(paced: PacedClock | None, clock: Clock, started: float,
 
 
 async def _alongside(runner: ShowRunner, fleet: SimProcess | SimGroup,
-                     pushes: tuple[Push, ...], during: During | None) -> None:
-    """The caller's ``during`` and the scheduled pushes, side by side."""
+                     pushes: tuple[Push, ...], gusts: tuple[Gust, ...],
+                     during: During | None) -> None:
+    """The caller's ``during`` and the scheduled pushes and gusts, side by side."""
     tasks = [asyncio.create_task(_push(runner, fleet, p)) for p in pushes]
+    tasks += [asyncio.create_task(_gust(runner, fleet, g)) for g in gusts]
     if during is not None:
         tasks.append(asyncio.create_task(during(runner, fleet)))
     try:
@@ -411,14 +453,30 @@ async def _alongside(runner: ShowRunner, fleet: SimProcess | SimGroup,
             t.cancel()
 
 
-async def _push(runner: ShowRunner, fleet: SimProcess | SimGroup, push: Push) -> None:
-    """Wait for the push's show time on the show clock, then push (rotated to ENU)."""
+async def _show_time(runner: ShowRunner, t: float) -> None:
+    """Return once the show clock is at ``t``."""
     while True:
         seq = runner.sequence
         if seq is not None and seq.started_at is not None \
-                and seq.show_time(runner.clock.now()) >= push.show_time:
-            break
+                and seq.show_time(runner.clock.now()) >= t:
+            return
         await asyncio.sleep(0.01)
+
+
+async def _gust(runner: ShowRunner, fleet: SimProcess | SimGroup, gust: Gust) -> None:
+    """Wait for the gust's show time on the show clock, then blow (the simulator's wind is
+    ENU, as the gust's compass direction is)."""
+    await _show_time(runner, gust.show_time)
+    fleet.call("gust", list(gust.wind), gust.duration, gust.sysid)
+    if runner.events is not None:
+        runner.events.emit("gust", system_id=gust.sysid, speed_ms=gust.speed,
+                           from_deg=gust.from_deg, duration_s=gust.duration,
+                           show_time=round(gust.show_time, 2))
+
+
+async def _push(runner: ShowRunner, fleet: SimProcess | SimGroup, push: Push) -> None:
+    """Wait for the push's show time on the show clock, then push (rotated to ENU)."""
+    await _show_time(runner, push.show_time)
     o = runner.plan.origin
     offset = show_to_enu(o, np.array([push.offset])) - show_to_enu(o, np.zeros((1, 3)))
     # On the loop's thread, like the truth probe: the simulator's pipe is not shared

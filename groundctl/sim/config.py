@@ -9,6 +9,7 @@ where the ground station is, boot delays, weather, seed, signing key, faults).
 from __future__ import annotations
 
 import enum
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -170,6 +171,9 @@ ARDUPILOT_DYNAMICS = Dynamics(
     takeoff_speed=2.5,
     land_detect_s=1.7,
     drag=0.0,
+    # A step gust on a hovering ArduCopter SITL (benchmarks/bench_gust.py): 9 m/s for 4 s
+    # carried it 1.24 m, 15 m/s for 4 s 11.3 m (past what its 30 degrees of lean hold).
+    # This drag gives 1.16 m and 14.5 m (0.02 gave 0.53 and 1.42 m: a gust barely moved it).
     drag_quad=0.02,
     velocity_bias=0.02,
     input_shaping=True,
@@ -261,6 +265,13 @@ class WindProfile(enum.Enum):
     """SIM_WIND_T 1 (NO_LIMIT): the same wind at every height."""
     LINEAR = 2
     """SIM_WIND_T 2 (COEF): ``speed + (height - ref_height) * coef``, never negative."""
+
+
+def wind_from(speed: float, from_deg: float) -> tuple[float, float, float]:
+    """The wind (east, north, up m/s) of ``speed`` blowing from compass ``from_deg``
+    (270: from the west, towards the east)."""
+    frm = math.radians(from_deg)
+    return (-speed * math.sin(frm), -speed * math.cos(frm), 0.0)
 
 
 @dataclass(frozen=True)
