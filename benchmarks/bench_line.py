@@ -25,6 +25,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -101,8 +102,9 @@ class Link:
             self.pump(0.05)
 
 
-def fly_line(link: Link) -> tuple[float, float]:
-    """Take off, fly the line; (RMS, max) horizontal error, m."""
+def take_off(link: Link) -> None:
+    """GUIDED, arm (once the vehicle lets us), NAV_TAKEOFF to ALT, 12 s to settle; its
+    position streamed at 10 Hz."""
     from pymavlink import mavutil
 
     mav = mavutil.mavlink
@@ -121,6 +123,14 @@ def fly_line(link: Link) -> tuple[float, float]:
     if not link.command(mav.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, ALT):
         raise SystemExit("takeoff refused")
     link.pump(12.0)
+
+
+def fly_line(link: Link) -> tuple[float, float]:
+    """Take off, fly the line; (RMS, max) horizontal error, m."""
+    from pymavlink import mavutil
+
+    mav = mavutil.mavlink
+    take_off(link)
     link.timesync()
     last = link.samples[-1]
     x0, y0 = last[1], last[2]
@@ -162,14 +172,15 @@ def sim_command(port: int) -> list[str]:
             f"127.0.0.1:{port}", "--ready-delay", "4", "--seed", str(port)]
 
 
-def run(command: list[str], port: int) -> tuple[float, float]:
-    """Start the vehicle, fly the line against it, stop it."""
+def run(command: list[str], port: int,
+        fly: Callable[[Link], tuple[float, float]] = fly_line) -> tuple[float, float]:
+    """Start the vehicle, ``fly`` against it (the line), stop it."""
     work = Path(tempfile.mkdtemp(prefix="bench-line-"))  # SITL writes its logs here
     proc = subprocess.Popen(command, cwd=work, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True)
     link = Link(port)
     try:
-        return fly_line(link)
+        return fly(link)
     finally:
         link.m.close()
         proc.terminate()
