@@ -17,7 +17,6 @@ Skips the SITL side with one line when the binary is absent.  Loopback only.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from collections.abc import Callable
@@ -28,7 +27,15 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
-from bench_line import Link, run, sim_command, sitl_command, take_off  # noqa: E402
+from bench_line import (  # noqa: E402
+    Link,
+    add_sides,
+    run,
+    sides,
+    sim_command,
+    sitl_command,
+    take_off,
+)
 
 #: Simulated seconds after boot the simulator's gust starts: after take_off's arming (the
 #: simulator is ready 4 s after boot), climb and settling.
@@ -91,18 +98,12 @@ def main() -> int:
     ap.add_argument("--speeds", type=float, nargs="+", default=[9.0, 15.0])
     ap.add_argument("--duration", type=float, default=4.0)
     ap.add_argument("--from", dest="frm", type=float, default=270.0)
-    ap.add_argument("--only", choices=("sitl", "sim"), default=None)
-    ap.add_argument("--sitl", type=Path, default=HERE.parent.parent / "shared" / "sitl")
-    ap.add_argument("--port", type=int, default=14600)
+    add_sides(ap, 14600)
     args = ap.parse_args()
-    os.environ.setdefault("PYTHONUNBUFFERED", "1")
-    sides = [s for s in ("sitl", "sim") if args.only in (None, s)]
-    if "sitl" in sides and not (args.sitl / "arducopter").exists():
-        print(f"skipped the real side: no ArduCopter SITL at {args.sitl / 'arducopter'}")
-        sides.remove("sitl")
+    flown = sides(args)
     rows = []
     for k, speed in enumerate(args.speeds):
-        for side in sides:
+        for side in flown:
             port = args.port + 2 * k + (side == "sim")
             started = time.monotonic()
             if side == "sitl":

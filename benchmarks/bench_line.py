@@ -187,20 +187,30 @@ def run(command: list[str], port: int,
         proc.wait(timeout=10)
 
 
+def add_sides(ap: argparse.ArgumentParser, port: int) -> None:
+    """The options saying which vehicles to fly against, and where they send to."""
+    ap.add_argument("--only", choices=("sitl", "sim"), default=None)
+    ap.add_argument("--sitl", type=Path, default=ROOT.parent / "shared" / "sitl")
+    ap.add_argument("--port", type=int, default=port)
+
+
+def sides(args: argparse.Namespace) -> list[str]:
+    """The sides to fly ("sitl", "sim"): the real one only where its binary is."""
+    os.environ.setdefault("PYTHONUNBUFFERED", "1")
+    out = [s for s in ("sitl", "sim") if args.only in (None, s)]
+    if "sitl" in out and not (args.sitl / "arducopter").exists():
+        print(f"skipped the real side: no ArduCopter SITL at {args.sitl / 'arducopter'}")
+        out.remove("sitl")
+    return out
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--sitl", type=Path, default=ROOT.parent / "shared" / "sitl")
     ap.add_argument("--runs", type=int, default=3)
-    ap.add_argument("--only", choices=("sitl", "sim"), default=None)
-    ap.add_argument("--port", type=int, default=14590)
+    add_sides(ap, 14590)
     args = ap.parse_args()
-    os.environ.setdefault("PYTHONUNBUFFERED", "1")
-    sides = [s for s in ("sitl", "sim") if args.only in (None, s)]
-    if "sitl" in sides and not (args.sitl / "arducopter").exists():
-        print(f"skipped the real side: no ArduCopter SITL at {args.sitl / 'arducopter'}")
-        sides.remove("sitl")
     results: dict[str, list[tuple[float, float]]] = {}
-    for side in sides:
+    for side in sides(args):
         for k in range(args.runs):
             port = args.port + k
             command = sitl_command(args.sitl.resolve(), port) if side == "sitl" \

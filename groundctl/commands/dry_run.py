@@ -25,8 +25,7 @@ from groundctl.commands.flying import (
     then,
 )
 from groundctl.commands.options import (
-    GUST_DURATION_S,
-    gust_on,
+    add_gust_on,
     non_negative,
     positive,
     probability,
@@ -72,12 +71,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                    help="displace a vehicle by E,N,U metres (show frame) over one second at "
                         "show time T (repeatable), whatever its autopilot does: kinematic, "
                         "a GPS jump or a bird strike (a gust is --gust-on)")
-    p.add_argument("--gust-on", type=gust_on, action="append", default=[],
-                   metavar="SYSID@T:SPEED@FROM[,DURATION_S]",
-                   help="blow on one vehicle from show time T: SPEED m/s from compass "
-                        "direction FROM degrees for DURATION_S s (default "
-                        f"{GUST_DURATION_S:g}), a force through the simulated airframe's "
-                        "drag that its autopilot fights, up to its lean angle (repeatable)")
+    add_gust_on(p, "show time T")
     p.add_argument("--weak", type=weak, action="append", default=[],
                    metavar="SYSID[,SYSID...]:FACTOR",
                    help="scale those vehicles' maximum speed and acceleration by FACTOR "

@@ -148,6 +148,17 @@ def workers(text: str) -> int:
     return value
 
 
+def add_gust_on(p: argparse.ArgumentParser, when: str) -> None:
+    """``--gust-on SYSID@T:SPEED@FROM[,DURATION_S]``; ``when`` says what T counts (show
+    time, or simulated seconds after boot)."""
+    p.add_argument("--gust-on", type=gust_on, action="append", default=[],
+                   metavar="SYSID@T:SPEED@FROM[,DURATION_S]",
+                   help=f"blow on one vehicle from {when}: SPEED m/s from compass "
+                        "direction FROM degrees for DURATION_S s (default "
+                        f"{GUST_DURATION_S:g}), a force through the simulated airframe's "
+                        "drag that its autopilot fights, up to its lean angle (repeatable)")
+
+
 def add_points_dir(p: argparse.ArgumentParser) -> None:
     """``--points-dir DIR``: where else a show's point files may be read from."""
     p.add_argument("--points-dir", type=Path, action="append", default=[], metavar="DIR",

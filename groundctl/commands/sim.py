@@ -24,9 +24,8 @@ from numpy.typing import NDArray
 
 from groundctl.clock import ScaledClock
 from groundctl.commands.options import (
-    GUST_DURATION_S,
+    add_gust_on,
     add_points_dir,
-    gust_on,
     push,
     signing_key,
     weak,
@@ -183,12 +182,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "simulated seconds after boot, whatever its autopilot does: "
                         "kinematic, a GPS jump or a bird strike (repeatable; a gust is "
                         "--gust-on)")
-    p.add_argument("--gust-on", type=gust_on, action="append", default=[],
-                   metavar="SYSID@T:SPEED@FROM[,DURATION_S]",
-                   help="blow on one vehicle T simulated seconds after boot: SPEED m/s from "
-                        "compass direction FROM degrees for DURATION_S s (default "
-                        f"{GUST_DURATION_S:g}), a force through the airframe's drag that its "
-                        "autopilot fights, up to its lean angle (repeatable)")
+    add_gust_on(p, "T simulated seconds after boot")
     p.add_argument("--weak", type=weak, action="append", default=[],
                    metavar="SYSID[,SYSID...]:FACTOR",
                    help="scale those vehicles' speed and acceleration authority by FACTOR")
