@@ -240,7 +240,8 @@ def sim_config(plan: Plan, options: DryRunOptions,
 
 def _check_named(options: DryRunOptions, ids: set[int]) -> None:
     """Every vehicle a push, a gust or a weakness names is in the fleet: one line before
-    anything starts, not a failure mid-show."""
+    anything starts (a push of a vehicle the fleet did not have was left out, unsaid: the
+    show flew and the dry-run exited 0)."""
     named = [("--push", p.sysid) for p in options.pushes] \
         + [("--gust-on", g.sysid) for g in options.gusts] \
         + [("--weak", w[0]) for w in options.weak]
