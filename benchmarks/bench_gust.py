@@ -84,12 +84,11 @@ def sitl_gust(speed: float, frm: float, duration: float) -> Callable[[Link], tup
     return fly
 
 
-def sim_gust() -> Callable[[Link], tuple[float, float]]:
-    def fly(link: Link) -> tuple[float, float]:
-        take_off(link)
-        _after(link, SIM_GUST_AT + WATCH_S)
-        return response(link, SIM_GUST_AT)
-    return fly
+def sim_gust(link: Link) -> tuple[float, float]:
+    """The simulator's gust is on its command line (at SIM_GUST_AT): take off, watch it."""
+    take_off(link)
+    _after(link, SIM_GUST_AT + WATCH_S)
+    return response(link, SIM_GUST_AT)
 
 
 
@@ -111,7 +110,7 @@ def main() -> int:
                              sitl_gust(speed, args.frm, args.duration))
             else:
                 gust = f"1@{SIM_GUST_AT:g}:{speed:g}@{args.frm:g},{args.duration:g}"
-                figure = run([*sim_command(port), "--gust-on", gust], port, sim_gust())
+                figure = run([*sim_command(port), "--gust-on", gust], port, sim_gust)
             name = "real ArduCopter" if side == "sitl" else "groundctl sim"
             rows.append((speed, name, *figure))
             print(f"{name}, {speed:g} m/s for {args.duration:g} s: largest {figure[0]:.2f} m, "
