@@ -209,7 +209,9 @@ def test_ten_percent_loss_and_a_slow_jittery_link_are_still_flown_safely(
         (v["system_id"], v["last_conflict"]) for v in vehicles if v["link_conflicts"]]
     losses = [v["loss_ratio"] for v in vehicles]
     assert 0.05 < float(np.mean(losses)) < 0.15
-    rtts = [v["rtt_ms"] for v in vehicles]
+    # Each vehicle's median round trip, not its last one (one draw of a delay wandering
+    # +- 30 ms each way: the median of nine such draws fell under 90 ms in ~4 % of runs).
+    rtts = [v["median_rtt_ms"] for v in vehicles]
     assert float(np.median(rtts)) > 90, rtts  # 60 +- 30 ms each way, as the link sees it
 
 

@@ -87,6 +87,9 @@ def flight_report(runner: ShowRunner, error: str | None = None,
             "ahead_ms": _ms(track.ahead_s) if track else None,
             "loss_ratio": _r(state.loss_ratio, 4) if state is not None else None,
             "rtt_ms": _r(state.rtt_s * 1000, 1) if state and state.rtt_s is not None else None,
+            # The last round trip is one draw of a wandering delay; this is the link's.
+            "median_rtt_ms": _r(state.median_rtt_s * 1000, 1)
+            if state and state.median_rtt_s is not None else None,
             "bad_packets": state.bad_packets if state is not None else 0,
             "link_conflicts": state.link_conflicts if state is not None else 0,
             "last_conflict": state.last_conflict if state is not None else None,
