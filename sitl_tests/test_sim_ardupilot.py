@@ -428,6 +428,27 @@ def test_each_vehicle_has_its_own_ekf_origin() -> None:
         assert abs(dlon_m - 10.0) < 0.2
 
 
+@pytest.mark.parametrize("origin", [(47.3977, 8.5456, 488.0), (-35.363261, 149.16523, 584.0),
+                                    (0.0, -179.9999, 0.0), (89.5, 15.6, 10.0)])
+def test_the_simulators_geodetic_positions_agree_with_pymap3d(origin: tuple[float, ...]) -> None:
+    # The simulator converts its own way (closed form through ECEF, for speed and so that
+    # a bug shared with the ground station's pymap3d conversion cannot cancel out); both
+    # must say the same, to well under a millimetre, over a show field and beyond.
+    import pymap3d
+
+    from groundctl.sim.frames import FleetFrames
+
+    frames = FleetFrames.build(origin, np.zeros((3, 3)))
+    enu = np.random.default_rng(7).uniform(-3000.0, 3000.0, (500, 3))
+    enu[:, 2] = np.linspace(-50.0, 800.0, 500)
+    lat, lon, alt = pymap3d.enu2geodetic(enu[:, 0], enu[:, 1], enu[:, 2], *origin)
+    ours = frames.geodetic(enu)
+    assert np.abs(ours[:, 0] - lat).max() < 1e-10  # degrees: 10 micrometres
+    assert np.abs((ours[:, 1] - lon + 180.0) % 360.0 - 180.0).max() < 1e-10
+    assert np.abs(ours[:, 2] - alt).max() < 1e-6
+    assert frames.geodetic(enu[3]) == pytest.approx(ours[3], abs=1e-12)  # one point
+
+
 def test_ekf_origin_override() -> None:
     origin = (-35.363261, 149.165230, 584.0)
     shifted = (origin[0] + 10 / 111_320, origin[1], origin[2])  # 10 m north
