@@ -29,8 +29,16 @@ def test_the_leads_grow_to_cover_a_slow_link_and_nobody_is_flagged_late() -> Non
         # At least the one-way delay (a setpoint cannot act before it arrives), and not
         # much more: the simulated ArduCopter tracks with little lag of its own.
         assert 95.0 <= v["lead_ms"] <= 160.0, v
-        assert v["response_ms"] is not None and v["response_ms"] >= 80.0, v
+        # The measured response includes the link's 100 ms: 121-143 ms per vehicle on an
+        # idle machine.  One vehicle's figure is a regression on telemetry dated through
+        # its TIMESYNC offset, which a busy machine (round trips delayed one way) can
+        # bias by tens of milliseconds (seen: 78.7 ms for one vehicle of nine, beside a
+        # busy suite), so each is held to half the link delay and the fleet's median to
+        # the whole of it.
+        assert v["response_ms"] is not None and v["response_ms"] >= 50.0, v
         assert not v["late"] and v["late_count"] == 0, v
+    responses = sorted(v["response_ms"] for v in report["vehicles"])
+    assert responses[len(responses) // 2] >= 95.0, responses
     # The fleet flew on the plan's time: what is left of the 50 ms initial shortfall.
     assert abs(report["tracking_split"]["ahead_ms"]) < 30.0, report["tracking_split"]
 
