@@ -150,14 +150,52 @@ def test_start_inside_a_neighbours_separation_opens_the_gap() -> None:
     assert gap[-1] >= min(1.5, 1.0 + RECOVERY_MPS * r.times[-1]) - 0.05
 
 
-def test_start_above_max_speed_keeps_its_path_when_the_path_is_safe() -> None:
-    # Nothing near: the autopilot slowing it back onto its path is no worse than now,
-    # and better than stopping in the formation.
+def test_a_start_above_its_speed_limits_is_flown_back_within_them_and_onto_its_path() -> None:
+    """Carried by a gust to 6 m/s sideways-forward and 3 m/s up (limits 5 and 2.5): a
+    state to recover from, not a reason to give up.  Each limit closes from the measured
+    speed at half ``max_accel``; the correction keeps that envelope, every limit once it
+    has closed, and ends on its path."""
     path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))
-    r = MpcController(1, CFG).solve(request(1, 0.0, (0.0, 0.0, 10.0), (6.0, 0.0, 0.0), path))
-    assert r.status == "path"
+    r = MpcController(1, CFG).solve(request(1, 0.0, (0.0, 1.0, 10.0), (4.8, 3.6, 3.0), path))
+    assert r.status == "solved", r.reason
     assert r.reason == ("start state: horizontal speed 6.00 m/s above max_speed_h 5.0 m/s; "
-                        "its path keeps every limit")
+                        "climb rate 3.00 m/s above max_speed_up 2.5 m/s; flown back within "
+                        "its limits")
+    brake = CFG.envelope_brake * LIMITS.max_accel
+    assert verify(r.pos, r.vel, r.acc, DT, LIMITS, brake=brake).ok
+    ts = np.linspace(0.0, r.end, 3001)
+    _, vel, _ = r.sample(ts)
+    speed_h = np.linalg.norm(vel[:, :2], axis=1)
+    # The envelope: never above the speed it started at less what braking at `brake`
+    # takes off (8 % for the speed polygon's corners), within the limit once closed.
+    assert np.all(speed_h <= np.maximum(5.0, 6.0 - brake * ts) * 1.09)
+    closed = ts >= (6.0 - 5.0) / brake
+    assert speed_h[closed].max() <= 5.0 * 1.09 and vel[ts >= 0.5 / brake, 2].max() <= 2.5 * 1.01
+    assert np.linalg.norm(r.acc, axis=1).max() <= LIMITS.max_accel * 1.01
+    # Flown tick after tick from where each result takes it: solved every tick, within
+    # every limit once the envelope has closed, and back on its path.
+    ctrl, cur, t = MpcController(1, CFG), r, 0.0
+    ctrl.solve(request(1, 0.0, (0.0, 1.0, 10.0), (4.8, 3.6, 3.0), path))
+    for _ in range(60):
+        t = round(t + DT, 9)
+        p, v, _ = cur.sample(t)
+        cur = ctrl.solve(request(1, t, p, v, path))
+        assert cur.status == "solved", (t, cur.reason)
+        if t >= 1.0 / brake + DT:
+            check_limits(cur)
+    p, v, _ = cur.sample(t)
+    assert np.linalg.norm(p - path(np.array([t]))[0][0]) < 0.1
+
+
+def test_a_start_outside_the_altitude_band_is_not_the_mpcs_to_fix() -> None:
+    # Above max_alt (a gust's updraft): the autopilot's fence is in charge; the MPC says
+    # why it gives nothing and keeps the path, which is no worse than now.
+    high = replace(LIMITS, max_alt=9.0)
+    path = line((0.0, 0.0, 8.5), (3.0, 0.0, 0.0))
+    r = MpcController(1, CFG).solve(request(1, 0.0, (0.0, 0.0, 9.5), (3.0, 0.0, 0.0), path,
+                                       limits=high))
+    assert r.status == "path"
+    assert r.reason.startswith("start state: altitude 9.50 m outside [2.0, 9.0] m")
 
 
 def test_a_neighbour_closing_too_fast_leaves_an_unsafe_stop() -> None:
@@ -390,19 +428,23 @@ def test_fresh_neighbours_are_given_relative_to_the_requests_own_deviation() -> 
     assert np.allclose(plain.others[0], ahead.sample(req.t0 + DT * np.arange(N + 1))[0])
 
 
-def test_a_weak_vehicle_never_gets_back_a_path_it_cannot_fly() -> None:
-    """A weak vehicle's QP tracks its re-timed path; when it falls back, the path the
-    executor would stream is its plan, checked against its own (smaller) limits."""
+def test_a_weak_vehicle_measured_above_its_limits_is_flown_back_within_them() -> None:
+    """A weak vehicle's QP tracks its re-timed path; measured faster than its own
+    (smaller) limits, it is flown back within them, never given its plan (3 m/s: more
+    than it can fly)."""
     from dataclasses import replace
 
     weak = replace(LIMITS, max_speed_h=2.0)
-    path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))  # 3 m/s: more than it can fly
+    path = line((0.0, 0.0, 10.0), (3.0, 0.0, 0.0))
     ahead = path(0.25 * np.arange(81))[0]
-    # Measured above its limits: no correction is tried, a fallback is chosen.
     r = MpcController(1, CFG).solve(request(1, 0.0, (0.0, 0.0, 10.0), (2.5, 0.0, 0.0), path,
                                        limits=weak, lookahead=ahead))
+    assert r.status == "solved", r.reason
     assert r.reason.startswith("start state: horizontal speed 2.50 m/s")
-    assert r.status != "path"
+    assert verify(r.pos, r.vel, r.acc, DT, weak, brake=CFG.envelope_brake * weak.max_accel).ok
+    brake = CFG.envelope_brake * weak.max_accel
+    closed = r.times >= 0.5 / brake + DT
+    assert np.linalg.norm(r.vel[closed, :2], axis=1).max() <= 2.0 * 1.01
 
 
 def test_a_weak_vehicle_stops_leading_its_path_when_the_path_ahead_stands_still(

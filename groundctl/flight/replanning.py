@@ -88,6 +88,9 @@ class ReplanStats:
     """Results not flown at all (even the stop broke a limit)."""
     batches: int = 0
     """Batches solved in time."""
+    recovered: int = 0
+    """Start states above a speed limit flown back within it (each episode once: a
+    vehicle's first solved result from such a state after any other)."""
 
 
 @dataclass(frozen=True)
@@ -259,7 +262,12 @@ class Replanner:
                 events.append(("mpc_fallback", f"vehicle {sysid}: MPC {res.reason}; {what}",
                                {"system_id": sysid, "status": res.status,
                                 "reason": res.reason}))
-            self._status[sysid] = res.status
+            status = "recovering" if res.recovering else res.status
+            if res.recovering and self._status.get(sysid) != status:
+                self.stats.recovered += 1
+                events.append(("mpc_recovering", f"vehicle {sysid}: MPC {res.reason}",
+                               {"system_id": sysid, "reason": res.reason}))
+            self._status[sysid] = status
         return events
 
     def _future(self, m: _Measured, times: FloatArray, clocks: PathClocks,
@@ -375,7 +383,8 @@ class Replanner:
         """The report's ``mpc`` object of a flight without MPC."""
         return {"enabled": False, "activations": 0, "vehicles": [],
                 "solve_ms": {"p50": None, "p95": None, "p99": None, "max": None, "solves": 0},
-                "fallbacks": 0, "unsafe": 0, "late": 0, "failed": 0, "weak": {}}
+                "fallbacks": 0, "unsafe": 0, "recovered": 0, "late": 0, "failed": 0,
+                "weak": {}}
 
     def report(self) -> dict[str, Any]:
         """The report's ``mpc`` object (the same keys as :meth:`off_report`)."""
@@ -392,6 +401,7 @@ class Replanner:
                          "solves": int(ms.size)},
             "fallbacks": self.stats.fallbacks,
             "unsafe": self.stats.unsafe,
+            "recovered": self.stats.recovered,
             "late": self.worker.late,
             "failed": self.worker.failed,
             "weak": {str(s): round(a, 2) for s, a in sorted(self._weak.items())},

@@ -19,9 +19,9 @@ ERROR_EVENTS = frozenset({
 #: Event kinds logged as warnings: refusals, holds, fallbacks, forgeries, the operator's stop.
 WARN_EVENTS = frozenset({
     "command_refused", "command_timeout", "show_held", "taken_out", "mpc_fallback",
-    "link_conflict", "address_conflict", "address_changed", "bad_packet", "bad_signature",
-    "fleet_silent", "param_not_set", "signal", "late", "unknown_vehicle", "vehicle_late",
-    "push"})
+    "mpc_recovering", "link_conflict", "address_conflict", "address_changed", "bad_packet",
+    "bad_signature", "fleet_silent", "param_not_set", "signal", "late", "unknown_vehicle",
+    "vehicle_late", "push"})
 #: Event kinds logged as debug: chatter that repeats through every flight.
 DEBUG_EVENTS = frozenset({"progress", "preflight", "prearm", "address_learnt"})
 #: Longest line logged; the rest is cut.

@@ -92,6 +92,28 @@ Rows (l <= A x <= u), in this order
   which the QP cannot move) asks nothing, so a vehicle measured just outside
   the tightened limit can still move away (the verifier judges that segment).
 
+Envelope
+--------
+A start state above a speed limit (a gust carried the vehicle, an escape left it
+fast) is a state to recover from, never a reason to give up.  Each speed limit
+(horizontal, climb, descent) becomes an envelope that starts at the measured
+speed and closes to the limit at ``envelope_brake`` (0.5) of ``max_accel``: at step
+k the row's bound is ``max(limit, start - b k dt)``, linear between the steps
+(:func:`speed_envelope`).  A speed within its limit gives the limit itself, so an
+in-limit start is solved exactly as before.  The verifier judges a solution
+against the same envelope (``verify(..., brake=b)``): between two steps the speed
+of the piecewise-linear velocity is at most the linear interpolation of its ends'
+speeds, which the interpolated bound covers.  The other half of the acceleration
+is left for steering: braking at the full ``max_accel`` leaves exactly one
+trajectory, the straight stop.  A solved result from such a start says so in its
+reason.  The acceleration needs no envelope: the QP's first acceleration is a
+decision bounded by ``max_accel`` (the measured one only enters the jerk cost).
+A position outside the altitude band or the geofence is still a fallback (the
+autopilot's own fence reacts to it; the path or the stop is checked "no worse than
+now").  Before this, a vehicle a 15 m/s gust pushed to 4.7 m/s got "start state:
+horizontal speed 4.69 m/s above max_speed_h 4.0 m/s; keeping its path", tick
+after tick, exactly while it needed a correction.
+
 Built once, updated in place
 ----------------------------
 The sparsity is fixed at construction: ``max_neighbours`` slots (8) whose
@@ -150,8 +172,9 @@ if OSQP reported "solved" (or "solved inaccurate"), the slack is within
 against the neighbours' predictions interpolated linearly (at a distance
 minimum the sampling error is below ``d'' h^2/8``: under a millimetre even for
 a 10 m/s fly-by), the speed and acceleration limits within ``limit_tol`` (1 %),
-altitude and the geofence.  Every neighbour given is verified, also those
-that got no slot.  Anything else -- a start state already out of limits, an
+altitude and the geofence (speeds within the envelope, above).  Every neighbour
+given is verified, also those that got no slot.  Anything else -- a start
+position already outside the altitude band or the geofence, an
 OSQP failure or its iteration/time cap, slack or a verification failure after
 the last pass -- is a fallback, one of two checked candidates: the straight
 stop at ``max_accel`` from the current state (:func:`brake_trajectory`), and
@@ -244,8 +267,10 @@ from groundctl.execute.mpc.checks import (
     brake_trajectory,
     convex_fence,
     escape_limits,
+    position_violations,
     rollout,
     select_neighbours,
+    speed_envelope,
     speed_violations,
     start_violations,
     verify,
@@ -291,9 +316,11 @@ __all__ = [
     "brake_trajectory",
     "convex_fence",
     "escape_limits",
+    "position_violations",
     "rollout",
     "select_neighbours",
     "solve_in_priority",
+    "speed_envelope",
     "speed_violations",
     "start_violations",
     "verify",

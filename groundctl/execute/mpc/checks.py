@@ -78,9 +78,18 @@ def _dense_linear(q: FloatArray, substeps: int) -> FloatArray:
     return np.concatenate([d.reshape(len(q), -1, 3), q[:, -1:]], axis=1)
 
 
+def speed_envelope(limit: float, start: float, brake: float, steps: int,
+                   dt: float) -> FloatArray:
+    """A speed limit as an envelope from a start above it, at the steps 0..``steps``:
+    ``max(limit, start - brake t_k)`` (module docstring, "Envelope"); ``limit`` at every
+    step when the start is within it."""
+    return np.maximum(limit, start - brake * dt * np.arange(steps + 1))
+
+
 def verify(pos: FloatArray, vel: FloatArray, acc: FloatArray, dt: float, limits: Limits,
            neighbours: FloatArray | None = None, neighbour_ids: ArrayLike | None = None, *,
-           substeps: int = 10, limit_tol: float = 0.01, baseline: bool = False) -> TrajectoryCheck:
+           substeps: int = 10, limit_tol: float = 0.01, baseline: bool = False,
+           brake: float | None = None) -> TrajectoryCheck:
     """Check a trajectory (pos, vel (N+1, 3), acc (N, 3)) in continuous time.
 
     ``substeps`` samples per step of the piecewise-quadratic trajectory against the
@@ -89,7 +98,9 @@ def verify(pos: FloatArray, vel: FloatArray, acc: FloatArray, dt: float, limits:
     :data:`DIST_TOL`, the geofence (any polygon, even-odd rule).  ``baseline``:
     every limit already broken at the first sample is relaxed to its value there
     ("no worse than now", for a stop from a bad state; a fence already left is not
-    checked).  Time offsets in the messages are from the first sample.
+    checked).  ``brake`` (m/s^2): a speed limit the first sample is above is the
+    envelope closing from it at that rate (:func:`speed_envelope` at the steps, linear
+    between them).  Time offsets in the messages are from the first sample.
     """
     ps, vs, offs = _dense(pos, vel, acc, dt, substeps)
     out: list[str] = []
@@ -99,11 +110,21 @@ def verify(pos: FloatArray, vel: FloatArray, acc: FloatArray, dt: float, limits:
               ("climb rate", vs[:, 2], limits.max_speed_up, "m/s", "max_speed_up"),
               ("descent rate", -vs[:, 2], limits.max_speed_down, "m/s", "max_speed_down")]
     for what, values, limit, unit, name in checks:
-        allowed = max(limit, float(values[0])) if baseline else limit
-        worst = int(np.argmax(values))
-        if values[worst] > allowed * (1 + limit_tol) + 1e-9:
+        start = float(values[0])
+        allowed: float | FloatArray = limit
+        closing = ""
+        if baseline:
+            allowed = max(limit, start)
+        elif brake is not None and start > limit:
+            steps = len(acc)
+            allowed = np.interp(offs, dt * np.arange(steps + 1),
+                                speed_envelope(limit, start, brake, steps, dt))
+            closing = f", closing from {start:.2f} {unit}"
+        over = values - np.asarray(allowed) * (1 + limit_tol) - 1e-9
+        worst = int(np.argmax(over))
+        if over[worst] > 0:
             out.append(f"{what} {values[worst]:.2f} {unit} at +{offs[worst]:.2f} s "
-                       f"({name} {limit} {unit})")
+                       f"({name} {limit} {unit}{closing})")
     if len(an) and an.max() > limits.max_accel * (1 + limit_tol):
         k = int(np.argmax(an))
         out.append(f"acceleration {an[k]:.2f} m/s^2 at +{dt * k:.2f} s "
@@ -201,9 +222,17 @@ def speed_violations(v: FloatArray, lim: Limits, limit_tol: float = 0.01) -> lis
 
 
 def start_violations(request: MpcRequest, limit_tol: float = 0.01) -> list[str]:
-    """Limits the measured state already breaks at ``t0`` (nothing a correction can fix)."""
+    """Limits the measured state already breaks at ``t0``: its speeds (a state to recover
+    from, within the envelope), then its position (:func:`position_violations`)."""
+    return speed_violations(request.v0, request.limits, limit_tol) + \
+        position_violations(request)
+
+
+def position_violations(request: MpcRequest) -> list[str]:
+    """Limits the measured position already breaks at ``t0``: its altitude, the geofence,
+    a neighbour's separation (of these the MPC recovers only the separation)."""
     lim, p = request.limits, request.p0
-    out = speed_violations(request.v0, lim, limit_tol)
+    out: list[str] = []
     if p[2] < lim.min_alt - DIST_TOL or p[2] > lim.max_alt + DIST_TOL:
         out.append(f"altitude {p[2]:.2f} m outside [{lim.min_alt}, {lim.max_alt}] m")
     if lim.geofence and not inside_polygon(np.asarray(lim.geofence, dtype=float), p[None, :2])[0]:

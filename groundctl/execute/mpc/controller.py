@@ -15,6 +15,7 @@ from groundctl.execute.mpc.checks import (
     _only_separation,
     brake_trajectory,
     escape_limits,
+    position_violations,
     rollout,
     start_violations,
     verify,
@@ -81,8 +82,14 @@ class MpcController(MpcQp):
                 request, bad_start = continued, []
                 self._continuing = True
         self._escaped = False
-        if bad_start:
+        # A start above a speed limit is a state to recover from, within the envelope that
+        # closes from it (package docstring, "Envelope"); a position outside the altitude
+        # band or the geofence is not the MPC's to fix (the autopilot's fence is in charge).
+        if bad_start and position_violations(replace(request, neighbours=None,
+                                                     neighbour_ids=None)):
             return self._fallback(request, "start state: " + "; ".join(bad_start), start)
+        recovered = ("start state: " + "; ".join(bad_start) + "; flown back within its "
+                     "limits") if bad_start else ""
         d0 = np.linalg.norm(request.others[:, 0] - request.p0[None], axis=1)
         inside = d0 < request.limits.min_separation - DIST_TOL
         self._start_distance = d0 if inside.any() else None
@@ -135,18 +142,20 @@ class MpcController(MpcQp):
             if escaping:
                 escape = verify(pos, vel, acc, self.dt, req.limits, req.others,
                                 req.other_ids, substeps=cfg.substeps,
-                                limit_tol=cfg.limit_tol, baseline=recovering)
+                                limit_tol=cfg.limit_tol, baseline=recovering,
+                                brake=self._brake(req))
                 if npass < 2 * cfg.passes and (max_slack > cfg.slack_tol or not escape.ok):
                     gp, gv, ga = pos, vel, acc
                     continue
                 last = verify(pos, vel, acc, self.dt, request.limits, request.others,
                               request.other_ids, substeps=cfg.substeps,
-                              limit_tol=cfg.limit_tol, baseline=recovering)
+                              limit_tol=cfg.limit_tol, baseline=recovering,
+                              brake=self._brake(request))
                 return self._escape(request, pos, vel, acc, last, escape, cause, start,
                                     iterations, npass, max_slack, used)
             check = verify(pos, vel, acc, self.dt, request.limits, request.others,
                            request.other_ids, substeps=cfg.substeps, limit_tol=cfg.limit_tol,
-                           baseline=recovering)
+                           baseline=recovering, brake=self._brake(request))
             # The envelope's slack (speed, altitude, fence) is judged on what is flown: the
             # rollout, by the verifier, within ``limit_tol``.  The QP's own velocities meet
             # the dynamics only to ADMM's tolerance, and a weak vehicle re-timed at 60 % of
@@ -155,11 +164,12 @@ class MpcController(MpcQp):
             sep_slack = float(np.max(slack[: self.oSe - self.oSs], initial=0.0))
             if sep_slack <= cfg.slack_tol and check.ok:
                 result = MpcResult(
-                    sysid=self.sysid, status="solved", reason="", t0=request.t0, dt=self.dt,
+                    sysid=self.sysid, status="solved", reason=recovered, t0=request.t0,
+                    dt=self.dt,
                     pos=pos, vel=vel, acc=acc, solve_ms=1e3 * (self._clock() - start),
                     iterations=iterations, passes=npass, max_slack=max_slack,
                     min_separation=check.min_separation, closest=check.closest,
-                    neighbours_used=used)
+                    neighbours_used=used, recovering=bool(bad_start))
                 self._last = result
                 return result
             if npass < cfg.passes:
@@ -187,6 +197,10 @@ class MpcController(MpcQp):
                 continue
             return self._fallback(request, cause, start, iterations, npass, max_slack, used)
         raise AssertionError("unreachable")  # pragma: no cover
+
+    def _brake(self, req: MpcRequest) -> float:
+        """The rate at which a speed limit the start is above closes, m/s^2."""
+        return self.config.envelope_brake * req.limits.max_accel
 
     def _escape(self, req: MpcRequest, pos: FloatArray, vel: FloatArray, acc: FloatArray,
                 check: TrajectoryCheck, escape: TrajectoryCheck, cause: str, start: float,

@@ -13,7 +13,7 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from groundctl.execute.mpc.checks import _TINY, convex_fence, select_neighbours
+from groundctl.execute.mpc.checks import _TINY, convex_fence, select_neighbours, speed_envelope
 from groundctl.execute.mpc.types import (
     FloatArray,
     IntArray,
@@ -280,11 +280,18 @@ class MpcQp:
         lo[self.abox_rows], hi[self.abox_rows] = -lim.max_accel, lim.max_accel
         lo[self.sbox_rows], hi[self.sbox_rows] = 0.0, np.inf
         hi[self.acut_rows] = lim.max_accel
-        hi[self.vcut_rows] = lim.max_speed_h
-        hi[self.vpoly_rows] = lim.max_speed_h
+        # Speeds: the envelope from the measured velocity (package docstring, "Envelope"),
+        # the limits themselves when it is within them.  Steps 1..N.
+        brake = self.config.envelope_brake * lim.max_accel
+        v0 = req.v0
+        env_h = speed_envelope(lim.max_speed_h, float(np.hypot(v0[0], v0[1])), brake, N, dt)[1:]
+        env_up = speed_envelope(lim.max_speed_up, float(v0[2]), brake, N, dt)[1:]
+        env_dn = speed_envelope(lim.max_speed_down, float(-v0[2]), brake, N, dt)[1:]
+        hi[self.vcut_rows] = np.repeat(env_h, self.config.passes - 1)
+        hi[self.vpoly_rows] = np.repeat(env_h, self.F)
         up = np.tile([1.0, 0.0], N).astype(bool)
-        vz_lo = np.where(up, -np.inf, -lim.max_speed_down)
-        vz_hi = np.where(up, lim.max_speed_up, np.inf)
+        vz_lo = np.where(up, -np.inf, -np.repeat(env_dn, 2))
+        vz_hi = np.where(up, np.repeat(env_up, 2), np.inf)
         lo[self.vz_rows], hi[self.vz_rows] = vz_lo, vz_hi
         z_lo = lim.min_alt + bulge - p0[2]
         z_hi = lim.max_alt - bulge - p0[2]

@@ -100,6 +100,10 @@ class MpcConfig:
     """Verification samples per step."""
     limit_tol: float = 0.01
     """Relative tolerance of the speed and acceleration checks."""
+    envelope_brake: float = 0.5
+    """A start above a speed limit is flown back within it: the limit closes from the
+    measured speed at this fraction of ``max_accel`` (package docstring, "Envelope"; the
+    rest of the acceleration is left for steering back to the path)."""
     slack_tol: float = SLACK_TOL
     """Largest slack (m or m/s) a solution may use and still be accepted: ADMM meets
     its rows only to its tolerance; the limits themselves are verified after."""
@@ -119,6 +123,8 @@ class MpcConfig:
             raise ValueError("`passes` and `substeps` must be at least 1")
         if not self.reach_m > 0:
             raise ValueError(f"`reach_m` must be positive, got {self.reach_m}")
+        if not 0 < self.envelope_brake <= 1:
+            raise ValueError(f"`envelope_brake` must be within (0, 1], got {self.envelope_brake}")
         if not (0 <= self.limit_tol < 0.1 and 0 <= self.slack_tol < 0.1):
             raise ValueError("`limit_tol` and `slack_tol` must be within [0, 0.1)")
 
@@ -254,7 +260,8 @@ class MpcResult:
     streams it and says so).  The trajectory of a ``"path"`` or ``"unsafe"``
     result is the stop that was checked, never flown"""
     reason: str
-    """Why it is not ``"solved"`` ("" when it is)."""
+    """Why it is not ``"solved"`` (when it is: "", or the limits a start above them was
+    flown back within, ``recovering``)."""
     t0: float
     """Show time of the first sample, s."""
     dt: float
@@ -279,6 +286,9 @@ class MpcResult:
     """System id of that neighbour (None: no neighbours)."""
     neighbours_used: int
     """Neighbours that had a slot in the QP."""
+    recovering: bool = False
+    """Solved from a start above a speed limit, within the envelope closing from it
+    (package docstring, "Envelope"); ``reason`` says which limits."""
 
     @property
     def accepted(self) -> bool:
