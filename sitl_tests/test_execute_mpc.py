@@ -485,3 +485,17 @@ def test_a_weak_vehicle_stops_leading_its_path_when_the_path_ahead_stands_still(
     z = held.sample(np.linspace(2.4, 3.9, 7))[0][:, 2]
     # Back to its path, no longer leading down (the old reference: 9.2 m at 3.9 s).
     assert np.all(z > 9.9), z
+
+
+def test_the_verifier_holds_an_over_speed_start_to_its_envelope_even_when_recovering() -> None:
+    """``baseline`` ("no worse than now", a vehicle inside a neighbour's separation) does
+    not let a start above a speed limit fly on at that speed: the envelope closes."""
+    acc = np.zeros((N, 3))
+    pos, vel = (np.stack([6.0 * DT * np.arange(N + 1), np.zeros(N + 1),
+                          np.full(N + 1, 10.0)], axis=1),
+                np.tile([6.0, 0.0, 0.0], (N + 1, 1)))
+    brake = CFG.envelope_brake * LIMITS.max_accel
+    assert verify(pos, vel, acc, DT, LIMITS, baseline=True).ok  # the old reading
+    check = verify(pos, vel, acc, DT, LIMITS, baseline=True, brake=brake)
+    assert not check.ok
+    assert "closing from 6.00 m/s" in check.violations[0]

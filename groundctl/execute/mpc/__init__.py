@@ -94,25 +94,31 @@ Rows (l <= A x <= u), in this order
 
 Envelope
 --------
-A start state above a speed limit (a gust carried the vehicle, an escape left it
-fast) is a state to recover from, never a reason to give up.  Each speed limit
-(horizontal, climb, descent) becomes an envelope that starts at the measured
-speed and closes to the limit at ``envelope_brake`` (0.5) of ``max_accel``: at step
-k the row's bound is ``max(limit, start - b k dt)``, linear between the steps
-(:func:`speed_envelope`).  A speed within its limit gives the limit itself, so an
-in-limit start is solved exactly as before.  The verifier judges a solution
-against the same envelope (``verify(..., brake=b)``): between two steps the speed
-of the piecewise-linear velocity is at most the linear interpolation of its ends'
-speeds, which the interpolated bound covers.  The other half of the acceleration
-is left for steering: braking at the full ``max_accel`` leaves exactly one
-trajectory, the straight stop.  A solved result from such a start says so in its
-reason.  The acceleration needs no envelope: the QP's first acceleration is a
-decision bounded by ``max_accel`` (the measured one only enters the jerk cost).
-A position outside the altitude band or the geofence is still a fallback (the
-autopilot's own fence reacts to it; the path or the stop is checked "no worse than
-now").  Before this, a vehicle a 15 m/s gust pushed to 4.7 m/s got "start state:
-horizontal speed 4.69 m/s above max_speed_h 4.0 m/s; keeping its path", tick
-after tick, exactly while it needed a correction.
+A start state above a speed limit (a gust carried the vehicle, or an escape left it
+faster than even the escape's raised limits: within them the escape goes on, below)
+is a state to recover from, never a reason to give up. Each speed limit (horizontal,
+climb, descent) becomes an envelope that starts at the measured speed and closes to
+the limit at ``envelope_brake`` (0.5) of ``max_accel``: at step k the row's bound is
+``max(limit, start - b k dt)``, linear between the steps (:func:`speed_envelope`). A
+speed within its limit gives the limit itself, so an in-limit start is solved
+exactly as before. The verifier judges a solution against that envelope
+(``verify(..., brake=b)``): between two steps the speed of the piecewise-linear
+velocity is at most the linear interpolation of its ends' speeds, which the
+interpolated bound covers. The QP's rows close ``ENVELOPE_QP_MARGIN`` (1.25) times
+faster than the verifier's: an acceleration that overshoots its cuts is projected
+back onto the ball, which takes braking away, and without the margin 12 of 300
+random over-speed starts rolled out over the envelope (3 with it, where braking hard
+horizontally and vertically at once asks more than ``max_accel``): those are checked
+fallbacks, never an unchecked flight. The rest of the acceleration is left for
+steering: braking at the full ``max_accel`` leaves exactly one trajectory, the
+straight stop. A solved result from such a start says so in its reason. The
+acceleration needs no envelope: the QP's first acceleration is a decision bounded by
+``max_accel`` (the measured one only enters the jerk cost). A position outside the
+altitude band or the geofence is still a fallback (the autopilot's own fence reacts
+to it; the path or the stop is checked "no worse than now"). Before this, a vehicle
+a 15 m/s gust pushed to 4.7 m/s got "start state: horizontal speed 4.69 m/s above
+max_speed_h 4.0 m/s; keeping its path", tick after tick, exactly while it needed a
+correction.
 
 Built once, updated in place
 ----------------------------

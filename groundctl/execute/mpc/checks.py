@@ -113,13 +113,16 @@ def verify(pos: FloatArray, vel: FloatArray, acc: FloatArray, dt: float, limits:
         start = float(values[0])
         allowed: float | FloatArray = limit
         closing = ""
-        if baseline:
-            allowed = max(limit, start)
-        elif brake is not None and start > limit:
+        if brake is not None and start > limit:
+            # The envelope before ``baseline``: it starts at the measured speed too, and
+            # closes (a vehicle recovering a neighbour's separation is not let fly on
+            # over its limit).
             steps = len(acc)
             allowed = np.interp(offs, dt * np.arange(steps + 1),
                                 speed_envelope(limit, start, brake, steps, dt))
             closing = f", closing from {start:.2f} {unit}"
+        elif baseline:
+            allowed = max(limit, start)
         over = values - np.asarray(allowed) * (1 + limit_tol) - 1e-9
         worst = int(np.argmax(over))
         if over[worst] > 0:
