@@ -18,12 +18,10 @@ from __future__ import annotations
 
 import asyncio
 import bisect
-import contextlib
 import copy
 import math
 import time
-from collections.abc import Iterator
-from typing import Protocol
+from typing import Any, Protocol
 
 
 class Clock(Protocol):
@@ -132,6 +130,24 @@ def pace_slack(speed: float) -> float:
     return min(PACE_SLACK_MAX_S, PACE_SLACK_REAL_S * speed)
 
 
+class _Held:
+    """A ``with`` block holding a (multiprocessing) lock: ``as`` gives whether it was
+    taken within ``timeout`` s; released on the way out only if it was."""
+
+    __slots__ = ("_lock", "_ok", "_timeout")
+
+    def __init__(self, lock: Any, timeout: float) -> None:
+        self._lock, self._timeout, self._ok = lock, timeout, False
+
+    def __enter__(self) -> bool:
+        self._ok = bool(self._lock.acquire(timeout=self._timeout))
+        return self._ok
+
+    def __exit__(self, *exc: object) -> None:
+        if self._ok:
+            self._lock.release()
+
+
 class PacedClock:
     """A dry-run's clock, shared by processes that wait for one another.
 
@@ -216,28 +232,18 @@ class PacedClock:
         view._slot = slot
         return view
 
-    @contextlib.contextmanager
-    def _locked(self) -> Iterator[bool]:
-        """The lock, held; False if its holder died holding it (after LOCK_TIMEOUT_S)."""
-        if not self._lock.acquire(timeout=self.LOCK_TIMEOUT_S):
-            yield False
-            return
-        try:
-            yield True
-        finally:
-            self._lock.release()
+    def _locked(self) -> _Held:
+        """The lock, held for a ``with`` block; ``as`` gives False if its holder died
+        holding it (after LOCK_TIMEOUT_S).  A small class, not a ``contextlib``
+        generator: the loops read the clock thousands of times a second, and the
+        generator was most of a reading's cost."""
+        return _Held(self._lock, self.LOCK_TIMEOUT_S)
 
     # -- reading ---------------------------------------------------------------------
 
     def now(self) -> float:
-        # The hot path (the loops read the clock thousands of times a second): the lock
-        # taken and released by hand rather than through _locked()'s generator.
-        if not self._lock.acquire(timeout=self.LOCK_TIMEOUT_S):
-            return self._unlocked()
-        try:
-            return self._read()
-        finally:
-            self._lock.release()
+        with self._locked() as ok:
+            return self._read() if ok else self._unlocked()
 
     def _unlocked(self) -> float:
         """The lock's holder died holding it: at full pace from this process's last
@@ -327,13 +333,11 @@ class PacedClock:
 
     def ago(self, wall_seconds: float) -> float:
         """Clock seconds since ``wall_seconds`` of real time ago (one look at the lock)."""
-        if not self._lock.acquire(timeout=self.LOCK_TIMEOUT_S):  # as now(): by hand
-            return self.speed * wall_seconds
-        try:
+        with self._locked() as ok:
+            if not ok:
+                return self.speed * wall_seconds
             now = self._read()
             return now - self._dated(time.monotonic() - wall_seconds, now)
-        finally:
-            self._lock.release()
 
     def ago_many(self, wall_seconds: list[float]) -> list[float]:
         """:meth:`ago` of each of ``wall_seconds`` (a link worker's batch of datagrams),
@@ -379,9 +383,9 @@ class PacedClock:
         may run to ``t + slack`` without it (``math.inf``: it takes no more part)."""
         if self._slot is None:
             raise ValueError("idle_until() on the shared clock itself: use participant()")
-        if not self._lock.acquire(timeout=self.LOCK_TIMEOUT_S):  # as now(): by hand
-            return
-        try:
+        with self._locked() as ok:
+            if not ok:
+                return
             self._read()  # a wait for us ends now, not at whoever read the clock last
             m = self._mem
             since = self._at(self._slot, self._SINCE)
@@ -389,8 +393,6 @@ class PacedClock:
                 m[self._at(self._slot, self._HELD)] += max(m[self._LAST_WALL] - m[since], 0.0)
                 m[since] = math.nan
             m[self._at(self._slot, self._DUE)] = t
-        finally:
-            self._lock.release()
 
     def held_s(self) -> list[float]:
         """Real seconds each participant has held the clock, by slot (up to its last

@@ -231,9 +231,10 @@ def start_violations(request: MpcRequest, limit_tol: float = 0.01) -> list[str]:
         position_violations(request)
 
 
-def position_violations(request: MpcRequest) -> list[str]:
+def position_violations(request: MpcRequest, *, with_neighbours: bool = True) -> list[str]:
     """Limits the measured position already breaks at ``t0``: its altitude, the geofence,
-    a neighbour's separation (of these the MPC recovers only the separation)."""
+    a neighbour's separation (of these the MPC recovers only the separation; leave it
+    out with ``with_neighbours=False``)."""
     lim, p = request.limits, request.p0
     out: list[str] = []
     if p[2] < lim.min_alt - DIST_TOL or p[2] > lim.max_alt + DIST_TOL:
@@ -241,7 +242,7 @@ def position_violations(request: MpcRequest) -> list[str]:
     if lim.geofence and not inside_polygon(np.asarray(lim.geofence, dtype=float), p[None, :2])[0]:
         out.append(f"position ({p[0]:.2f}, {p[1]:.2f}) outside the geofence")
     nb = request.others
-    if len(nb):
+    if with_neighbours and len(nb):
         d = np.linalg.norm(nb[:, 0] - p[None], axis=1)
         j = int(np.argmin(d))
         if d[j] < lim.min_separation - DIST_TOL:

@@ -85,8 +85,7 @@ class MpcController(MpcQp):
         # A start above a speed limit is a state to recover from, within the envelope that
         # closes from it (package docstring, "Envelope"); a position outside the altitude
         # band or the geofence is not the MPC's to fix (the autopilot's fence is in charge).
-        if bad_start and position_violations(replace(request, neighbours=None,
-                                                     neighbour_ids=None)):
+        if bad_start and position_violations(request, with_neighbours=False):
             return self._fallback(request, "start state: " + "; ".join(bad_start), start)
         recovered = ("start state: " + "; ".join(bad_start) + "; flown back within its "
                      "limits") if bad_start else ""
@@ -197,10 +196,6 @@ class MpcController(MpcQp):
                 continue
             return self._fallback(request, cause, start, iterations, npass, max_slack, used)
         raise AssertionError("unreachable")  # pragma: no cover
-
-    def _brake(self, req: MpcRequest) -> float:
-        """The rate at which a speed limit the start is above closes, m/s^2."""
-        return self.config.envelope_brake * req.limits.max_accel
 
     def _escape(self, req: MpcRequest, pos: FloatArray, vel: FloatArray, acc: FloatArray,
                 check: TrajectoryCheck, escape: TrajectoryCheck, cause: str, start: float,

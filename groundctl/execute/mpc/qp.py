@@ -289,7 +289,7 @@ class MpcQp:
         # accelerations meet the norm limit only through cuts, and projecting an overshoot
         # back onto the ball takes braking away (seen: 12 of 300 random over-speed starts
         # rolled out over the envelope, e.g. a 1.69 m/s descent for 1.5).
-        brake = min(self.config.envelope_brake * ENVELOPE_QP_MARGIN, 1.0) * lim.max_accel
+        brake = min(self._brake(req) * ENVELOPE_QP_MARGIN, lim.max_accel)
         v0 = req.v0
         env_h = speed_envelope(lim.max_speed_h, float(np.hypot(v0[0], v0[1])), brake, N, dt)[1:]
         env_up = speed_envelope(lim.max_speed_up, float(v0[2]), brake, N, dt)[1:]
@@ -370,6 +370,11 @@ class MpcQp:
             acut[:, :, npass - 1] = n_a.T
             nv = np.linalg.norm(vh, axis=1, keepdims=True)
             vcut[:, :, npass - 2] = np.where(nv > _TINY, vh / np.maximum(nv, _TINY), 0.0).T
+
+    def _brake(self, req: MpcRequest) -> float:
+        """The rate at which a speed limit the start is above closes in the verified
+        envelope, m/s^2 (package docstring, "Envelope")."""
+        return self.config.envelope_brake * req.limits.max_accel
 
     def _assign_slots(self, req: MpcRequest, guess: FloatArray) -> IntArray:
         """(M,) index into ``req.others`` held by each slot, -1 for a free slot.
