@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from groundctl.execute.lead import LeadConfig, LeadEstimator, late_vehicles
+from groundctl.execute.lead import LateWatch, LeadConfig, LeadEstimator, late_vehicles
 
 RATE = 10.0
 
@@ -101,6 +101,17 @@ def test_late_is_judged_on_the_lead_in_use_and_clears() -> None:
     late |= newly
     newly, cleared = late_vehicles({1: 0.25, 2: 0.1}, {1: 0.2, 2: None}, late)
     assert newly == set() and cleared == {1}
+
+
+def test_a_vehicle_is_flagged_late_only_when_late_on_two_checks_in_a_row() -> None:
+    watch = LateWatch()
+    leads = {1: 0.1, 2: 0.1}
+    late: set[int] = set()
+    assert watch.check(leads, {1: 0.2, 2: 0.05}, late) == (set(), set())  # suspected
+    assert watch.check(leads, {1: 0.05, 2: 0.2}, late) == (set(), set())  # 1 forgiven
+    assert watch.check(leads, {1: 0.2, 2: 0.2}, late) == ({2}, set())  # 2 twice running
+    late = {2}
+    assert watch.check(leads, {1: 0.2, 2: 0.1}, late) == ({1}, {2})  # 1 twice running
 
 
 def test_gusting_wind_does_not_move_the_lead() -> None:

@@ -215,3 +215,22 @@ def late_vehicles(leads: Mapping[int, float], link_delays: Mapping[int, float | 
         elif sysid in late and delay <= lead:
             cleared.add(sysid)
     return newly, cleared
+
+
+class LateWatch:
+    """Late vehicles, judged once a second (:func:`late_vehicles`) and flagged only when
+    a vehicle is late on two checks in a row: one TIMESYNC step in the recent median,
+    which a measured lead follows within the second, flags nobody."""
+
+    def __init__(self, margin_s: float = 0.005) -> None:
+        self.margin_s = margin_s
+        self._suspects: set[int] = set()
+
+    def check(self, leads: Mapping[int, float], link_delays: Mapping[int, float | None],
+              late: set[int]) -> tuple[set[int], set[int]]:
+        """(newly late, no longer late) of the vehicles in ``leads`` given those flagged
+        ``late`` now; a suspect not late again on the next check is forgotten."""
+        newly, cleared = late_vehicles(leads, link_delays, late, self.margin_s)
+        confirmed = newly & self._suspects
+        self._suspects = newly - confirmed
+        return confirmed, cleared

@@ -28,9 +28,17 @@ each (each layer derives from the one before it)::
     preflight  the ground part: connect, the checks, the go gate, settings, the sequence
     commands   actions carried out, the operator's commands, the status line
     planning   the planning workers; returns and ways out planned as tasks
-    timing     each vehicle's lead, its LED colours sent ahead, late vehicles
+    timing     each vehicle's lead, late vehicles
     stream     the tick's stream, the MPC replan, the guard
     core       ShowRunner: run, and fly (the loop that composes the stages)
+
+The stages themselves are units with their own state and tests, which the layers
+feed and carry out: :class:`~groundctl.flight.runner.slots.SendSlots` (a tick's
+setpoints over its period), :class:`~groundctl.flight.runner.leds.LedSends` (LED
+colours sent ahead of their instant), :class:`~groundctl.execute.lead.LeadEstimator`
+and :class:`~groundctl.execute.lead.LateWatch`,
+:class:`~groundctl.flight.replanning.Replanner` (MPC) and
+:class:`~groundctl.execute.guard.FlightGuard`.
 """
 
 from __future__ import annotations

@@ -145,7 +145,7 @@ class ShowRunner(Streaming):
                                       f"vehicles still flying or unaccounted for {left}")
         finally:
             self._flush_notices()
-            self._cancel_led_sends()
+            self._leds.cancel()
             if self._slots is not None:
                 self._slots.cancel()
             self._next_tick = math.inf

@@ -187,7 +187,7 @@ class Preflight(RunnerState):
         self._stream = SetpointStream(self.plan, targets, self.config.initial_lead_s)
         self.leads = LeadEstimator([t.sysid for t in targets], self.config.lead) \
             if self.config.lead_s is None else None
-        self._led_schedule = LedSchedule.from_targets(self.plan, targets)
+        self._leds.schedule = LedSchedule.from_targets(self.plan, targets)
         self.monitor = FlightMonitor(self.plan, tracks)
         self.sequence = ShowSequence(self.plan, tracks, flavours, self.config.sequence,
                                      grounded_tracks=self._excluded_tracks())

@@ -5,6 +5,7 @@ each vehicle's record and lead, spawning a task."""
 from __future__ import annotations
 
 import asyncio
+import functools
 import math
 from collections.abc import Awaitable, Callable, Collection
 from dataclasses import replace
@@ -12,15 +13,15 @@ from typing import Any
 
 from groundctl.clock import Clock
 from groundctl.execute.guard import FlightGuard
-from groundctl.execute.lead import LeadEstimator
-from groundctl.execute.leds import LedSchedule
+from groundctl.execute.lead import LateWatch, LeadEstimator
 from groundctl.execute.mapping import Assignment
 from groundctl.execute.preflight import PreflightReport
 from groundctl.execute.sequence import Notice, ShowSequence, StreamRequest
-from groundctl.execute.setpoints import LedTracker, SetpointStream
+from groundctl.execute.setpoints import SetpointStream
 from groundctl.flight.monitor import FlightMonitor
 from groundctl.flight.replanning import Replanner
 from groundctl.flight.runner.config import RunnerConfig, VehicleRecord, log
+from groundctl.flight.runner.leds import LedSends, link_delays
 from groundctl.flight.runner.slots import SendSlots
 from groundctl.flight.workers import PlannerPool
 from groundctl.link.fleet import FleetLink
@@ -69,13 +70,14 @@ class RunnerState:
         self.guard = FlightGuard(self.config.guard, self.config.thresholds.max_wind)
         """Holds for our own lag, fleet-wide silence and safety responses."""
         self._stream: SetpointStream | None = None
-        self._led_schedule: LedSchedule | None = None
-        self._led_handles: list[asyncio.TimerHandle] = []
-        self._led_window_end = -math.inf
-        self._led_dues: list[float] = []  # clock instants of the LED sends scheduled
         self._slots: SendSlots | None = None
         self._next_tick = math.inf
-        self._leds = LedTracker(self.config.led_refresh_s)
+        self._leds = LedSends(
+            clock, link.send_led_rgb,
+            functools.partial(link_delays, self._median_rtt),
+            lambda: self.clock.idle_until(self._idle_due()),
+            period_s=1.0 / self.config.rate_hz, refresh_s=self.config.led_refresh_s)
+        """The tick's LED stage (its colour changes sent ahead, on timers between ticks)."""
         self._tasks: set[asyncio.Task[None]] = set()
         self._return_task: asyncio.Task[None] | None = None
         self._leave_tasks: dict[int, asyncio.Task[None]] = {}
@@ -93,7 +95,7 @@ class RunnerState:
         self.mpc_summary: dict[str, Any] | None = None
         """What the MPC did, kept once the flight is over (the report's ``mpc``)."""
         self._lead_at: float | None = None
-        self._late_suspects: set[int] = set()
+        self._late = LateWatch()
         self._delays: tuple[float, dict[int, float | None]] | None = None
         self.confirm_go = confirm_go
         """The operator's go gate (the console): awaited with the pre-flight report once
@@ -124,6 +126,18 @@ class RunnerState:
         if self.leads is None or sysid not in self.leads.sysids:
             return None
         return self.leads.estimate(sysid).response_s
+
+    def _median_rtt(self, sysid: int) -> float | None:
+        state = self.link.vehicles.get(sysid)
+        return state.median_rtt_s if state is not None else None
+
+    def _idle_due(self) -> float:
+        """The next clock instant this loop must act at: its next tick, or a setpoint slot
+        or an LED send scheduled before it (a paced clock waits for us no further than
+        that)."""
+        slots = self._slots.dues() if self._slots is not None else []
+        return min(self._next_tick, min(self._leds.dues(), default=math.inf),
+                   min(slots, default=math.inf))
 
     def _record(self, sysid: int) -> VehicleRecord:
         return self.records.setdefault(sysid, VehicleRecord())

@@ -67,7 +67,12 @@ class Streaming(LinkTiming):
             self._last_show_time = (min(req.clock.show_time(now + self._stream.typical_lead),
                                         self.plan.duration)
                                     if req.clock is not None and not req.ended else None)
-            self._leds_tick(seq, now, sp, rows)
+            # LED colours on the show clock at the vehicle while it runs at full rate;
+            # otherwise the tick's own.
+            running = seq.started_at is not None and not seq.ended \
+                and seq.clock.at(now).rate >= 1.0
+            self._leds.tick(now, seq.show_time(now) if running else None,
+                            [sp.sysids[i] for i in rows], sp.rgb[rows])
         in_show = [s for s, v in seq.vehicles.items() if v.phase is VehiclePhase.SHOW] \
             if seq.started_at is not None and not seq.ended else []
         rate = req.clock.at(now).rate if req.clock is not None and not req.ended else 0.0

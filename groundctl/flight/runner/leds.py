@@ -1,0 +1,153 @@
+"""The tick's LED stage: each vehicle's colour changes sent ahead of their instant by its
+own one-way link delay, on timers between ticks, every colour refreshed once a second
+(LED_CONTROL is never acknowledged), and the tick's own colours while the show clock is
+not running."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+from collections.abc import Callable, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from groundctl.clock import HELD_POLL_S, Clock
+from groundctl.errors import LinkError
+from groundctl.execute.leds import LedSchedule
+from groundctl.execute.setpoints import LedTracker
+
+#: LED changes due within this much real time of one another leave together (sent at
+#: the earliest one's instant), s.
+LED_SEND_QUANTUM_S = 0.001
+
+Colour = tuple[int, int, int]
+
+
+class LedSends:
+    """The LED stage of the runner's tick.
+
+    ``send(sysid, r, g, b)`` sends one colour (a :class:`LinkError`, a vehicle whose
+    address is not known yet, costs that one send); ``delays(sysids)`` is each vehicle's
+    one-way link delay, s; ``idle()`` is called after each group scheduled between ticks
+    has left (a paced clock waits for the loop no further than its next due instant,
+    :meth:`dues`).  :attr:`schedule` is the show's colour changes by vehicle, set once the
+    vehicles are mapped to their tracks.
+    """
+
+    def __init__(self, clock: Clock, send: Callable[[int, int, int, int], None],
+                 delays: Callable[[Sequence[int]], NDArray[np.float64]],
+                 idle: Callable[[], None], *, period_s: float, refresh_s: float) -> None:
+        self.clock = clock
+        self.schedule: LedSchedule | None = None
+        self.tracker = LedTracker(refresh_s)
+        """What was last sent to each vehicle, and when."""
+        self._send_rgb = send
+        self._delays = delays
+        self._idle = idle
+        self._period = period_s
+        self._refresh = refresh_s
+        # The groups scheduled and not sent yet: their timer and their clock instant.
+        self._pending: dict[int, tuple[asyncio.TimerHandle, float]] = {}
+        self._next_key = 0
+        self._window_end = -math.inf
+
+    def tick(self, now: float, show_time: float | None, streamed: Sequence[int],
+             rgb: ArrayLike) -> None:
+        """One tick at clock time ``now``: ``streamed`` are the vehicles streamed this
+        tick, ``rgb`` their colours of the tick (n, 3, 0..255); ``show_time`` is the show
+        clock's time when it runs at full rate (None: held, braking, before the show or
+        after it, when the tick's own colours are sent as they change)."""
+        schedule = self.schedule
+        if show_time is None or schedule is None:
+            self.cancel()
+            for sysid, (r, g, b) in self.tracker.due(streamed, rgb, now):
+                self._send_rgb(sysid, r, g, b)
+            return
+        delays = self._delays([int(x) for x in schedule.sysids])
+        t = show_time
+        # Changes whose send instant falls in the next period, sent at that instant.
+        wanted = set(streamed)
+        start = self._window_end if math.isfinite(self._window_end) else t
+        batch = schedule.window(min(start, t + self._period), t + self._period, delays)
+        self._window_end = t + self._period
+        loop = asyncio.get_running_loop()
+        # Grouped by send instant (LED_SEND_QUANTUM_S of real time, never later): one
+        # timer and one look at the clock per group, not per vehicle.
+        groups: dict[float, tuple[list[float], list[tuple[int, Colour]]]] = {}
+        per_second = self.clock.wall_interval(1.0)  # 0: a clock real time does not move
+        quantum = LED_SEND_QUANTUM_S / per_second if per_second > 0 else 0.0
+        for k in range(len(batch.sysids)):
+            sysid = int(batch.sysids[k])
+            if sysid not in wanted:
+                continue
+            colour = (int(batch.rgb[k][0]), int(batch.rgb[k][1]), int(batch.rgb[k][2]))
+            wait = max(float(batch.send_at[k]) - t, 0.0)
+            key = math.floor(wait / quantum) if quantum > 0 else wait
+            waits, items = groups.setdefault(key, ([], []))
+            waits.append(wait)
+            items.append((sysid, colour))
+        for waits, items in groups.values():
+            wait = min(waits)
+            key, self._next_key = self._next_key, self._next_key + 1
+            self._pending[key] = (loop.call_later(self.clock.wall_interval(wait),
+                                                  self._send_at, key, items, now + wait),
+                                  now + wait)
+        # The periodic refresh, of the colour the vehicle should show when it arrives.
+        colours = schedule.colour_at(t, delays)
+        rows_of = {int(s): i for i, s in enumerate(schedule.sysids)}
+        for sysid in streamed:
+            last = self.tracker.last(sysid)
+            if last is None or now - last[1] >= self._refresh:
+                c = colours[rows_of[sysid]]
+                self._send(sysid, (int(c[0]), int(c[1]), int(c[2])), now)
+
+    def _send_at(self, key: int, items: list[tuple[int, Colour]], due: float) -> None:
+        """Send the group ``key`` of ``items`` (system id, colour) at clock time ``due``:
+        again later if the clock is not there yet (a paced dry-run clock that waited for a
+        late loop runs slower than real time)."""
+        if key not in self._pending:
+            return  # cancelled meanwhile
+        wait = due - self.clock.now()
+        if wait > 1e-3:
+            self._pending[key] = (asyncio.get_running_loop().call_later(
+                max(self.clock.wall_interval(wait), HELD_POLL_S), self._send_at, key, items,
+                due), due)
+            return
+        del self._pending[key]
+        now = self.clock.now()  # once for the group, not once per vehicle
+        for sysid, colour in items:
+            self._send(sysid, colour, now)
+        self._idle()
+
+    def _send(self, sysid: int, colour: Colour, now: float) -> None:
+        self.tracker.sent(sysid, colour, now)
+        with contextlib.suppress(LinkError):
+            self._send_rgb(sysid, *colour)
+
+    def forget(self, sysid: int) -> None:
+        """``sysid`` is back from a silence (or rebooted): its colour is sent afresh."""
+        self.tracker.forget(sysid)
+
+    def dues(self) -> list[float]:
+        """Clock instants of the sends scheduled between ticks, still to leave."""
+        return [due for _, due in self._pending.values()]
+
+    def cancel(self) -> None:
+        """Drop every send scheduled between ticks (the show clock stopped, or the flight
+        is over); the next running tick starts a new window."""
+        for handle, _ in self._pending.values():
+            handle.cancel()
+        self._pending.clear()
+        self._window_end = -math.inf
+
+
+def link_delays(rtt_of: Callable[[int], float | None], sysids: Sequence[int]
+                ) -> NDArray[np.float64]:
+    """One-way delay per vehicle, s: half its median round trip, 0 unknown, at most 1."""
+    out = np.zeros(len(sysids))
+    for i, sysid in enumerate(sysids):
+        rtt = rtt_of(sysid)
+        out[i] = 0.0 if rtt is None else min(max(rtt / 2.0, 0.0), 1.0)
+    return out
