@@ -1,4 +1,5 @@
-"""MPC benchmarks: one vehicle's solve time (``solve``), and flight scenarios (``flight``).
+"""MPC benchmarks: one vehicle's solve time (``solve``), flight scenarios (``flight``), and
+the gust matrix (``gusts``).
 
     .venv/bin/python benchmarks/bench_mpc.py solve                  # N = 30, 8 neighbours
     .venv/bin/python benchmarks/bench_mpc.py solve --ticks 400 --neighbours 0 4 8
@@ -26,6 +27,20 @@ formation's middle at 40 % of the show); ``shove`` (pushed 4.2 m straight at its
 neighbour, not in the default list).  Per run: safe, max / RMS tracking error, min separation
 (telemetry and simulator truth), worst pattern error, MPC activations, solve
 time p50 / p95 / p99 / max, fallbacks and late batches.
+
+``gusts``: issue 32's matrix.  Seeded single-vehicle gusts (``--gust-on``: a force
+through the airframe's drag that the vehicle's autopilot fights), 6-12 m/s for 2-4 s, each
+blowing one vehicle towards its nearest neighbour at a show time spread over the show,
+each flown with ``--no-mpc`` and with MPC, per autopilot::
+
+    .venv/bin/python benchmarks/bench_mpc.py gusts                  # demo, 24 gusts, x3
+    .venv/bin/python benchmarks/bench_mpc.py gusts --gusts 8 --autopilot ardupilot
+
+Per flight: the gusted vehicle's largest error and its ``recovery_s`` (time back within
+0.5 m of its plan after each excursion; ``never``: it left the show off its plan), the
+simulator's true minimum separation, whether it fell below the limit, MPC activations
+and start states recovered from.  Then per autopilot and MPC setting: how many flights
+lost separation (the target: with MPC at most half as many as without).
 """
 
 from __future__ import annotations
@@ -201,6 +216,101 @@ def cmd_flight(args: argparse.Namespace) -> None:
                     print("   ", "; ".join(r["unsafe_reasons"]))
 
 
+@dataclass(frozen=True)
+class GustCase:
+    """One gust of the matrix."""
+
+    sysid: int
+    at: float
+    speed: float
+    from_deg: float
+    duration: float
+    neighbour: int
+    gap_m: float
+    """Planned distance to that neighbour when the gust begins, m."""
+
+
+def gust_cases(plan: Plan, n: int, seed: int) -> list[GustCase]:
+    """``n`` seeded gusts: a vehicle, a show time between 10 s and 15 s before the end,
+    a speed of 6-12 m/s and a duration of 2-4 s (cycled, so every combination comes up),
+    blowing from the far side of the vehicle towards its nearest neighbour then."""
+    from groundctl.execute.frames import show_vel_to_ned
+
+    rng = np.random.default_rng(seed)
+    speeds, durations = (6.0, 8.0, 10.0, 12.0), (2.0, 3.0, 4.0)
+    times = np.linspace(10.0, plan.duration - 15.0, n) + rng.uniform(-2.0, 2.0, n)
+    out = []
+    for k in range(n):
+        track = int(rng.integers(plan.drones))
+        pos = plan.state_at(float(times[k])).pos
+        d = np.linalg.norm(pos - pos[track], axis=1)
+        d[track] = np.inf
+        other = int(np.argmin(d))
+        towards = pos[other] - pos[track]
+        towards[2] = 0.0
+        ned = show_vel_to_ned(plan.origin, towards[None, :])[0]
+        bearing = np.degrees(np.arctan2(ned[1], ned[0]))  # where it blows to, compass
+        out.append(GustCase(track + 1, round(float(times[k]), 1), speeds[k % 4],
+                            round(float((bearing + 180.0) % 360.0), 1), durations[k % 3],
+                            other + 1, float(d[other])))
+    return out
+
+
+def cmd_gusts(args: argparse.Namespace) -> None:
+    import asyncio
+    from pathlib import Path
+
+    from groundctl.commands.flying import load_or_plan
+    from groundctl.flight.dryrun import DryRunOptions, Gust, fly_dry_run
+    from groundctl.flight.runner import RunnerConfig
+    from groundctl.link.flavours import Flavour
+
+    root = Path(__file__).resolve().parent.parent
+    plan = load_or_plan(root / "shows" / f"{args.show}.toml", quiet=True)
+    cases = gust_cases(plan, args.gusts, args.seed)
+    flavours = list(Flavour) if args.autopilot == "both" else [Flavour(args.autopilot)]
+    limit = plan.limits.min_separation
+    print(f"gust matrix: {args.show} ({plan.drones} drones, {plan.duration:.0f} s, "
+          f"separation limit {limit:.2f} m), {len(cases)} gusts, seed {args.seed}, dry-run "
+          f"at x{args.speed:g}")
+    print(f"{'#':>3} {'vehicle':>7} {'at s':>6} {'m/s':>4} {'from':>6} {'s':>3} "
+          f"{'toward':>6} {'gap m':>6} {'autopilot':<9} {'mpc':<4} {'max m':>6} "
+          f"{'recovery s':<14} {'true m':>6} {'lost':<5} {'act':>4} {'rec':>4} {'safe':<5}",
+          flush=True)
+    lost: dict[tuple[str, bool], int] = {}
+    flown: dict[tuple[str, bool], int] = {}
+    for k, case in enumerate(cases):
+        for flavour in flavours:
+            for mpc in (False, True):
+                options = DryRunOptions(
+                    flavour=flavour, speed=args.speed, ekf_origin_delay_s=2.0,
+                    ready_delay_s=4.0, seed=args.seed + k, runner=RunnerConfig(mpc=mpc),
+                    gusts=(Gust(case.sysid, case.at, case.speed, case.from_deg,
+                                case.duration),))
+                r = asyncio.run(fly_dry_run(plan, options)).report
+                v = next(x for x in r["vehicles"] if x["system_id"] == case.sysid)
+                true = r.get("true_min_separation_m")
+                below = true is not None and true < limit
+                key = (str(flavour), mpc)
+                flown[key] = flown.get(key, 0) + 1
+                lost[key] = lost.get(key, 0) + int(below)
+                back = ",".join("never" if t is None else f"{t:.1f}"
+                                for t in v["recovery_s"]) or "-"
+                print(f"{k + 1:>3} {case.sysid:>7} {case.at:>6.1f} {case.speed:>4.0f} "
+                      f"{case.from_deg:>6.1f} {case.duration:>3.0f} {case.neighbour:>6} "
+                      f"{case.gap_m:>6.2f} {flavour!s:<9} {'on' if mpc else 'off':<4} "
+                      f"{(v['max_tracking_error_m'] or 0.0):>6.2f} {back:<14} "
+                      f"{(true if true is not None else float('nan')):>6.2f} "
+                      f"{'LOST' if below else 'kept':<5} {r['mpc']['activations']:>4} "
+                      f"{r['mpc'].get('recovered', 0):>4} {r['safe']!s:<5}", flush=True)
+    print()
+    for flavour in flavours:
+        off, on = (lost.get((str(flavour), m), 0) for m in (False, True))
+        n = flown.get((str(flavour), False), 0)
+        print(f"{flavour!s:<9} separation lost in {off} of {n} flights without MPC, {on} of "
+              f"{n} with MPC")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -222,6 +332,13 @@ def main() -> None:
     flight.add_argument("--scenarios", nargs="+", default=["calm", "wind", "weak", "push"])
     flight.add_argument("--autopilot", choices=["ardupilot", "px4", "both"], default="both")
     flight.set_defaults(func=cmd_flight)
+    gusts = sub.add_parser("gusts", help="the gust matrix, with and without MPC")
+    gusts.add_argument("--show", default="demo", help="bundled show name")
+    gusts.add_argument("--gusts", type=int, default=24, help="how many gusts")
+    gusts.add_argument("--seed", type=int, default=32)
+    gusts.add_argument("--speed", type=float, default=3.0)
+    gusts.add_argument("--autopilot", choices=["ardupilot", "px4", "both"], default="both")
+    gusts.set_defaults(func=cmd_gusts)
     args = parser.parse_args()
     started = time.perf_counter()
     args.func(args)

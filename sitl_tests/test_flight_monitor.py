@@ -77,6 +77,23 @@ def test_tracking_error_and_pattern_error_against_the_plan() -> None:
     assert mon.rms_tracking_error() == pytest.approx(math.sqrt(0.09 / 2), abs=1e-3)
 
 
+def test_each_excursion_beyond_half_a_metre_is_timed_until_it_is_back() -> None:
+    plan = make_plan()
+    mon = FlightMonitor(plan, {1: 0})
+    v = make_vehicle(1, now=10.0)
+    # Off its plan by these many metres at these times (our clock), in the show.
+    for now, off in ((10.0, 0.2), (10.1, 0.7), (10.2, 1.5), (10.9, 0.6), (11.3, 0.4),
+                     (11.4, 0.1), (12.0, 0.9), (12.1, 0.8)):
+        want = plan.state_at(2.0).pos[0]
+        _with_sample(v, (want[1] + off, want[0], -want[2]), (0.0, 0.0, 0.0), now, 0.0)
+        mon.observe(now, 2.0, in_show={1}, states={1: v})
+    # Out at 10.1, back at 11.3; out again at 12.0 and not back when the flight ends.
+    assert mon.vehicles[1].recovery_s == [pytest.approx(1.2), None]
+    assert mon.recovery() == {"excursions": 2, "max_s": pytest.approx(1.2), "never": 1}
+    calm = FlightMonitor(plan, {1: 0})
+    assert calm.recovery() == {"excursions": 0, "max_s": None, "never": 0}
+
+
 def test_led_changes_are_timed_against_the_plans_colour_keys() -> None:
     plan = make_plan()  # black at 0 s fading to orange (255, 128, 0) at 10 s
     mon = FlightMonitor(plan, {1: 0})

@@ -47,6 +47,10 @@ def test_a_push_mid_show_is_corrected_by_mpc_and_the_vehicle_stays_in_the_show(
     assert started and started[0]["system_id"] == 5
     assert [e["system_id"] for e in _events(tmp_path, "mpc_ended")].count(5) >= 1
     assert vehicle(report, 5)["reason"] is None  # back on its path, not taken out
+    # Pushed 3 m up: one excursion beyond 0.5 m, timed until it was back within it.
+    back = vehicle(report, 5)["recovery_s"]
+    assert back and all(t is not None and t > 0 for t in back), back
+    assert report["recovery"]["excursions"] >= len(back) and report["recovery"]["never"] == 0
 
 
 def test_without_mpc_the_same_push_is_flown_by_the_autopilot_alone(tmp_path: Path) -> None:

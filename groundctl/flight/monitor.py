@@ -44,6 +44,9 @@ LED_WINDOW_S = 2.0
 LED_STEP_S = 0.02
 #: A shown colour further than this (per 0-255 channel) from every plan colour is unmatched.
 LED_COLOUR_TOL = 3
+#: An excursion is a vehicle in the show farther than this from its plan; it has
+#: recovered once it is back within it, m.
+RECOVERED_M = 0.5
 
 
 @dataclass
@@ -72,6 +75,18 @@ class VehicleTrack:
     """Per observed LED change: shown time minus planned time, s (negative: early)."""
     led_unmatched: int = 0
     """LED changes to a colour the plan does not show nearby."""
+    recoveries_s: list[float] = field(default_factory=list)
+    """Per excursion (farther than :data:`RECOVERED_M` from the plan) that ended back
+    within it while in the show: how long it lasted, s of our clock."""
+    excursion_from: float | None = None
+    """Our time the excursion under way began (None: within :data:`RECOVERED_M`)."""
+
+    @property
+    def recovery_s(self) -> list[float | None]:
+        """Every excursion's time back within :data:`RECOVERED_M`, s; the last None if it
+        never came back while in the show (it left the show off its plan, or the flight
+        ended)."""
+        return [*self.recoveries_s, *([None] if self.excursion_from is not None else [])]
 
     @property
     def rms_error_m(self) -> float:
@@ -224,6 +239,11 @@ class FlightMonitor:
                 v.max_error_m, v.max_error_at_s = float(e), show_time
             v.sum_sq += float(e) ** 2
             v.samples += 1
+            if e > RECOVERED_M and v.excursion_from is None:
+                v.excursion_from = now
+            elif e <= RECOVERED_M and v.excursion_from is not None:
+                v.recoveries_s.append(now - v.excursion_from)
+                v.excursion_from = None
             if speed[j] >= MOVING_MPS:
                 v.moving_samples += 1
                 v.along_sq += float(along[j]) ** 2
@@ -305,6 +325,14 @@ class FlightMonitor:
             "cross_rms_m": math.sqrt(sum(v.cross_sq for v in tracks) / n) if n else None,
             "ahead_s": sum(v.ev_sum for v in tracks) / vv if vv > 0 else None,
         }
+
+    def recovery(self) -> dict[str, float | int | None]:
+        """The fleet's excursions beyond :data:`RECOVERED_M`: how many, the longest time
+        back within it (s), and how many never came back while in the show."""
+        times = [t for v in self.vehicles.values() for t in v.recovery_s]
+        back = [t for t in times if t is not None]
+        return {"excursions": len(times), "max_s": max(back, default=None),
+                "never": len(times) - len(back)}
 
     def led_errors(self) -> list[float]:
         return [e for v in self.vehicles.values() for e in v.led_errors_s]

@@ -32,6 +32,10 @@ def _r(x: float | None, nd: int = 3) -> float | None:
     return None if x is None or not math.isfinite(x) else round(float(x), nd)
 
 
+def _recovery(r: dict[str, float | int | None]) -> dict[str, float | int | None]:
+    return {k: _r(v, 2) if isinstance(v, float) else v for k, v in r.items()}
+
+
 def _ms(seconds: float | None) -> float | None:
     return None if seconds is None else _r(seconds * 1000.0, 1)
 
@@ -85,6 +89,9 @@ def flight_report(runner: ShowRunner, error: str | None = None,
             "along_track_rms_m": _r(track.along_rms_m) if track else None,
             "cross_track_rms_m": _r(track.cross_rms_m) if track else None,
             "ahead_ms": _ms(track.ahead_s) if track else None,
+            # Per excursion beyond 0.5 m of its plan in the show: s until back within it
+            # (null: never, while in the show).
+            "recovery_s": [_r(t, 2) for t in track.recovery_s] if track else [],
             "loss_ratio": _r(state.loss_ratio, 4) if state is not None else None,
             "rtt_ms": _r(state.rtt_s * 1000, 1) if state and state.rtt_s is not None else None,
             # The last round trip is one draw of a wandering delay; this is the link's.
@@ -160,6 +167,9 @@ def flight_report(runner: ShowRunner, error: str | None = None,
         "max_tracking_error_m": _r(mon.max_tracking_error()) if mon is not None else None,
         "rms_tracking_error_m": _r(mon.rms_tracking_error()) if mon is not None else None,
         "tracking_split": _split(mon.tracking_split()) if mon is not None else None,
+        # Excursions beyond 0.5 m of the plan in the show, the longest time back, and
+        # how many never came back (per vehicle: "recovery_s").
+        "recovery": _recovery(mon.recovery()) if mon is not None else None,
         "lead": {"adaptive": runner.leads is not None,
                  "initial_ms": _ms(runner.config.initial_lead_s)},
         "pattern_error_m": [_formation(f) for f in (mon.formations if mon is not None else [])],
