@@ -717,6 +717,29 @@ def test_an_abort_before_the_show_brings_drones_down_their_own_takeoff_column() 
     assert req.fixed == {1: (0.0, 0.0, 3.0)}  # its own column, not vehicle 2's spot
 
 
+def test_two_vehicles_off_their_first_points_abort_the_show_once() -> None:
+    # Both up but blown 4 m east of their first plan points (a strong wind before the
+    # show): excluding vehicle 1 (track 0, left on its slot, where track 1 lands) aborts
+    # the show and returns everyone; vehicle 2 is then returning with the fleet, not
+    # excluded after it (that was a LifecycleError: returning cannot take not_at_start).
+    plan = _landing_swapped_plan()
+    states = _fleet(ARDU, n=2)
+    seq = ShowSequence(plan, {1: 0, 2: 1}, {1: ARDU, 2: ARDU})
+    _armed_ardupilot(seq, states, 0.0)
+    for v in states.values():
+        n, e, _ = v.position_ned or (0.0, 0.0, 0.0)
+        v.position_ned = (n, e + 4.0, 0.0)
+        set_altitude(v, 3.0)
+    seq.update(0.3, states)
+    assert seq.started_at is None  # waiting for them to settle on their first points
+    actions = seq.update(0.3 + seq.config.settle_timeout_s + 0.1, states)
+    texts = [a.text for a in actions if isinstance(a, Notice)]
+    assert any("aborting the show" in t for t in texts), texts
+    assert seq.aborted is not None and seq.started_at is None
+    assert seq.vehicles[1].phase is VehiclePhase.RETURNING  # over its own slot, then down
+    assert seq.vehicles[2].phase is VehiclePhase.RETURNING
+
+
 def test_a_refused_repeat_of_an_accepted_takeoff_is_not_a_failure() -> None:
     # The first NAV_TAKEOFF's ACK was lost; the link's resend is refused because
     # the vehicle is already climbing.  The climb is what counts.

@@ -218,6 +218,10 @@ class ShowSequence(Failsafes):
         actions: list[Action] = []
         far = [v for v in ready if self._start_distance(v) > self.config.exclude_tolerance_m]
         for v in far:
+            if self._ended:
+                # An exclusion before it left the show unsafe and landed the fleet: the
+                # rest are returning with everyone else, not excluded one by one.
+                break
             d = self._start_distance(v)
             v.reason = (
                 f"{d:.1f} m from its first plan point after "
