@@ -159,10 +159,11 @@ def test_gust_pushes_the_vehicle_off_and_it_recovers() -> None:
         fleet.gust((8.0, 0.0, 0.0), duration=3.0)
         fleet.step(3.0)
         off = np.linalg.norm(np.array(fleet.state(1).position) - p0)
-        # A position controller with an integrator and the tilt authority to 30 degrees
-        # rides an 8 m/s step gust within a few tenths.  (Real ArduCopter is carried
-        # further: 1.24 m by 9 m/s for 4 s, benchmarks/bench_gust.py; issue 32.)
-        assert 0.1 < off < 0.5
+        # Carried off (3 s of 8 m/s: real ArduCopter SITL is carried 1.24 m by 9 m/s
+        # for 4 s, benchmarks/bench_gust.py; test_sim_wind.py checks that figure), and
+        # fought: a position controller with an integrator and the lean to 30 degrees
+        # keeps it within a metre.
+        assert 0.3 < off < 1.0
         fleet.step(10.0)
         assert np.linalg.norm(np.array(fleet.state(1).position) - p0) < 0.1
 
