@@ -172,9 +172,9 @@ ARDUPILOT_DYNAMICS = Dynamics(
     # The airframe's drag: SITL's default quad has rotor momentum drag (linear in the
     # air-relative velocity) and body drag (quadratic), together 45° of lean at 15 m/s.
     # Fitted to a hovering ArduCopter SITL's step gusts (benchmarks/bench_gust.py, 4 s
-    # from the west: 9 m/s carried it 1.24 m, here 1.20 m; 15 m/s 11.3 m, past its lean,
-    # here 14.7 m) and to its calm 10 m line (RMS 0.169 m, here 0.169 m).  Its line in a
-    # steady 8 m/s with turbulence is flown worse here than in SITL (RMS 0.28 against
+    # from the west: 9 m/s carried it 1.24 m, here 1.17 m; 15 m/s 11.3 m, past its lean,
+    # here 14.5 m) and to its calm 10 m line (RMS 0.169 m, here 0.168 m).  Its line in a
+    # steady 8 m/s with turbulence is flown worse here than in SITL (RMS 0.29 against
     # 0.199 m; test_sim_wind.py): on the cautious side.  Until session 29 the drag was
     # 0.02/m quadratic only, fitted to that line, and a 9 m/s gust carried the simulated
     # vehicle 0.53 m and a 15 m/s one 1.4 m: a rehearsal showed gusts as harmless.
