@@ -1,6 +1,7 @@
 """A tick's setpoints spread over its period (groundctl/flight/runner/slots.py): which
 vehicle leaves when, each slot at its own instant on the clock, the tick's lateness
-its last slot's, and a tick that begins before the last one's slots have left."""
+its last slot's, and a tick that begins before the last one's slots have left; the clock timers
+beneath them (groundctl/flight/runner/timers.py)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import pytest
 
 from groundctl.clock import ManualClock
 from groundctl.flight.runner.slots import Send, SendSlots, slot_delays
+from groundctl.flight.runner.timers import ClockTimers
 
 
 def test_the_fleet_is_cut_into_even_slots_of_at_most_so_many() -> None:
@@ -65,5 +67,29 @@ def test_a_late_slot_is_sent_before_the_next_tick_and_counts_as_late() -> None:
         assert done == [pytest.approx(0.07)]  # 0.12 against its instant 0.05
         slots.cancel()
         assert slots.dues() == []
+
+    asyncio.run(main())
+
+
+def test_a_call_waits_for_its_clock_instant_and_is_made_once() -> None:
+    async def main() -> None:
+        clock = ManualClock(0.0)  # real time does not move it: every timer fires early
+        made: list[tuple[str, float]] = []
+        timers = ClockTimers(clock)
+        a = timers.add(0.5, 0.5, lambda: made.append(("a", clock.now())))
+        timers.add(0.8, 0.8, lambda: made.append(("b", clock.now())))
+        c = timers.add(0.9, 0.9, lambda: made.append(("c", clock.now())))
+        await asyncio.sleep(0.02)
+        assert made == [] and sorted(timers.dues()) == [0.5, 0.8, 0.9]  # armed again
+        clock.advance(0.5)
+        await asyncio.sleep(0.02)
+        assert made == [("a", 0.5)] and timers.pending() == [a + 1, c]
+        timers.fire(a)  # made already: nothing
+        timers.fire(c, force=True)  # now, whatever the clock says
+        assert made[-1] == ("c", 0.5) and len(timers) == 1
+        timers.cancel()
+        clock.advance(1.0)
+        await asyncio.sleep(0.02)
+        assert [name for name, _ in made] == ["a", "c"] and timers.dues() == []
 
     asyncio.run(main())

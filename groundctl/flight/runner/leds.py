@@ -5,18 +5,19 @@ not running."""
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
+import functools
 import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from groundctl.clock import HELD_POLL_S, Clock
+from groundctl.clock import Clock
 from groundctl.errors import LinkError
 from groundctl.execute.leds import LedSchedule
 from groundctl.execute.setpoints import LedTracker
+from groundctl.flight.runner.timers import ClockTimers
 
 #: LED changes due within this much real time of one another leave together (sent at
 #: the earliest one's instant), s.
@@ -47,10 +48,7 @@ class LedSends:
         self._delays = delays
         self._idle = idle
         self._period = period_s
-        self._refresh = refresh_s
-        # The groups scheduled and not sent yet: their timer and their clock instant.
-        self._pending: dict[int, tuple[asyncio.TimerHandle, float]] = {}
-        self._next_key = 0
+        self._timers = ClockTimers(clock)  # the groups scheduled and not sent yet
         self._window_end = -math.inf
 
     def tick(self, now: float, show_time: float | None, streamed: Sequence[int],
@@ -72,7 +70,6 @@ class LedSends:
         start = self._window_end if math.isfinite(self._window_end) else t
         batch = schedule.window(min(start, t + self._period), t + self._period, delays)
         self._window_end = t + self._period
-        loop = asyncio.get_running_loop()
         # Grouped by send instant (LED_SEND_QUANTUM_S of real time, never later): one
         # timer and one look at the clock per group, not per vehicle.
         groups: dict[float, tuple[list[float], list[tuple[int, Colour]]]] = {}
@@ -90,32 +87,20 @@ class LedSends:
             items.append((sysid, colour))
         for waits, items in groups.values():
             wait = min(waits)
-            key, self._next_key = self._next_key, self._next_key + 1
-            self._pending[key] = (loop.call_later(self.clock.wall_interval(wait),
-                                                  self._send_at, key, items, now + wait),
-                                  now + wait)
+            key = self._timers.add(now + wait, wait, functools.partial(self._send_group, items))
+            if wait <= 0.0:
+                self._timers.fire(key, force=True)  # due already
         # The periodic refresh, of the colour the vehicle should show when it arrives.
         colours = schedule.colour_at(t, delays)
         rows_of = {int(s): i for i, s in enumerate(schedule.sysids)}
         for sysid in streamed:
             last = self.tracker.last(sysid)
-            if last is None or now - last[1] >= self._refresh:
+            if last is None or now - last[1] >= self.tracker.refresh_s:
                 c = colours[rows_of[sysid]]
                 self._send(sysid, (int(c[0]), int(c[1]), int(c[2])), now)
 
-    def _send_at(self, key: int, items: list[tuple[int, Colour]], due: float) -> None:
-        """Send the group ``key`` of ``items`` (system id, colour) at clock time ``due``:
-        again later if the clock is not there yet (a paced dry-run clock that waited for a
-        late loop runs slower than real time)."""
-        if key not in self._pending:
-            return  # cancelled meanwhile
-        wait = due - self.clock.now()
-        if wait > 1e-3:
-            self._pending[key] = (asyncio.get_running_loop().call_later(
-                max(self.clock.wall_interval(wait), HELD_POLL_S), self._send_at, key, items,
-                due), due)
-            return
-        del self._pending[key]
+    def _send_group(self, items: list[tuple[int, Colour]]) -> None:
+        """Send ``items`` (system id, colour), their instant come."""
         now = self.clock.now()  # once for the group, not once per vehicle
         for sysid, colour in items:
             self._send(sysid, colour, now)
@@ -132,14 +117,12 @@ class LedSends:
 
     def dues(self) -> list[float]:
         """Clock instants of the sends scheduled between ticks, still to leave."""
-        return [due for _, due in self._pending.values()]
+        return self._timers.dues()
 
     def cancel(self) -> None:
         """Drop every send scheduled between ticks (the show clock stopped, or the flight
         is over); the next running tick starts a new window."""
-        for handle, _ in self._pending.values():
-            handle.cancel()
-        self._pending.clear()
+        self._timers.cancel()
         self._window_end = -math.inf
 
 

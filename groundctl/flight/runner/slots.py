@@ -6,14 +6,15 @@ period."""
 
 from __future__ import annotations
 
-import asyncio
+import functools
 import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
 
-from groundctl.clock import HELD_POLL_S, Clock
+from groundctl.clock import Clock
+from groundctl.flight.runner.timers import ClockTimers
 
 #: One setpoint to send: system id, time_boot_ms, then position, velocity and
 #: acceleration (NED).
@@ -47,10 +48,8 @@ class SendSlots:
         self._send = send
         self._done = done
         self._idle = idle
-        self._handles: dict[int, asyncio.TimerHandle] = {}
-        self._pending: dict[int, tuple[float, float, Sequence[Send]]] = {}
+        self._timers = ClockTimers(clock)
         self._late = 0.0
-        self._next = 0
 
     def start(self, scheduled: float, now: float,
               slots: Sequence[tuple[float, Sequence[Send]]]) -> None:
@@ -58,59 +57,34 @@ class SendSlots:
         ``delay`` after ``now``; a zero delay leaves at once."""
         self.flush()
         self._late = 0.0
-        loop = asyncio.get_running_loop()
         now_keys = []
         for delay, sends in slots:  # every slot pending before the first leaves
-            key = self._next
-            self._next += 1
-            self._pending[key] = (now + delay, scheduled + delay, sends)
+            key = self._timers.add(now + delay, delay,
+                                   functools.partial(self._leave, scheduled + delay, sends))
             if delay <= 0.0:
                 now_keys.append(key)
-            else:
-                self._handles[key] = loop.call_later(self.clock.wall_interval(delay),
-                                                     self._fire, key)
         for key in now_keys:
-            self._fire(key)
+            self._timers.fire(key, force=True)
         if not slots:
             self._done(self.clock.now() - scheduled)
 
-    def _fire(self, key: int) -> None:
-        entry = self._pending.get(key)
-        if entry is None:
-            return
-        due, scheduled, sends = entry
-        self._handles.pop(key, None)
-        wait = due - self.clock.now()
-        if wait > 1e-3:  # a paced clock that waited for a late loop: not there yet
-            self._handles[key] = asyncio.get_running_loop().call_later(
-                max(self.clock.wall_interval(wait), HELD_POLL_S), self._fire, key)
-            return
-        del self._pending[key]
+    def _leave(self, scheduled: float, sends: Sequence[Send]) -> None:
         for send in sends:
             self._send(*send)
         self._late = max(self._late, self.clock.now() - scheduled)
-        if not self._pending:
+        if not self._timers:
             self._done(self._late)
         self._idle()
 
     def flush(self) -> None:
         """Send every slot still waiting, now."""
-        for key in sorted(self._pending):
-            handle = self._handles.pop(key, None)
-            if handle is not None:
-                handle.cancel()
-            if key in self._pending:
-                _, scheduled, sends = self._pending[key]
-                self._pending[key] = (-math.inf, scheduled, sends)
-                self._fire(key)
+        for key in self._timers.pending():
+            self._timers.fire(key, force=True)
 
     def cancel(self) -> None:
         """Drop every slot still waiting (the flight is over)."""
-        for handle in self._handles.values():
-            handle.cancel()
-        self._handles.clear()
-        self._pending.clear()
+        self._timers.cancel()
 
     def dues(self) -> list[float]:
         """Clock instants of the slots still waiting."""
-        return [due for due, _, _ in self._pending.values()]
+        return self._timers.dues()
