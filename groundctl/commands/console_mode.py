@@ -20,10 +20,10 @@ from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 from groundctl.errors import ConsoleUnavailable, GroundctlError
-from groundctl.flight.runner import RunnerConfig
 
 if TYPE_CHECKING:
     from groundctl.console.session import ConsoleSession
+    from groundctl.flight.runner import RunnerConfig
     from groundctl.viz.live import LiveRerun
 
 Flown = tuple[dict[str, Any], GroundctlError | None, bool]

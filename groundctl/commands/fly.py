@@ -10,9 +10,8 @@ import asyncio
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from groundctl.clock import ScaledClock
 from groundctl.commands.console_mode import (
     add_console_options,
     console_config,
@@ -31,14 +30,12 @@ from groundctl.commands.flying import (
     start_live_rerun,
 )
 from groundctl.errors import GroundctlError, UsageError
-from groundctl.flight.report import flight_report
-from groundctl.flight.runner import ShowRunner
-from groundctl.link.fleet import FleetLink
 from groundctl.link.fleetfile import FleetFile, FleetFileError, load_fleet_file, parse_address
-from groundctl.link.worker import use_workers
-from groundctl.record.recording import Recording, default_directory
 from groundctl.skybrush.cli import add_import_options
 from groundctl.vehicleid import MAX_NETWORKS
+
+if TYPE_CHECKING:
+    from groundctl.flight.runner import ShowRunner
 
 
 def endpoint(text: str) -> tuple[str, int]:
@@ -86,6 +83,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 
 def run(args: argparse.Namespace) -> int:
+    from groundctl.clock import ScaledClock
+    from groundctl.flight.report import flight_report
+    from groundctl.flight.runner import ShowRunner
+    from groundctl.link.fleet import FleetLink
+    from groundctl.link.worker import use_workers
+    from groundctl.record.recording import Recording, default_directory
+
     console = console_wanted(args)
     fleet: FleetFile | None = load_fleet_file(args.fleet) if args.fleet is not None else None
     connects: list[tuple[str, int]] = args.connect or [("0.0.0.0", 14550)]

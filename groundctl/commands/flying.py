@@ -26,15 +26,17 @@ from groundctl.commands.options import (
 from groundctl.commands.progress import ProgressBar
 from groundctl.errors import EXIT_ABORTED, EXIT_OK, EXIT_UNSAFE, GroundctlError, UnsafePlan
 from groundctl.execute.preflight import Thresholds
-from groundctl.flight.report import render_report
-from groundctl.flight.runner import RunnerConfig, ShowRunner
-from groundctl.plan.plan import Plan
 from groundctl.rtk.options import REQUIRE_RTK, add_rtk_options
-from groundctl.show.model import VehicleSettings
 from groundctl.vehicleid import parse_vehicle
 
 if TYPE_CHECKING:
+    from groundctl.flight.runner import RunnerConfig, ShowRunner
+    from groundctl.plan.plan import Plan
+    from groundctl.show.model import VehicleSettings
     from groundctl.viz.live import LiveRerun
+
+# The executor, the planner and the report are imported where they are used, not with the
+# options: a command line that fails its parsing, or asks for --help, answers at once.
 
 #: The show ``groundctl dry-run`` flies when none is given.
 BUNDLED_DEMO = Path(__file__).resolve().parents[2] / "shows" / "demo.toml"
@@ -97,6 +99,8 @@ def lead_ms(text: str) -> float | None:
 
 
 def runner_config(args: argparse.Namespace, tracks: dict[int, int] | None = None) -> RunnerConfig:
+    from groundctl.flight.runner import RunnerConfig
+
     return RunnerConfig(rate_hz=args.rate,
                         lead_s=None if args.lead is None else args.lead / 1000.0,
                         mpc=args.mpc,
@@ -113,7 +117,7 @@ def vehicle_settings(args: argparse.Namespace) -> VehicleSettings | None:
     else from the show file flown, or for a ``.npz`` plan from ``--show`` (or its sibling
     ``X.toml``); None without one."""
     from groundctl.show.loader import load_vehicle_file, load_vehicle_settings
-    from groundctl.skybrush.importing import is_skybrush
+    from groundctl.skybrush.sniff import is_skybrush
     given: Path | None = getattr(args, "vehicle_file", None)
     if given is not None:
         return load_vehicle_file(given)
@@ -138,6 +142,7 @@ def load_or_plan(path: Path, quiet: bool, *, show_file: Path | None = None,
     ``accept_plan_limits`` against its own (:mod:`groundctl.plan.provenance`).
     """
     if path.suffix == ".npz":
+        from groundctl.plan.plan import Plan
         from groundctl.plan.provenance import plan_source
         from groundctl.plan.verify import verify
         plan = plan_source(Plan.load(path), path, show_file, accept_plan_limits,
@@ -167,7 +172,7 @@ def load_or_plan(path: Path, quiet: bool, *, show_file: Path | None = None,
 def plan_for(args: argparse.Namespace) -> Plan:
     """:func:`load_or_plan` with the options :func:`add_plan_options` registered (a
     Skybrush .skyc or CSV show is imported and verified instead)."""
-    from groundctl.skybrush.importing import is_skybrush
+    from groundctl.skybrush.sniff import is_skybrush
     if is_skybrush(args.show):
         from groundctl.skybrush.cli import flight_plan
         return flight_plan(args)
@@ -429,6 +434,7 @@ def finish(report: dict[str, Any], args: argparse.Namespace, aborted: bool) -> i
             json.dump(report, sys.stdout)
             sys.stdout.write("\n")
         else:
+            from groundctl.flight.report import render_report
             print(render_report(report))
         if report.get("record_dir") and not args.quiet:
             print(f"recordings in {report['record_dir']}", file=sys.stderr)

@@ -18,11 +18,11 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from groundctl.clock import ScaledClock
 from groundctl.commands.options import (
     add_gust_on,
     add_points_dir,
@@ -34,9 +34,12 @@ from groundctl.errors import EXIT_OK, SimulatorError
 from groundctl.execute.frames import show_to_enu
 from groundctl.link.flavours import Flavour
 from groundctl.show.model import GeoOrigin
-from groundctl.sim import LinkFaults, SimConfig, SimFleet, grid_layout
-from groundctl.sim.config import PROFILE_NAMES, profile_for, wind_from
+from groundctl.sim.config import PROFILE_NAMES, SimConfig, grid_layout, profile_for, wind_from
+from groundctl.sim.faults import LinkFaults
 from groundctl.vehicleid import VehicleId, network_layout, networks_for
+
+if TYPE_CHECKING:
+    from groundctl.sim.fleet import SimFleet
 
 #: Grid spacing of the homes when neither ``--layout`` nor ``--show`` places them, m.
 DEFAULT_SPACING = 3.0
@@ -288,6 +291,9 @@ def run(args: argparse.Namespace) -> int:
         raise SimulatorError("--speed must be positive")
     slots = takeoff_slots(args.show, args.points_dir) if args.show is not None else None
     config = build_config(args, slots)
+    from groundctl.clock import ScaledClock
+    from groundctl.sim.fleet import SimFleet
+
     fleet = SimFleet(config, ScaledClock(args.speed))
     ports = fleet.ports
     port_text = ",".join(map(str, ports)) if len(ports) <= 8 else \

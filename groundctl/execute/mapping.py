@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.optimize import linear_sum_assignment
 
 DEFAULT_SLOT_TOLERANCE_M = 3.0
 #: Largest height of a vehicle on the ground above (or below) its slot, m: GPS and
@@ -108,6 +107,8 @@ def auto_assign(home: ArrayLike, positions: MappingABC[int, ArrayLike | None],
     extra: list[int] = []
     if cand:
         sub = dist[ok]
+        from scipy.optimize import linear_sum_assignment  # scipy only once vehicles are seen
+
         rows, cols = linear_sum_assignment(sub)
         for r, c in zip(rows, cols, strict=True):
             sysid, d = cand[r], float(sub[r, c])

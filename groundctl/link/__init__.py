@@ -6,25 +6,45 @@ against the vehicle's own stream), :mod:`.command` (COMMAND_LONG/ACK exchange),
 :mod:`.timesync`, :mod:`.quality`, :mod:`.codec`, :mod:`.signing`,
 :mod:`.flavours`.  I/O: :mod:`.transport` (socket) and :mod:`.fleet`
 (:class:`FleetLink`, the asyncio API).
+
+The names below are imported on first use: a command line that only needs
+:mod:`.flavours` (``--autopilot``'s choices) does not load the whole link.
 """
 
-from groundctl.link.command import CommandExchange
-from groundctl.link.flavours import Flavour
-from groundctl.link.fleet import DEFAULT_STREAMS, FleetLink, LinkStats
-from groundctl.link.fleetfile import Endpoint, FleetFileError, load_fleet
-from groundctl.link.signing import SigningConfig
-from groundctl.link.state import VehicleState, apply
+from __future__ import annotations
 
-__all__ = [
-    "DEFAULT_STREAMS",
-    "CommandExchange",
-    "Endpoint",
-    "Flavour",
-    "FleetFileError",
-    "FleetLink",
-    "LinkStats",
-    "SigningConfig",
-    "VehicleState",
-    "apply",
-    "load_fleet",
-]
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from groundctl.link.command import CommandExchange
+    from groundctl.link.flavours import Flavour
+    from groundctl.link.fleet import DEFAULT_STREAMS, FleetLink, LinkStats
+    from groundctl.link.fleetfile import Endpoint, FleetFileError, load_fleet
+    from groundctl.link.signing import SigningConfig
+    from groundctl.link.state import VehicleState, apply
+
+#: Each public name and the module it lives in.
+_HOMES = {
+    "CommandExchange": "command",
+    "Flavour": "flavours",
+    "DEFAULT_STREAMS": "fleet",
+    "FleetLink": "fleet",
+    "LinkStats": "fleet",
+    "Endpoint": "fleetfile",
+    "FleetFileError": "fleetfile",
+    "load_fleet": "fleetfile",
+    "SigningConfig": "signing",
+    "VehicleState": "state",
+    "apply": "state",
+}
+
+__all__ = ["DEFAULT_STREAMS", "CommandExchange", "Endpoint", "Flavour", "FleetFileError",
+           "FleetLink", "LinkStats", "SigningConfig", "VehicleState", "apply", "load_fleet"]
+
+
+def __getattr__(name: str) -> Any:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'groundctl.link' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"groundctl.link.{home}"), name)

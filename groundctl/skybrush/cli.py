@@ -7,6 +7,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from groundctl.errors import (
     EXIT_OK,
@@ -15,17 +16,18 @@ from groundctl.errors import (
     UnsafePlan,
     WrongFileKind,
 )
-from groundctl.plan.plan import Plan
 from groundctl.show.ranges import ORIGIN_RANGES, TAKEOFF_ALTITUDE
-from groundctl.skybrush.importing import (
-    DEFAULT_ORIGIN,
-    ImportResult,
-    OriginOption,
-    import_show,
-    is_skybrush,
-)
 from groundctl.skybrush.model import orientation_of
-from groundctl.skybrush.sniff import Kind, sniff
+from groundctl.skybrush.origin import DEFAULT_ORIGIN, OriginOption
+from groundctl.skybrush.sniff import Kind, is_skybrush, sniff
+
+if TYPE_CHECKING:
+    from groundctl.plan.plan import Plan
+    from groundctl.skybrush.importing import ImportResult
+
+# The importer (and with it the planner and the verifier) is imported where a show is
+# imported, not with the options: a command line that fails its parsing, or asks for
+# --help, does not wait for scipy.
 
 
 def origin(text: str) -> OriginOption:
@@ -119,6 +121,8 @@ def _origin_note(result: ImportResult, quiet: bool) -> None:
 
 
 def _import(args: argparse.Namespace, path: Path) -> ImportResult:
+    from groundctl.skybrush.importing import import_show
+
     return import_show(path, getattr(args, "origin", None),
                        takeoff_altitude=getattr(args, "takeoff_altitude", None),
                        do_repair=getattr(args, "repair", False),

@@ -22,28 +22,12 @@ from groundctl.skybrush.convert import (
 )
 from groundctl.skybrush.csvshow import read_csv_show
 from groundctl.skybrush.model import SkyShow, heading_of, orientation_of
+from groundctl.skybrush.origin import DEFAULT_ORIGIN, OriginOption
 from groundctl.skybrush.reader import read_skyc
 from groundctl.skybrush.repair import Repair, repair
 from groundctl.skybrush.smooth import Smoothing, smooth_show
 from groundctl.skybrush.sniff import Kind, sniff
 from groundctl.skybrush.writer import write_skyc
-
-#: Where an imported show is anchored when neither the file (``environment.location``)
-#: nor ``--origin`` places it: the bundled shows' field, Skybrush's orientation 0 (its X
-#: axis north; Skybrush Live's default).
-DEFAULT_ORIGIN = GeoOrigin(lat=47.3977, lon=8.5456, alt=488.0, heading_deg=heading_of(0.0))
-
-
-@dataclass(frozen=True)
-class OriginOption:
-    """``--origin LAT,LON,ALT[,ORIENTATION]`` for a Skybrush show: ORIENTATION is
-    Skybrush's (the bearing of the show's X axis, as Skybrush Live shows it)."""
-
-    lat: float
-    lon: float
-    alt: float
-    orientation_deg: float | None = None
-    """None: the file's orientation, or 0."""
 
 
 @dataclass(frozen=True)
@@ -145,11 +129,6 @@ class ImportResult:
         out += [f"violation: {v}" for v in self.verification.violations
                 if not (listed and v.startswith("drones ") and " apart at t = " in v)]
         return out
-
-
-def is_skybrush(path: str | Path) -> bool:
-    """True for a ``.skyc`` (or anything named so) and a CSV export (folder or zip)."""
-    return Path(path).suffix.lower() == ".skyc" or sniff(path).skybrush
 
 
 def read_any(path: str | Path) -> SkyShow:

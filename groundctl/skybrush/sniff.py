@@ -80,3 +80,8 @@ def sniff(path: str | Path) -> Kind:
     # Never parsed here: tomllib's time grows with the square of a dotted key's length,
     # which the show loader bounds before it parses (see groundctl.show.loader).
     return Kind.TOML_SHOW if _SHOW_TABLE.search(text) else Kind.TEXT
+
+
+def is_skybrush(path: str | Path) -> bool:
+    """True for a ``.skyc`` (or anything named so) and a CSV export (folder or zip)."""
+    return Path(path).suffix.lower() == ".skyc" or sniff(path).skybrush
