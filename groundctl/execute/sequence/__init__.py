@@ -83,6 +83,9 @@ The sequence is one class, :class:`ShowSequence`, built in layers, one module ea
     lost       lost, heard again, off its plan (stranded), given up
     failsafes  refused commands, autopilot failsafes (retaken or respected), batteries
     core       ShowSequence: start, and each update drives every vehicle's lifecycle
+
+Beside the layers, :mod:`.policies` holds judgements as pure functions of a vehicle's
+view (a low battery, a flight mode the vehicle left), which the layers carry out.
 """
 
 from __future__ import annotations

@@ -12,6 +12,8 @@ import numpy as np
 from groundctl.execute.frames import show_positions
 from groundctl.execute.sequence.failsafes import Failsafes
 from groundctl.execute.sequence.lifecycle import Event
+from groundctl.execute.sequence.policies.battery import BatteryView, battery_due
+from groundctl.execute.sequence.policies.modes import ModeLeft, mode_left
 from groundctl.execute.sequence.types import (
     _FLIGHT_MODE,
     _IDLE,
@@ -103,9 +105,7 @@ class ShowSequence(Failsafes):
                            f"back in {state.mode} after its link-loss failsafe")]
         if v.phase in _STREAMED and state.mode is not None \
                 and state.mode not in (_FLIGHT_MODE[v.flavour], "UNKNOWN"):
-            if self._retake_goes_on(v, state) or self._link_failsafe(v, state, now):
-                # A retake under way goes on (until its own attempts run out) even once
-                # the silence that explained it is over or it was the last one allowed.
+            if mode_left(v, state, now, self._battery, self.holds) is ModeLeft.RETAKE:
                 return self._retake(v, state, now)
             return self._taken_over(v, state)
         if v.phase in _STREAMED and not state.armed and state.last_heartbeat is not None:
@@ -132,10 +132,10 @@ class ShowSequence(Failsafes):
                 return self._strand(v, off, now, f"heard again after {gap:.1f} s,")
         pct = state.battery_remaining_pct
         if self._battery is not None and pct is not None and v.phase in _STREAMED:
-            if pct < self._battery / 2 and not v.battery_critical:
-                return self._battery_landing(v, state, now)
-            if v.phase is VehiclePhase.SHOW and not v.battery_low and pct < self._battery:
-                return self._battery_landing(v, state, now)
+            battery = BatteryView(pct, self._battery, v.phase, v.battery_low,
+                                  v.battery_critical)
+            if battery_due(battery):
+                return self._battery_landing(v, battery, now)
         cmd = v.pending
         if v.retry_at is not None and now >= v.retry_at and cmd is not None:
             if isinstance(cmd, Takeoff):

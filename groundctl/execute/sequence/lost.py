@@ -9,11 +9,10 @@ import numpy as np
 from groundctl.execute.preflight import remaining_plan_conflicts
 from groundctl.execute.sequence.commands import OperatorCommands
 from groundctl.execute.sequence.lifecycle import Event
+from groundctl.execute.sequence.policies.rejoin import Landing, Rejoin, heard_landing, rejoin
 from groundctl.execute.sequence.types import (
     _DONE,
     _FLIGHT_MODE,
-    _HOLD_MODE,
-    _LAND_MODES,
     _STREAMED,
     AIRBORNE_M,
     OFF_PLAN_WINDOW_S,
@@ -48,16 +47,16 @@ class OffPlan(OperatorCommands):
     def _rejoin(self, v: VehicleRun, now: float, state: VehicleState) -> list[Action]:
         assert v.lost_from is not None
         v.gap_seen, v.gap_at = state.stream_gaps, now  # this silence is handled here
-        if v.lost_from in (VehiclePhase.ARMING, VehiclePhase.TAKEOFF):
-            # Lost before the show and counted as standing on its slot meanwhile: it
-            # does not join a show planned without it; it stands down.
+        off = self._off_plan(v, now) if v.lost_from is VehiclePhase.SHOW else None
+        how = rejoin(v.lost_from, off is not None)
+        if how is Rejoin.STAND_DOWN:
             self._to(v, Event.HEARD_AGAIN, v.lost_from)
             v.lost_from = None
             return [Notice(v.sysid, f"vehicle {v.sysid} heard again before the show: "
                                     "standing it down", "heard_again", "heard again: "
                                     "standing down"), *self._land(v, now)]
-        off = self._off_plan(v, now)
-        if off is not None and v.lost_from is VehiclePhase.SHOW:
+        if how is Rejoin.STRANDED:
+            assert off is not None
             v.lost_from = None
             return self._strand(v, off, now, "heard again")
         self._to(v, Event.HEARD_AGAIN, v.lost_from)
@@ -71,24 +70,22 @@ class OffPlan(OperatorCommands):
                                 f"({v.phase})", "heard_again", f"heard again ({v.phase})")]
 
     def _rejoin_landing(self, v: VehicleRun, state: VehicleState, now: float) -> list[Action]:
-        """Heard again after being lost while landing: what it does now decides what is
-        still needed.  Disarmed: down (the next update counts it landed).  In its land
-        mode: descending.  Still in our flight mode (or PX4's Hold, where losing its
-        setpoints put it): the LAND was lost in the silence, so send it again.  Any other
-        mode: its failsafe or a pilot has it, and we do not fight them."""
-        if not state.armed:
-            doing = "down and disarmed"
-        elif state.mode in _LAND_MODES:
-            doing = "landing"
-        elif state.mode in (_FLIGHT_MODE[v.flavour], _HOLD_MODE[v.flavour]):
+        """Heard again after being lost while landing: what it does now
+        (:func:`.policies.rejoin.heard_landing`) decides what is still needed."""
+        doing = heard_landing(v.flavour, state)
+        if doing is Landing.DOWN:
+            text = "down and disarmed"
+        elif doing is Landing.DESCENDING:
+            text = "landing"
+        elif doing is Landing.LAND_LOST:
             return [Notice(v.sysid, f"vehicle {v.sysid} heard again still in {state.mode}: "
                                     "its LAND was lost, sending it again", "heard_again",
                            f"heard again in {state.mode}: LAND re-sent"),
                     self._send(v, Land(v.sysid), now)]
         else:
-            doing = f"in {state.mode} (its failsafe or a pilot)"
-        return [Notice(v.sysid, f"vehicle {v.sysid} heard again: {doing}", "heard_again",
-                       f"heard again: {doing}")]
+            text = f"in {state.mode} (its failsafe or a pilot)"
+        return [Notice(v.sysid, f"vehicle {v.sysid} heard again: {text}", "heard_again",
+                       f"heard again: {text}")]
 
     def _off_plan(self, v: VehicleRun, now: float
                   ) -> tuple[float, tuple[float, float, float]] | None:

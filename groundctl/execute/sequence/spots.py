@@ -95,7 +95,8 @@ class PathsAndSpots(SequenceState):
     def streamed(self, sysids: Collection[int], now: float) -> None:
         """The driver sent setpoints to ``sysids`` at ``now``: a vehicle that had had none
         for LINK_FAILSAFE_GAP_S (our loop starved) may be in its offboard-loss failsafe
-        for our doing, and is taken back from it (:meth:`_link_failsafe`)."""
+        for our doing, and is taken back from it
+        (:func:`~groundctl.execute.sequence.policies.modes.link_failsafe`)."""
         for sysid in sysids:
             v = self.vehicles.get(sysid)
             if v is None:

@@ -1,0 +1,21 @@
+"""Policies: the judgements that decide a vehicle's next move, each in a module of its
+own, taking the vehicle's view (its :class:`~groundctl.execute.sequence.types.VehicleRun`,
+its telemetry, the fleet-wide facts it needs) and returning a decision; the sequence
+(:class:`~groundctl.execute.sequence.ShowSequence`) only carries the decision out (phase
+changes, commands, notices) and arbitrates between policies by the order it asks them.
+
+Pure functions of plain data: each is tested without a fleet, a plan or a clock
+(``sitl_tests/test_execute_policies.py``).
+
+* :mod:`.battery` -- a low battery: leave the show, land where it is, or land everyone;
+* :mod:`.modes` -- the vehicle left its flight mode by itself: take it back (a link-loss
+  failsafe of ours to undo) or respect it (a pilot, a fence, a battery failsafe);
+* :mod:`.refusals` -- a command refused or without effect: stale, done already (judged
+  by its effect: a climb, a land mode), judged later by the climb, retried, or given up;
+* :mod:`.rejoin` -- a lost vehicle heard again: stands down, stranded off its plan, or
+  back in the sequence; one that was landing judged by what it does now.
+
+The other ways a vehicle is given a new path (holds, returns, ways out, the last resort,
+the operator's commands, stranded vehicles) are still layers of the sequence
+(see ``docs/architecture.md``, "Still to reshape"); spares are to come here.
+"""

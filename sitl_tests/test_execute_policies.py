@@ -1,0 +1,251 @@
+"""The sequence's policies as pure functions: a vehicle's view in, a decision out, without
+a fleet, a plan or a clock (groundctl/execute/sequence/policies).  How the sequence
+carries the decisions out is in test_execute_sequence.py."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import pytest
+
+from groundctl.execute.sequence.policies.battery import (
+    BatteryMove,
+    BatteryView,
+    battery_due,
+    battery_move,
+)
+from groundctl.execute.sequence.policies.modes import (
+    ModeLeft,
+    fence_acted,
+    link_failsafe,
+    mode_left,
+    retake_goes_on,
+)
+from groundctl.execute.sequence.policies.refusals import (
+    Refused,
+    climbing,
+    refused,
+    takeoff_verdict,
+)
+from groundctl.execute.sequence.policies.rejoin import Landing, Rejoin, heard_landing, rejoin
+from groundctl.execute.sequence.types import (
+    FENCE_NOTICE_S,
+    MAX_RETAKES,
+    RETAKE_WINDOW_S,
+    Arm,
+    Land,
+    SetMode,
+    Takeoff,
+    VehiclePhase,
+    VehicleRun,
+)
+from groundctl.link.flavours import Flavour
+from groundctl.link.state import StatusText, VehicleState
+
+SHOW, LEAVING = VehiclePhase.SHOW, VehiclePhase.LEAVING
+
+
+# -- battery -----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("pct", "phase", "low", "critical", "due"), [
+    (25.0, SHOW, False, False, False),     # above the 20 % threshold
+    (20.0, SHOW, False, False, False),     # at it: not below
+    (19.9, SHOW, False, False, True),      # below it mid-show
+    (19.9, SHOW, True, False, False),      # already told to leave for it
+    (19.9, LEAVING, False, False, False),  # leaving already: only a critical one counts
+    (9.9, LEAVING, True, False, True),     # below half: due whatever it is doing
+    (9.9, SHOW, True, True, False),        # already landed where it is
+])
+def test_a_battery_is_due_once_below_the_threshold_mid_show_or_below_half_anywhere(
+        pct: float, phase: VehiclePhase, low: bool, critical: bool, due: bool) -> None:
+    assert battery_due(BatteryView(pct, 20.0, phase, low, critical)) is due
+
+
+def test_one_low_battery_leaves_the_show_and_a_critical_one_lands_where_it_is() -> None:
+    low = BatteryView(15.0, 20.0, SHOW, False, False)
+    assert battery_move(low, low_in_flight=1, fleet=30, show_over=False,
+                        column_clear=False) is BatteryMove.LEAVE
+    critical = BatteryView(8.0, 20.0, SHOW, False, False)
+    assert battery_move(critical, low_in_flight=1, fleet=30, show_over=False,
+                        column_clear=True) is BatteryMove.LAND_HERE
+    # Somebody below it: not straight down through them, it leaves on a way out.
+    assert battery_move(critical, low_in_flight=1, fleet=30, show_over=False,
+                        column_clear=False) is BatteryMove.LEAVE
+    # Already returning (or leaving) and nobody clear below: that is its way down.
+    returning = BatteryView(8.0, 20.0, VehiclePhase.RETURNING, True, False)
+    assert battery_move(returning, low_in_flight=1, fleet=30, show_over=False,
+                        column_clear=False) is BatteryMove.NOTHING
+
+
+@pytest.mark.parametrize(("fleet", "low", "move"), [
+    (9, 1, BatteryMove.LEAVE),      # one is not "across the fleet"
+    (9, 2, BatteryMove.LAND_ALL),   # at least two ...
+    (30, 2, BatteryMove.LEAVE),     # ... and a tenth of the fleet
+    (30, 3, BatteryMove.LAND_ALL),
+    (1000, 99, BatteryMove.LEAVE),
+    (1000, 100, BatteryMove.LAND_ALL),
+])
+def test_low_batteries_across_a_tenth_of_the_fleet_land_everyone(
+        fleet: int, low: int, move: BatteryMove) -> None:
+    view = BatteryView(15.0, 20.0, SHOW, False, False)
+    assert battery_move(view, low_in_flight=low, fleet=fleet, show_over=False,
+                        column_clear=False) is move
+
+
+def test_after_the_show_a_low_fleet_is_already_on_its_way_down() -> None:
+    view = BatteryView(8.0, 20.0, VehiclePhase.RETURNING, True, False)
+    assert battery_move(view, low_in_flight=5, fleet=9, show_over=True,
+                        column_clear=False) is BatteryMove.NOTHING
+    assert battery_move(view, low_in_flight=5, fleet=9, show_over=True,
+                        column_clear=True) is BatteryMove.LAND_HERE
+
+
+# -- a flight mode left by the vehicle ------------------------------------------------------
+
+
+def _vehicle(flavour: Flavour = Flavour.ARDUPILOT, **fields: object) -> VehicleRun:
+    return VehicleRun(sysid=2, track=1, flavour=flavour, phase=SHOW, **fields)  # type: ignore[arg-type]
+
+
+def _state(mode: str, **fields: object) -> VehicleState:
+    state = VehicleState(system_id=2, mode=mode)
+    for name, value in fields.items():
+        setattr(state, name, value)
+    return state
+
+
+def test_a_failsafe_mode_right_after_its_own_silence_is_taken_back() -> None:
+    v = _vehicle()
+    state = _state("LOITER", stream_gaps=1, last_stream_gap_s=2.0)
+    assert link_failsafe(v, state, 100.0, 20.0, ())
+    assert mode_left(v, state, 100.0, 20.0, ()) is ModeLeft.RETAKE
+    # A gap too short to trip a failsafe, and none looked at since: a pilot's doing.
+    assert mode_left(v, _state("LOITER", stream_gaps=1, last_stream_gap_s=0.5), 100.0, 20.0,
+                     ()) is ModeLeft.RESPECT
+    # The gap already looked at, but it ended within the window: still the failsafe's.
+    seen = _vehicle(gap_seen=1, gap_at=100.0 - RETAKE_WINDOW_S)
+    assert link_failsafe(seen, state, 100.0, 20.0, ())
+    assert not link_failsafe(seen, state, 100.1, 20.0, ())
+
+
+@pytest.mark.parametrize("why", ["pilot", "fence", "battery", "retakes", "not a failsafe"])
+def test_what_is_not_a_link_loss_failsafe_is_respected(why: str) -> None:
+    v = _vehicle(retakes=MAX_RETAKES if why == "retakes" else 0)
+    fields: dict[str, object] = {"stream_gaps": 1, "last_stream_gap_s": 2.0}
+    mode = "RTL"
+    if why == "pilot":
+        fields = {}  # no silence of its own, no hold of ours
+    elif why == "fence":
+        st = StatusText("Fence Breached", 2, 100.0 - FENCE_NOTICE_S)
+        fields["statustexts"] = deque([st])
+        assert fence_acted(_state(mode, **fields), 100.0)
+    elif why == "battery":
+        fields["battery_remaining_pct"] = 12.0
+    elif why == "not a failsafe":
+        mode = "STABILIZE"
+    assert mode_left(v, _state(mode, **fields), 100.0, 20.0, ()) is ModeLeft.RESPECT
+
+
+def test_our_own_stall_or_a_fleet_silence_explains_a_failsafe() -> None:
+    v = _vehicle()
+    state = _state("BRAKE")  # no gap in its own telemetry
+    assert mode_left(v, state, 50.0, 20.0, {"operator"}) is ModeLeft.RESPECT
+    assert mode_left(v, state, 50.0, 20.0, {"stall"}) is ModeLeft.RETAKE
+    assert mode_left(v, state, 50.0, 20.0, {"silence", "operator"}) is ModeLeft.RETAKE
+
+
+def test_a_px4_vehicle_we_starved_of_setpoints_is_taken_back_an_ardupilot_one_is_not() -> None:
+    # Only PX4 leaves OFFBOARD for want of setpoints (ArduPilot's GUIDED holds).
+    px4 = _vehicle(Flavour.PX4, streamed_at=10.0)
+    assert link_failsafe(px4, _state("AUTO.LOITER"), 11.5, 20.0, ())
+    assert not link_failsafe(px4, _state("AUTO.LOITER"), 10.5, 20.0, ())
+    # Setpoints resumed at 10.5 after a starved second, and flowing since: a failsafe
+    # mode seen within STARVED_WINDOW_S of the resumption is still ours, not later.
+    resumed = _vehicle(Flavour.PX4, streamed_at=11.9, starved_at=10.5)
+    assert link_failsafe(resumed, _state("AUTO.LOITER"), 12.0, 20.0, ())
+    flowing = _vehicle(Flavour.PX4, streamed_at=13.9, starved_at=10.5)
+    assert not link_failsafe(flowing, _state("AUTO.LOITER"), 14.0, 20.0, ())
+    ardupilot = _vehicle(streamed_at=10.0, starved_at=11.0)
+    assert not link_failsafe(ardupilot, _state("LOITER"), 11.5, 20.0, ())
+
+
+def test_a_retake_under_way_goes_on_until_its_battery_or_fence_says_otherwise() -> None:
+    v = _vehicle(Flavour.PX4, retaking="AUTO.LOITER", sent_at=20.0)
+    assert retake_goes_on(v, _state("AUTO.LOITER"), 20.0)
+    assert retake_goes_on(v, _state("AUTO.LAND"), 20.0)  # PX4's hold moved on to its land
+    assert not retake_goes_on(v, _state("AUTO.RTL"), 20.0)
+    assert mode_left(v, _state("AUTO.LOITER"), 21.0, 20.0, ()) is ModeLeft.RETAKE
+    assert mode_left(v, _state("AUTO.LOITER", battery_remaining_pct=5.0), 21.0, 20.0,
+                     ()) is ModeLeft.RESPECT
+    fence = deque([StatusText("Geofence violated", 2, 15.0)])
+    assert not retake_goes_on(v, _state("AUTO.LOITER", statustexts=fence), 20.0)
+    # Without a battery threshold the battery never decides.
+    assert retake_goes_on(v, _state("AUTO.LOITER", battery_remaining_pct=5.0), None)
+
+
+# -- a command refused or without effect ------------------------------------------------------
+
+
+def test_a_stale_answer_or_one_whose_effect_is_seen_changes_nothing() -> None:
+    v = _vehicle(pending=Arm(2), attempts=1)
+    assert refused(None, Arm(2), 3) is Refused.STALE
+    assert refused(v, SetMode(2, "GUIDED"), 3) is Refused.STALE  # moved on from it
+    landing = _vehicle(pending=Land(2), attempts=1, mode="LAND")
+    assert refused(landing, Land(2), 3) is Refused.DONE  # only the ACK was lost
+    assert refused(_vehicle(pending=Land(2), attempts=1, mode="GUIDED"), Land(2),
+                   3) is Refused.RETRY
+
+
+def test_a_refused_command_is_retried_until_its_attempts_run_out() -> None:
+    assert refused(_vehicle(pending=Arm(2), attempts=2), Arm(2), 3) is Refused.RETRY
+    assert refused(_vehicle(pending=Arm(2), attempts=3), Arm(2), 3) is Refused.GIVE_UP
+
+
+def test_a_refused_takeoff_is_judged_by_the_climb() -> None:
+    takeoff = Takeoff(2, 3.0)
+    on_ground = _vehicle(pending=takeoff, attempts=1, altitude=0.05, takeoff_from=0.0)
+    assert not climbing(on_ground)
+    assert refused(on_ground, takeoff, 3) is Refused.JUDGE_LATER  # whatever the attempts
+    assert refused(_vehicle(pending=takeoff, attempts=9, altitude=0.0), takeoff,
+                   3) is Refused.JUDGE_LATER
+    lifting = _vehicle(pending=takeoff, attempts=1, altitude=0.6, takeoff_from=0.1)
+    assert climbing(lifting) and refused(lifting, takeoff, 3) is Refused.DONE
+    # The verdict, once it has had the time to lift off.
+    assert takeoff_verdict(lifting, 3) is Refused.DONE
+    assert takeoff_verdict(on_ground, 3) is Refused.RETRY
+    assert takeoff_verdict(_vehicle(pending=takeoff, attempts=3, altitude=0.0), 3) \
+        is Refused.GIVE_UP
+    # Unknown height: not climbing.
+    assert not climbing(_vehicle(altitude=None, takeoff_from=0.0))
+
+
+# -- a lost vehicle heard again ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("lost_from", "off_plan", "how"), [
+    (VehiclePhase.ARMING, False, Rejoin.STAND_DOWN),
+    (VehiclePhase.TAKEOFF, True, Rejoin.STAND_DOWN),  # never joins a show planned without it
+    (VehiclePhase.SHOW, True, Rejoin.STRANDED),
+    (VehiclePhase.SHOW, False, Rejoin.BACK),
+    (VehiclePhase.READY, True, Rejoin.BACK),  # off a plan it had not begun: no dash
+    (VehiclePhase.LANDING, False, Rejoin.BACK),
+])
+def test_a_vehicle_heard_again_rejoins_by_where_it_was_lost(
+        lost_from: VehiclePhase, off_plan: bool, how: Rejoin) -> None:
+    assert rejoin(lost_from, off_plan) is how
+
+
+@pytest.mark.parametrize(("flavour", "mode", "armed", "doing"), [
+    (Flavour.ARDUPILOT, "LAND", False, Landing.DOWN),
+    (Flavour.ARDUPILOT, "LAND", True, Landing.DESCENDING),
+    (Flavour.PX4, "AUTO.LAND", True, Landing.DESCENDING),
+    (Flavour.ARDUPILOT, "GUIDED", True, Landing.LAND_LOST),
+    (Flavour.PX4, "OFFBOARD", True, Landing.LAND_LOST),
+    (Flavour.PX4, "AUTO.LOITER", True, Landing.LAND_LOST),  # PX4's Hold after our silence
+    (Flavour.ARDUPILOT, "RTL", True, Landing.NOT_OURS),
+    (Flavour.PX4, "POSCTL", True, Landing.NOT_OURS),  # a pilot
+])
+def test_a_vehicle_heard_again_while_landing_is_judged_by_what_it_does(
+        flavour: Flavour, mode: str, armed: bool, doing: Landing) -> None:
+    assert heard_landing(flavour, _state(mode, armed=armed)) is doing
