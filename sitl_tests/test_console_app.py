@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 from console_fixtures import fabricated_runner, grid_plan, refresh_preflight, screenshot_dir
 from flight_fixtures import FAST, quick_plan, show_time, until
+from textual.events import Key
 from textual.pilot import Pilot
 from textual.widgets import DataTable
 
@@ -81,8 +82,23 @@ def console_flight(record: Path, script: Script) -> tuple[DryRunResult, Interrup
     return asyncio.run(main())
 
 
+#: The characters of the named keys the scripts press (a single character is itself).
+_CHARACTERS = {"enter": "\r", "colon": ":", "space": " ", "escape": "\x1b", "tab": "\t"}
+
+
 async def keys(pilot: Pilot[None], *pressed: str) -> None:
-    await pilot.press(*pressed)
+    """Press ``pressed`` in turn, each handled by the screen before the next.
+
+    Not ``pilot.press``: after every key it waits for the *process* to go idle
+    (Textual's ``wait_for_idle``, up to a second, twice), and a process flying a show
+    never is: every key took 2 s of wall time while the flight went on at x4, eight
+    simulated seconds of both fleets' CPU a key.  The key goes to the app as the driver
+    sends it; the screen is waited for twice (the app hands a key on to the focused
+    widget, whose queue the first wait may have passed)."""
+    for key in pressed:
+        pilot.app.post_message(Key(key, _CHARACTERS.get(key, key if len(key) == 1 else None)))
+        await pilot.pause(0)
+        await pilot.pause(0)
     await pilot.pause(0.05)
 
 
@@ -155,7 +171,7 @@ def test_kill_needs_the_system_id_and_quit_lands_everyone_like_ctrl_c(tmp_path: 
         await until(runner, lambda: session.gate is not None and session.gate.waiting, 60.0)
         await keys(pilot, "colon")
         for ch in "go":
-            await pilot.press(ch)
+            await keys(pilot, ch)
         await keys(pilot, "enter", "y", "enter")
         await until(runner, lambda: runner.sequence is not None
                     and runner.sequence.started_at is not None, 60.0)
@@ -284,7 +300,7 @@ def test_fleet_table_of_200_vehicles_updates_in_place_and_bad_input_is_reported(
             shot(app, "fleet-200")
             await keys(pilot, "colon")
             for ch in "fly away":
-                await pilot.press("space" if ch == " " else ch)
+                await keys(pilot, "space" if ch == " " else ch)
             await keys(pilot, "enter")
             await keys(pilot, "colon", "k", "i", "l", "l", "space", "x", "enter")
             await pilot.pause(0.3)
