@@ -48,6 +48,7 @@ def test_a_bad_option_is_one_argparse_line_without_the_flight() -> None:
     ("groundctl.link", "Flavour", "groundctl.link.flavours"),
     ("groundctl.sim", "SimFleet", "groundctl.sim.fleet"),
     ("groundctl.sim", "SimConfig", "groundctl.sim.config"),
+    ("groundctl.show", "load_show", "groundctl.show.loader"),
 ])
 def test_the_packages_public_names_load_on_first_use(package: str, name: str,
                                                       home: str) -> None:
@@ -56,7 +57,7 @@ def test_the_packages_public_names_load_on_first_use(package: str, name: str,
     assert "groundctl.sim.fleet" not in _loaded_by(f"import {package}")
 
 
-@pytest.mark.parametrize("package", ["groundctl.link", "groundctl.sim"])
+@pytest.mark.parametrize("package", ["groundctl.link", "groundctl.sim", "groundctl.show"])
 def test_an_unknown_name_is_an_attribute_error(package: str) -> None:
     import importlib
 

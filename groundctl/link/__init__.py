@@ -13,8 +13,9 @@ The names below are imported on first use: a command line that only needs
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from groundctl.lazy import lazy_names
 
 if TYPE_CHECKING:
     from groundctl.link.command import CommandExchange
@@ -43,8 +44,4 @@ __all__ = ["DEFAULT_STREAMS", "CommandExchange", "Endpoint", "Flavour", "FleetFi
            "FleetLink", "LinkStats", "SigningConfig", "VehicleState", "apply", "load_fleet"]
 
 
-def __getattr__(name: str) -> Any:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module 'groundctl.link' has no attribute {name!r}")
-    return getattr(importlib.import_module(f"groundctl.link.{home}"), name)
+__getattr__ = lazy_names(__name__, _HOMES)

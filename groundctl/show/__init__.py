@@ -6,14 +6,13 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
+
+from groundctl.lazy import lazy_names
+
+if TYPE_CHECKING:
+    from groundctl.show.loader import load_show, parse_show
 
 __all__ = ["load_show", "parse_show"]
 
-
-def __getattr__(name: str) -> Any:
-    if name in __all__:
-        from groundctl.show import loader
-
-        return getattr(loader, name)
-    raise AttributeError(f"module 'groundctl.show' has no attribute {name!r}")
+__getattr__ = lazy_names(__name__, {"load_show": "loader", "parse_show": "loader"})

@@ -12,8 +12,9 @@ The names below are imported on first use: a command line that only needs
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from groundctl.lazy import lazy_names
 
 if TYPE_CHECKING:
     from groundctl.sim.config import Dynamics, SimConfig, grid_layout
@@ -37,8 +38,4 @@ __all__ = ["Dynamics", "FaultEvent", "FaultKind", "LinkFaults", "SimConfig", "Si
            "VehicleState", "grid_layout"]
 
 
-def __getattr__(name: str) -> Any:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module 'groundctl.sim' has no attribute {name!r}")
-    return getattr(importlib.import_module(f"groundctl.sim.{home}"), name)
+__getattr__ = lazy_names(__name__, _HOMES)

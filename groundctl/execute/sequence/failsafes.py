@@ -112,10 +112,9 @@ class Failsafes(OffPlan):
         v.battery_low = True
         pct, minimum = view.pct, view.minimum
         low = [u for u in self.vehicles.values() if u.battery_low and u.phase in _STREAMED]
-        critical = pct < minimum / 2
         move = battery_move(view, low_in_flight=len(low), fleet=len(self.vehicles),
                             show_over=self._ended,
-                            column_clear=critical and self._column_clear(v))
+                            column_clear=view.below_half and self._column_clear(v))
         if move is BatteryMove.LAND_ALL:
             # The batteries are running out across the fleet: one planned return for all,
             # not a way out (or a descent in place) each.

@@ -38,11 +38,16 @@ class BatteryView:
     critical: bool
     """Already landed where it is for it."""
 
+    @property
+    def below_half(self) -> bool:
+        """Below half the threshold: critical, wherever it is."""
+        return self.pct < self.minimum / 2
+
 
 def battery_due(view: BatteryView) -> bool:
     """Whether the battery calls for a decision now (only for a vehicle flying our
     setpoints): newly below half the threshold, or newly below it mid-show."""
-    if view.pct < view.minimum / 2 and not view.critical:
+    if view.below_half and not view.critical:
         return True
     return view.phase is VehiclePhase.SHOW and not view.low and view.pct < view.minimum
 
@@ -54,7 +59,7 @@ def battery_move(view: BatteryView, *, low_in_flight: int, fleet: int, show_over
     the separation limit below it (only asked when it is critical)."""
     if not show_over and low_in_flight >= max(2, math.ceil(LOW_BATTERY_FLEET * fleet)):
         return BatteryMove.LAND_ALL
-    if view.pct < view.minimum / 2 and column_clear:
+    if view.below_half and column_clear:
         return BatteryMove.LAND_HERE
     if view.phase is not VehiclePhase.SHOW:
         return BatteryMove.NOTHING

@@ -55,6 +55,11 @@ def refused(v: VehicleRun | None, command: Command, max_attempts: int) -> Refuse
         # (half the packets lost, say).  Counting the timeouts gave a vehicle that went
         # on to land up as "land failed 3 times".
         return Refused.DONE
+    return _again(v, max_attempts)
+
+
+def _again(v: VehicleRun, max_attempts: int) -> Refused:
+    """Sent again, or given up once ``max_attempts`` sends had no effect."""
     return Refused.GIVE_UP if v.attempts >= max_attempts else Refused.RETRY
 
 
@@ -62,6 +67,4 @@ def takeoff_verdict(v: VehicleRun, max_attempts: int) -> Refused:
     """The verdict on a refused takeoff once the time to lift off has passed: climbing,
     the refusal was not the vehicle's last word (a forged ACK, or its answer to a repeat)
     and its takeoff goes on (DONE); still on the ground, RETRY or GIVE_UP."""
-    if climbing(v):
-        return Refused.DONE
-    return Refused.GIVE_UP if v.attempts >= max_attempts else Refused.RETRY
+    return Refused.DONE if climbing(v) else _again(v, max_attempts)
