@@ -12,6 +12,7 @@ import json
 import os
 import signal
 import socket
+import threading
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -295,7 +296,45 @@ def test_signed_link_flies_and_a_wrong_key_is_refused() -> None:
     assert result.report["safe"] is False
 
 
-def test_malformed_and_unexpected_packets_at_the_ground_station_are_ignored() -> None:
+class _Stranger:
+    """Another fleet's vehicles 1..9 on this machine, sending HEARTBEATs to our ground
+    station's port from a socket of their own (a `groundctl sim` left pointing at a port
+    the ground station then got): from before the simulator starts until stopped."""
+
+    def __init__(self, target: tuple[str, int]) -> None:
+        self.target, self.stop = target, threading.Event()
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.codecs = [mavlink.MAVLink(None, srcSystem=s, srcComponent=1) for s in range(1, 10)]
+        self.burst()  # heard before any simulated vehicle
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def burst(self) -> None:
+        for mav in self.codecs:
+            hb = mavlink.MAVLink_heartbeat_message(
+                mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, mavlink.MAV_STATE_STANDBY, 3)
+            self.sock.sendto(hb.pack(mav), self.target)
+
+    def _run(self) -> None:
+        while not self.stop.wait(0.05):
+            self.burst()
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join()
+        self.sock.close()
+
+
+def test_malformed_and_unexpected_packets_at_the_ground_station_are_ignored(
+        tmp_path: Path) -> None:
+    strangers: list[_Stranger] = []
+
+    def stranger_first(config: SimConfig) -> SimConfig:
+        strangers.append(_Stranger(config.gcs))
+        return config
+
     async def garbage(runner: ShowRunner, sim: SimProcess) -> None:
         await until(runner, lambda: show_time(runner) > 2.0)
         assert runner.link.local_address is not None
@@ -313,11 +352,21 @@ def test_malformed_and_unexpected_packets_at_the_ground_station_are_ignored() ->
                 s.sendto(good, target)  # well formed, from a system not in the show
                 await asyncio.sleep(0.01)
 
-    result = dry_run(during=garbage)
+    try:
+        result = dry_run(tmp_path, during=garbage, customise=stranger_first)
+    finally:
+        for stranger in strangers:
+            stranger.close()
     _assert_flown_safely(result.report)
     link = result.report["link"]
     assert link["bad_packets"] >= 10
     assert link["unknown_system_packets"] >= 5
+    # The stranger was heard first, then forgotten as the simulator's ports were pinned,
+    # and refused for the whole flight.
+    events = read_events(tmp_path / "events.jsonl")
+    forgotten = {e["system_id"] for e in events if e["event"] == "address_forgotten"}
+    assert forgotten == set(range(1, 10)), forgotten
+    assert link["address_conflicts"] > 9 * 10
 
 
 def _landing_on_other_spots() -> dict[int, int]:

@@ -321,6 +321,11 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
         else:
             fleet = await asyncio.to_thread(SimGroup, split_config(config, processes),
                                             sim_clocks)
+        # Only the simulator speaks for its vehicles: another fleet on this machine that
+        # sends to our port (a `groundctl sim` left pointing at it, a port reused) is a
+        # stranger, whoever was heard first.
+        link.pin({sid: (LOOPBACK, port) for sid, port in zip(fleet.sysids, fleet.ports,
+                                                              strict=True)})
         runner = ShowRunner(plan, link, clock, options.runner, events=events, notify=notify,
                             expected_ids=[VehicleId(s) for s in config.sysids()])
         runner.on_tick = _truth_probe(runner, fleet)

@@ -650,6 +650,23 @@ class FleetLink:
         """Where packets for vehicle ``sysid`` go, if known."""
         return self._addresses.get(sysid)
 
+    def pin(self, addresses: Mapping[int, Address]) -> None:
+        """Pin vehicles to the addresses they talk from once the link is up (a dry-run
+        knows its simulated vehicles' ports only after it has bound its own, for the
+        simulator to send to), as a fleet file pins them before: from now on a packet
+        claiming one of them from anywhere else is an address conflict.  An address
+        learnt before from elsewhere -- a stranger that sent to our port first, such as
+        another simulator on the same machine -- is forgotten, with all that was heard
+        from it.  Call it before the flight uses the vehicles."""
+        for sysid, addr in addresses.items():
+            self._pins[sysid] = addr
+            known = self._addresses.get(sysid)
+            if known is not None and known != addr:
+                del self._addresses[sysid]
+                self.vehicles.pop(sysid, None)
+                self._emit("address_forgotten", system_id=sysid,
+                           address=f"{known[0]}:{known[1]}", pinned=f"{addr[0]}:{addr[1]}")
+
     # -- periodic duties -------------------------------------------------
 
     async def _run_periodic(self) -> None:
