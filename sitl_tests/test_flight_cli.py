@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -13,6 +12,7 @@ from pathlib import Path
 
 import pytest
 from flight_fixtures import QUICK_SHOW, REPO
+from ports import reserved_udp_port
 
 from groundctl.errors import EXIT_ABORTED, EXIT_LINK, EXIT_OK, EXIT_USAGE
 from groundctl.record.events import read_events
@@ -59,11 +59,6 @@ def _run(*args: str, timeout: float = 300.0) -> subprocess.CompletedProcess[str]
     return subprocess.run([*GROUNDCTL, *args], capture_output=True, text=True, cwd=REPO,
                           timeout=timeout, check=False)
 
-
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def test_dry_run_json_report_and_recordings(tmp_path: Path) -> None:
@@ -128,7 +123,7 @@ def test_a_fault_on_a_vehicle_the_fleet_does_not_have_is_one_line_before_the_fli
 def test_fly_without_vehicles_gives_up_with_a_link_error(tmp_path: Path) -> None:
     show = tmp_path / "four.toml"
     show.write_text(FLY_SHOW)
-    port = _free_udp_port()
+    port = reserved_udp_port()
     out = _run("fly", str(show), "--connect", f"udp:127.0.0.1:{port}", "--connect-timeout",
                "1", "--record", str(tmp_path / "rec"))
     assert out.returncode == EXIT_LINK
@@ -141,7 +136,7 @@ def test_fly_against_groundctl_sim_and_ctrl_c_lands_everyone(tmp_path: Path) -> 
     """Real time, two processes, as in the README: `groundctl sim` and `groundctl fly`."""
     show = tmp_path / "four.toml"
     show.write_text(FLY_SHOW)
-    port = _free_udp_port()
+    port = reserved_udp_port()
     sim = subprocess.Popen([*GROUNDCTL, "sim", "--count", "4", "--gcs", f"127.0.0.1:{port}",
                             "--ekf-delay", "1", "--ready-delay", "2"],
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO)
@@ -238,7 +233,7 @@ def test_fly_two_networks_from_a_fleet_file_against_groundctl_sim(tmp_path: Path
     `land 2:1` names network 2's system id 1; Ctrl-C lands the rest."""
     show = tmp_path / "four.toml"
     show.write_text(FLY_SHOW)
-    ports = (_free_udp_port(), _free_udp_port())
+    ports = (reserved_udp_port(), reserved_udp_port())
     fleet = _two_network_fleet(tmp_path, ports)
     sim = subprocess.Popen([*GROUNDCTL, "sim", "--count", "4", "--gcs", f"127.0.0.1:{ports[0]}",
                             "--gcs", f"127.0.0.1:{ports[1]}", "--ekf-delay", "1",
@@ -282,7 +277,7 @@ def test_fly_two_networks_from_a_fleet_file_against_groundctl_sim(tmp_path: Path
 def test_fly_refuses_connections_said_twice(tmp_path: Path) -> None:
     show = tmp_path / "four.toml"
     show.write_text(FLY_SHOW)
-    fleet = _two_network_fleet(tmp_path, (_free_udp_port(), _free_udp_port()))
+    fleet = _two_network_fleet(tmp_path, (reserved_udp_port(), reserved_udp_port()))
     out = _run("fly", str(show), "--fleet", str(fleet), "--connect", "udp:127.0.0.1:14551",
                "--record", str(tmp_path / "rec"))
     assert out.returncode == EXIT_USAGE

@@ -7,11 +7,11 @@ setpoint and reads telemetry, all through MAVSDK's own PX4 logic.
 
 from __future__ import annotations
 
-import socket
 import time
 from collections.abc import Callable
 
 import pytest
+from ports import reserved_udp_port
 
 from groundctl.clock import ScaledClock
 from groundctl.link.flavours import Flavour
@@ -26,11 +26,6 @@ from mavsdk.plugins.telemetry import FlightMode, Telemetry  # noqa: E402
 SPEED = 2.0
 
 
-def _free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
 
 def _until(pred: Callable[[], bool], timeout: float, what: str) -> None:
     end = time.monotonic() + timeout
@@ -43,7 +38,7 @@ def _until(pred: Callable[[], bool], timeout: float, what: str) -> None:
 
 @pytest.mark.slow
 def test_mavsdk_arms_takes_off_and_flies_offboard_on_px4_flavour() -> None:
-    port = _free_port()
+    port = reserved_udp_port()
     cfg = SimConfig(count=1, flavour=Flavour.PX4, gcs=("127.0.0.1", port),
                     ekf_origin_delay_s=0.5, ready_delay_s=1.0)
     fleet = SimFleet(cfg, ScaledClock(SPEED))

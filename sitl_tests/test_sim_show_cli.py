@@ -15,7 +15,6 @@ from __future__ import annotations
 import os
 import queue
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -27,6 +26,7 @@ from typing import IO
 import numpy as np
 import pytest
 from flight_fixtures import QUICK_SHOW, REPO, quick_plan
+from ports import reserved_udp_port
 
 from groundctl.cli import build_parser, main
 from groundctl.commands.flying import load_or_plan
@@ -154,11 +154,6 @@ def test_a_missing_or_malformed_show_is_one_clear_line(kind: str, tmp_path: Path
     assert out.stdout == ""  # no fleet was started
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
 
 class _Lines:
     """A child's output read on a thread, so waiting for a line has a deadline."""
@@ -202,7 +197,7 @@ def _stop(proc: subprocess.Popen[str], sig: signal.Signals, timeout_s: float = 3
 
 def test_fly_quick_show_against_sim_show_passes_preflight(tmp_path: Path) -> None:
     """Two processes, real time, as in the README: `sim --show` then `fly` the same show."""
-    port = _free_udp_port()
+    port = reserved_udp_port()
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     sim_out = tmp_path / "sim.out"
     with sim_out.open("w") as sim_log:
