@@ -346,9 +346,23 @@ class PacedClock:
         against hundreds of anchors starved the simulator's processes of it)."""
         if not wall_seconds:
             return []
+        return self._ago_many(wall_seconds)[1]
+
+    def arrivals(self, wall_seconds: list[float]) -> list[float]:
+        """The clock's reading ``w`` real seconds ago for each ``w`` of ``wall_seconds``
+        (when each of a drain's datagrams arrived), with one look at the lock."""
+        if len(wall_seconds) == 1:
+            return [self.at_wall(time.monotonic() - wall_seconds[0])]
+        if not wall_seconds:
+            return []
+        now, agos = self._ago_many(wall_seconds)
+        return [now - a for a in agos]
+
+    def _ago_many(self, wall_seconds: list[float]) -> tuple[float, list[float]]:
+        """The clock now, and :meth:`ago` of each of ``wall_seconds`` (not empty)."""
         with self._locked() as ok:
             if not ok:
-                return [self.speed * w for w in wall_seconds]
+                return self._unlocked(), [self.speed * w for w in wall_seconds]
             now = self._read()
             wall = time.monotonic()
             oldest = wall - max(wall_seconds)
@@ -374,7 +388,7 @@ class PacedClock:
                 a_wall, a_sim = anchors[-1]
                 later = anchors[-2][1] if len(anchors) > 1 else now
                 out.append(now - (min(a_sim, later) - self.speed * max(a_wall - t, 0.0)))
-        return out
+        return now, out
 
     # -- taking part -------------------------------------------------------------------
 

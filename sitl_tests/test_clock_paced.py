@@ -101,6 +101,11 @@ def test_the_past_is_dated_on_the_clock_as_it_ran() -> None:
     assert clock.at_wall(during_wait) == pytest.approx(0.35)
     age = time.monotonic() - during_wait
     assert me.ago(age) == pytest.approx(me.now() - 0.35, abs=0.02)
+    # A drain's datagrams dated with one look: the one of the wait, and one just read.
+    age = time.monotonic() - during_wait
+    first, last = me.arrivals([age, 0.0])
+    assert first == pytest.approx(0.35, abs=0.02) and last == pytest.approx(me.now(), abs=0.02)
+    assert me.arrivals([age]) == [pytest.approx(0.35, abs=0.02)] and me.arrivals([]) == []
 
 
 def test_a_participant_holding_it_longer_than_the_valve_is_left_behind() -> None:

@@ -61,7 +61,7 @@ from groundctl.link.state import (
     unexpect,
 )
 from groundctl.link.timesync import answer as timesync_answer
-from groundctl.link.transport import UdpTransport
+from groundctl.link.transport import Received, UdpTransport
 from groundctl.link.trust import EXPECT_S, Trust
 from groundctl.link.worker import (
     Datagram,
@@ -293,7 +293,7 @@ class FleetLink:
             raise LinkError("link already started")
         try:
             for k, listen in enumerate(self.listens):
-                transport = UdpTransport(functools.partial(self._on_datagram, network=k),
+                transport = UdpTransport(functools.partial(self._on_datagrams, network=k),
                                          self._on_socket_error)
                 self._transports.append(transport)
                 self.local_addresses.append(await transport.open(listen))
@@ -359,11 +359,26 @@ class FleetLink:
         self.stats.socket_errors += 1
         log.debug("socket error: %s", exc)
 
-    def _on_datagram(self, data: bytes, addr: Address, age_s: float = 0.0,
-                     network: int = 0) -> None:
-        now = self.clock.now()
-        if age_s > 0.0:
-            now -= self.clock.ago(age_s)  # when it arrived, not when our busy loop read it
+    def _on_datagrams(self, batch: list[Received], network: int = 0) -> None:
+        """A drain's datagrams, each dated when it arrived, not when our busy loop read
+        it: one look at the clock for the batch (a paced clock's is a lock and a read of
+        shared memory)."""
+        clock = self.clock
+        ages = [age for _, _, age in batch]
+        arrivals = getattr(clock, "arrivals", None)
+        if arrivals is not None:
+            times = arrivals(ages)
+        else:
+            now = clock.now()
+            times = [now - clock.ago(a) if a > 0.0 else now for a in ages]
+        for (data, addr, _), at in zip(batch, times, strict=True):
+            try:
+                self._on_datagram(data, addr, at, network)
+            except Exception:  # a bug in a handler must cost one datagram, not the batch
+                log.exception("error handling datagram from %s:%s", addr[0], addr[1])
+
+    def _on_datagram(self, data: bytes, addr: Address, now: float, network: int = 0) -> None:
+        """One datagram, arrived at ``now`` on our clock."""
         result = self._parser(addr, network).feed(data)
         self._on_parsed(addr, now, network, result.messages, result.bad,
                         result.refused_signatures, result.unknown)

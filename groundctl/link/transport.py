@@ -25,6 +25,8 @@ log = logging.getLogger(__name__)
 SOCKET_BUFFER_BYTES = 4 * 1024 * 1024
 
 Address = tuple[str, int]
+#: A datagram as read: its bytes, its sender, its age (wall seconds in the socket).
+Received = tuple[bytes, Address, float]
 
 
 #: Datagrams read per readiness callback (and per :meth:`UdpTransport.drain`): enough
@@ -52,14 +54,17 @@ class UdpTransport:
     do so itself before it decides anything.
     """
 
-    def __init__(self, on_datagram: Callable[[bytes, Address, float], None],
+    def __init__(self, on_datagrams: Callable[[list[Received]], None],
                  on_error: Callable[[Exception], None] | None = None) -> None:
-        """``on_datagram(data, address, age_s)``: ``age_s`` is how long (wall seconds) the
-        datagram waited in the socket before it was read, from the kernel's arrival stamp
-        (0 where the kernel gives none).  On a busy ground station that wait is ours, not
+        """``on_datagrams(batch)``: every datagram one :meth:`drain` read, in order, each
+        ``(data, address, age_s)``.  ``age_s`` is how long (wall seconds) the datagram
+        waited in the socket before it was read, from the kernel's arrival stamp (0
+        where the kernel gives none).  On a busy ground station that wait is ours, not
         the link's: telemetry is dated, and a TIMESYNC round trip measured, from when the
-        datagram arrived."""
-        self._on_datagram = on_datagram
+        datagram arrived.  One call per drain, not per datagram: a dry-run's paced clock
+        is read once for the batch (about 10 µs a reading, a third of what the control
+        loop spent on each datagram)."""
+        self._on_datagrams = on_datagrams
         self._on_error = on_error or (lambda exc: None)
         self._sock: socket.socket | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -90,13 +95,14 @@ class UdpTransport:
         return (name[0], name[1])
 
     def drain(self) -> int:
-        """Hand on every datagram waiting in the socket (at most MAX_READS); returns how
-        many.  Never raises."""
+        """Hand on every datagram waiting in the socket (at most MAX_READS), in one
+        batch; returns how many were read.  Never raises."""
         sock = self._sock
         count = 0
+        batch: list[Received] = []
         while sock is not None and count < MAX_READS:
             try:
-                data, addr, age = read_datagram(sock, self._stamped)
+                batch.append(read_datagram(sock, self._stamped))
             except (BlockingIOError, InterruptedError):
                 break
             except ConnectionRefusedError as exc:
@@ -109,11 +115,11 @@ class UdpTransport:
                 self._on_error(exc)
                 break
             count += 1
+        if batch:
             try:
-                self._on_datagram(data, addr, age)
+                self._on_datagrams(batch)
             except Exception:  # a bug in a handler must not kill the socket
-                log.exception("error handling datagram from %s:%s", addr[0], addr[1])
-            sock = self._sock  # the handler may have closed us
+                log.exception("error handling %d datagrams", len(batch))
         return count
 
     @property
@@ -153,7 +159,7 @@ class UdpTransport:
             self._sock = None
 
 
-def read_datagram(sock: socket.socket, stamped: bool) -> tuple[bytes, Address, float]:
+def read_datagram(sock: socket.socket, stamped: bool) -> Received:
     """One datagram, its sender and its age (wall seconds since the kernel stamped it; 0
     unstamped); raises what the socket raises (BlockingIOError once it is empty)."""
     if stamped:
