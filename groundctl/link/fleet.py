@@ -603,7 +603,7 @@ class FleetLink:
         if known is None:
             # First packet: learn the address (for a host-only fleet entry, the port).
             self._addresses[sysid] = addr
-            if pin is not None:
+            if pin is not None and pin[1] is None:
                 self._emit("address_learnt", system_id=sysid, address=f"{addr[0]}:{addr[1]}",
                            configured=f"{pin[0]}:*")
             return True
