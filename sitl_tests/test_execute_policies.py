@@ -14,6 +14,7 @@ from groundctl.execute.sequence.policies.battery import (
     battery_due,
     battery_move,
 )
+from groundctl.execute.sequence.policies.homing import NoReturn, no_return
 from groundctl.execute.sequence.policies.modes import (
     ModeLeft,
     fence_acted,
@@ -28,8 +29,17 @@ from groundctl.execute.sequence.policies.refusals import (
     takeoff_verdict,
 )
 from groundctl.execute.sequence.policies.rejoin import Landing, Rejoin, heard_landing, rejoin
+from groundctl.execute.sequence.policies.waysout import (
+    Late,
+    Offered,
+    WithoutWayOut,
+    late,
+    offered,
+    without_way_out,
+)
 from groundctl.execute.sequence.types import (
     FENCE_NOTICE_S,
+    MAX_LATE_LEAVES,
     MAX_RETAKES,
     RETAKE_WINDOW_S,
     Arm,
@@ -249,3 +259,58 @@ def test_a_vehicle_heard_again_rejoins_by_where_it_was_lost(
 def test_a_vehicle_heard_again_while_landing_is_judged_by_what_it_does(
         flavour: Flavour, mode: str, armed: bool, doing: Landing) -> None:
     assert heard_landing(flavour, _state(mode, armed=armed)) is doing
+
+
+# -- ways out ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("awaits", "planned_held", "holds", "now", "verdict"), [
+    (True, False, False, 10.0, Offered.TAKE),
+    (True, False, False, 12.0, Offered.TAKE),  # handed over at its very instant
+    (True, False, False, 12.5, Offered.TOO_LATE),
+    (True, True, True, 11.0, Offered.TAKE),  # from where it holds off its plan
+    (False, False, False, 10.0, Offered.OVERTAKEN),  # landed, lost, the show over ...
+    (True, False, True, 10.0, Offered.OVERTAKEN),  # stranded since it was asked for
+    (True, True, False, 10.0, Offered.OVERTAKEN),  # back on its plan since
+    (False, False, False, 20.0, Offered.OVERTAKEN),  # overtaken is judged before late
+])
+def test_a_way_out_handed_over_is_taken_only_if_still_awaited_for_the_same_start_in_time(
+        awaits: bool, planned_held: bool, holds: bool, now: float, verdict: Offered) -> None:
+    assert offered(awaits=awaits, planned_held=planned_held, holds_off_plan=holds,
+                   show_time=now, starts_at=12.0) is verdict
+
+
+@pytest.mark.parametrize(("times", "following", "verdict"), [
+    (1, 18.0, Late.NEXT_INSTANT),
+    (MAX_LATE_LEAVES - 1, 18.0, Late.NEXT_INSTANT),
+    (MAX_LATE_LEAVES, 18.0, Late.GIVE_UP),  # bounded: never a way out chased forever
+    (1, None, Late.GIVE_UP),  # no formation left to leave from
+])
+def test_a_late_way_out_is_tried_at_the_next_instant_a_bounded_number_of_times(
+        times: int, following: float | None, verdict: Late) -> None:
+    assert late(times, MAX_LATE_LEAVES, following) is verdict
+
+
+@pytest.mark.parametrize(("phase", "holds", "where"), [
+    (VehiclePhase.LEAVING, True, WithoutWayOut.LAND_WHERE_IT_HOLDS),  # stranded off its plan
+    (VehiclePhase.SHOW, False, WithoutWayOut.FLY_ON),  # the plan keeps it apart
+    (VehiclePhase.SHOW, True, WithoutWayOut.FLY_ON),  # a hold point not yet flown to
+    (VehiclePhase.LOST, True, WithoutWayOut.FLY_ON),  # nothing to send it meanwhile
+])
+def test_without_a_way_out_only_a_vehicle_holding_off_its_plan_comes_straight_down(
+        phase: VehiclePhase, holds: bool, where: WithoutWayOut) -> None:
+    assert without_way_out(phase, holds) is where
+
+
+# -- the land-all return when none can be planned ------------------------------------------
+
+
+@pytest.mark.parametrize(("interrupted", "off_plan", "how"), [
+    (True, False, NoReturn.SHOW_ON),  # the show is the one way home known to be clear
+    (True, True, NoReturn.COLUMNS),  # not clear of drones hovering off it: no livelock
+    (False, False, NoReturn.STRAIGHT),
+    (False, True, NoReturn.STRAIGHT),  # after the show there is no show to fly on
+])
+def test_without_a_return_plan_the_fleet_flies_the_show_on_lands_in_columns_or_goes_straight(
+        interrupted: bool, off_plan: bool, how: NoReturn) -> None:
+    assert no_return(interrupted, off_plan) is how

@@ -8,6 +8,14 @@ import numpy as np
 from groundctl.execute.leaving import LEAVE_LEAD_S, Leave, leave_duration, leave_time
 from groundctl.execute.sequence.columns import Columns
 from groundctl.execute.sequence.lifecycle import Event
+from groundctl.execute.sequence.policies.waysout import (
+    Late,
+    Offered,
+    WithoutWayOut,
+    late,
+    offered,
+    without_way_out,
+)
 from groundctl.execute.sequence.types import (
     MAX_LATE_LEAVES,
     Action,
@@ -51,11 +59,16 @@ class WaysOut(Columns):
     def set_leave(self, sysid: int, leave: Leave, now: float) -> list[Action]:
         """Fly ``leave`` from its show time on, then land."""
         v = self.vehicles.get(sysid)
-        if v is None or v.leave_at is None or v.leave is not None or self._ended \
-                or not self._awaits_leave(v) or leave.held != (v.hold_point is not None):
-            return []  # overtaken: landed, lost, stranded meanwhile, or the show ended
-        if self.show_time(now) > leave.at:
+        verdict = Offered.OVERTAKEN if v is None else offered(
+            awaits=v.leave_at is not None and v.leave is None and not self._ended
+            and self._awaits_leave(v), planned_held=leave.held,
+            holds_off_plan=v.hold_point is not None, show_time=self.show_time(now),
+            starts_at=leave.at)
+        if verdict is Offered.OVERTAKEN:
+            return []
+        if verdict is Offered.TOO_LATE:
             return self.leave_late(sysid, "its way out was ready too late", now)
+        assert v is not None
         v.leave = leave
         return [Notice(sysid, f"way out for vehicle {sysid} planned: from show time "
                               f"{leave.at:.1f} s, {leave.trajectory.end:.1f} s to its landing "
@@ -68,12 +81,15 @@ class WaysOut(Columns):
         if v is None or v.leave is not None or v.leave_at is None:
             return []
         v.leave_late += 1
-        if v.leave_late >= MAX_LATE_LEAVES:
-            return self.leave_failed(sysid, f"{reason}; {v.leave_late} times", now)
-        v.leave_at = (self._hold_leave_time(v, now) if v.hold_point is not None
-                      else leave_time(self.plan, v.track, self.show_time(now)))
-        if v.leave_at is None:
-            return self.leave_failed(sysid, f"{reason}; no formation left to leave from", now)
+        following = None if v.leave_late >= MAX_LATE_LEAVES else (
+            self._hold_leave_time(v, now) if v.hold_point is not None
+            else leave_time(self.plan, v.track, self.show_time(now)))
+        if late(v.leave_late, MAX_LATE_LEAVES, following) is Late.GIVE_UP:
+            why = f"{v.leave_late} times" if v.leave_late >= MAX_LATE_LEAVES \
+                else "no formation left to leave from"
+            return self.leave_failed(sysid, f"{reason}; {why}", now)
+        v.leave_at = following
+        assert v.leave_at is not None
         return [Notice(sysid, f"vehicle {sysid}: {reason}; leaving at show time "
                               f"{v.leave_at:.1f} s instead", "leave_late",
                        "way out not planned in time: leaving later")]
@@ -84,7 +100,8 @@ class WaysOut(Columns):
         if v is None or v.leave is not None:
             return []
         v.leave_at = None
-        if v.hold_point is not None and v.phase is VehiclePhase.LEAVING:
+        if without_way_out(v.phase, v.hold_point is not None) \
+                is WithoutWayOut.LAND_WHERE_IT_HOLDS:
             self._to(v, Event.LAND)
             return [Notice(sysid, f"no safe way out of the show for vehicle {sysid} ({reason}); "
                                   "landing it where it holds"),

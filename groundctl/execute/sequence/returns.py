@@ -7,6 +7,7 @@ import numpy as np
 
 from groundctl.execute.paths import position_on_show_clock
 from groundctl.execute.sequence.lifecycle import Event
+from groundctl.execute.sequence.policies.homing import NoReturn, no_return
 from groundctl.execute.sequence.spots import PathsAndSpots
 from groundctl.execute.sequence.types import (
     FLEET_HOLDS,
@@ -83,17 +84,16 @@ class Returns(PathsAndSpots):
         re-planned after the show) each flies straight to its landing point, loudly."""
         interrupted = self._stopped_at is not None and self._stopped_at < self.plan.duration \
             and not self._after_return and now is not None
-        if interrupted and now is not None and any(
-                v.hold_point is not None and v.before_return is VehiclePhase.LEAVING
-                for v in self.vehicles.values()):
-            # Drones off their plans hover where they were stopped: the show flying on
-            # is not known to be clear of them (and they would be stranded again at
-            # once: land-all, no return, the show again -- the livelock).  Where each
-            # holds is read while the return is still awaited (then every path is where
-            # it braked, not the landing spot a failed return falls back to).
+        how = no_return(interrupted, any(
+            v.hold_point is not None and v.before_return is VehiclePhase.LEAVING
+            for v in self.vehicles.values()))
+        if how is NoReturn.COLUMNS:
+            # Where each holds is read while the return is still awaited (then every
+            # path is where it braked, not the landing spot a failed return falls back to).
+            assert now is not None
             return self._land_in_columns(reason, now)
         self._return_wanted = False
-        if not interrupted:
+        if how is NoReturn.STRAIGHT:
             return [Notice(None, f"no collision-free return could be planned ({reason}); "
                                  "flying straight to the landing points: watch the fleet")]
         assert now is not None

@@ -13,9 +13,13 @@ Pure functions of plain data: each is tested without a fleet, a plan or a clock
 * :mod:`.refusals` -- a command refused or without effect: stale, done already (judged
   by its effect: a climb, a land mode), judged later by the climb, retried, or given up;
 * :mod:`.rejoin` -- a lost vehicle heard again: stands down, stranded off its plan, or
-  back in the sequence; one that was landing judged by what it does now.
+  back in the sequence; one that was landing judged by what it does now;
+* :mod:`.waysout` -- a way out handed over: taken, too late (the next instant, a bounded
+  number of times) or overtaken; without one, on with the show or down where it holds;
+* :mod:`.homing` -- the land-all return when none can be planned: the show flies on to
+  its end, every drone lands in columns, or each goes straight to its landing point.
 
-The other ways a vehicle is given a new path (holds, returns, ways out, the last resort,
-the operator's commands, stranded vehicles) are still layers of the sequence
-(see ``docs/architecture.md``, "Still to reshape"); spares are to come here.
+Holds are the guard's (:mod:`groundctl.execute.guard`, a unit of its own); the rest
+(the last resort, the operator's commands, stranded vehicles) are still layers of the
+sequence (see ``docs/architecture.md``, "Still to reshape"); spares are to come here.
 """
