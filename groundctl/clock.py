@@ -348,15 +348,19 @@ class PacedClock:
             return []
         return self._ago_many(wall_seconds)[1]
 
-    def arrivals(self, wall_seconds: list[float]) -> list[float]:
-        """The clock's reading ``w`` real seconds ago for each ``w`` of ``wall_seconds``
-        (when each of a drain's datagrams arrived), with one look at the lock."""
+    def dated(self, wall_seconds: list[float]) -> tuple[float, list[float]]:
+        """The clock now, and its reading ``w`` real seconds ago for each ``w`` of
+        ``wall_seconds`` (when each of a drain's datagrams arrived), with one look at
+        the lock."""
         if len(wall_seconds) == 1:
-            return [self.at_wall(time.monotonic() - wall_seconds[0])]
+            with self._locked() as ok:
+                if ok:
+                    now = self._read()
+                    return now, [self._dated(time.monotonic() - wall_seconds[0], now)]
         if not wall_seconds:
-            return []
+            return self.now(), []
         now, agos = self._ago_many(wall_seconds)
-        return [now - a for a in agos]
+        return now, [now - a for a in agos]
 
     def _ago_many(self, wall_seconds: list[float]) -> tuple[float, list[float]]:
         """The clock now, and :meth:`ago` of each of ``wall_seconds`` (not empty)."""

@@ -103,9 +103,10 @@ def test_the_past_is_dated_on_the_clock_as_it_ran() -> None:
     assert me.ago(age) == pytest.approx(me.now() - 0.35, abs=0.02)
     # A drain's datagrams dated with one look: the one of the wait, and one just read.
     age = time.monotonic() - during_wait
-    first, last = me.arrivals([age, 0.0])
-    assert first == pytest.approx(0.35, abs=0.02) and last == pytest.approx(me.now(), abs=0.02)
-    assert me.arrivals([age]) == [pytest.approx(0.35, abs=0.02)] and me.arrivals([]) == []
+    now, (first, last) = me.dated([age, 0.0])
+    assert first == pytest.approx(0.35, abs=0.02) and last == pytest.approx(now)
+    assert now == pytest.approx(me.now(), abs=0.02)
+    assert me.dated([age])[1] == [pytest.approx(0.35, abs=0.02)] and me.dated([])[1] == []
 
 
 def test_a_participant_holding_it_longer_than_the_valve_is_left_behind() -> None:

@@ -204,6 +204,8 @@ class FleetLink:
         """Where each network's socket binds, in network order."""
         self.listen = listens[0]
         self.clock = clock
+        self._speed = float(getattr(clock, "speed", 1.0)) or 1.0
+        """Clock seconds a real second (a dry-run's pace), for the tlog's stamps."""
         self.endpoints = list(endpoints)
         self.expected_ids = None if expected_ids is None else frozenset(expected_ids)
         self.system_id = system_id
@@ -363,33 +365,40 @@ class FleetLink:
         """A drain's datagrams, each dated when it arrived, not when our busy loop read
         it: one look at the clock for the batch (a paced clock's is a lock and a read of
         shared memory)."""
-        clock = self.clock
-        ages = [age for _, _, age in batch]
-        arrivals = getattr(clock, "arrivals", None)
-        if arrivals is not None:
-            times = arrivals(ages)
-        else:
-            now = clock.now()
-            times = [now - clock.ago(a) if a > 0.0 else now for a in ages]
+        now, times = self._dated([age for _, _, age in batch])
         for (data, addr, _), at in zip(batch, times, strict=True):
             try:
-                self._on_datagram(data, addr, at, network)
+                self._on_datagram(data, addr, at, network, (now - at) / self._speed)
             except Exception:  # a bug in a handler must cost one datagram, not the batch
                 log.exception("error handling datagram from %s:%s", addr[0], addr[1])
 
-    def _on_datagram(self, data: bytes, addr: Address, now: float, network: int = 0) -> None:
-        """One datagram, arrived at ``now`` on our clock."""
+    def _dated(self, ages: list[float]) -> tuple[float, list[float]]:
+        """Our clock now, and when each datagram ``ages`` wall seconds old arrived on it."""
+        clock = self.clock
+        dated = getattr(clock, "dated", None)
+        if dated is not None:
+            return dated(ages)  # type: ignore[no-any-return]
+        now = clock.now()
+        return now, [now - clock.ago(a) if a > 0.0 else now for a in ages]
+
+    def _on_datagram(self, data: bytes, addr: Address, now: float, network: int = 0,
+                     waited_s: float = 0.0) -> None:
+        """One datagram, arrived at ``now`` on our clock, ``waited_s`` real seconds (at the
+        clock's pace) before it is handled."""
         result = self._parser(addr, network).feed(data)
         self._on_parsed(addr, now, network, result.messages, result.bad,
-                        result.refused_signatures, result.unknown)
+                        result.refused_signatures, result.unknown, waited_s)
 
     def _on_parsed(self, addr: Address, now: float, network: int,
                    messages: Iterable[mavlink.MAVLink_message | Superseded],
                    bad: Iterable[str], refused_signatures: Iterable[int],
-                   unknown: int) -> None:
+                   unknown: int, waited_s: float = 0.0) -> None:
         """One datagram's content, parsed here or by the network's link worker (whose
         :class:`Superseded` entries stand for state messages a newer one replaced while
-        this loop was behind)."""
+        this loop was behind).  The tlog stamps each packet when it arrived, ``waited_s``
+        before now: a busy loop that read a backlog at once wrote it under one stamp,
+        and a replay dating the vehicles' clocks by those stamps tracked them centimetres
+        off the monitor's figures."""
         self.stats.datagrams += 1
         for reason in bad:
             self._bad_packet(addr, reason)
@@ -405,7 +414,7 @@ class FleetLink:
                 self._superseded(msg, addr, now, network)
                 continue
             if tlog is not None:
-                tlog.write(msg.get_msgbuf())
+                tlog.write(msg.get_msgbuf(), waited_s=waited_s)
             try:
                 self._handle(msg, addr, now, network)
             except Exception:  # a bug here must cost one packet, not the link
@@ -434,20 +443,17 @@ class FleetLink:
         handled as if read here.  A restarted worker's first batch ends its network's
         silence (then heard again as any silent network is)."""
         self._worker_down[network] = False
-        clock = self.clock
-        now = clock.now()
         wall = time.monotonic()
-        ago_many = getattr(clock, "ago_many", None)
-        ages = [max(wall - d.arrived, 0.0) for d in batch]
-        agos = ago_many(ages) if ago_many is not None else [clock.ago(a) for a in ages]
-        for datagram, ago in zip(batch, agos, strict=True):
+        now, times = self._dated([max(wall - d.arrived, 0.0) for d in batch])
+        for datagram, at in zip(batch, times, strict=True):
             try:
                 messages = [unpack(m) for m in datagram.messages]
             except Exception as exc:  # a worker of another version, a bug: one datagram
                 self._bad_packet(datagram.address, f"unreadable from the worker: {exc}")
                 continue
-            self._on_parsed(datagram.address, now - ago, network, messages, datagram.bad,
-                            datagram.refused_signatures, datagram.unknown)
+            self._on_parsed(datagram.address, at, network, messages, datagram.bad,
+                            datagram.refused_signatures, datagram.unknown,
+                            (now - at) / self._speed)
 
     def _on_worker_errors(self, count: int) -> None:
         self.stats.socket_errors += count
