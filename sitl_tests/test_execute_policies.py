@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from collections import deque
 
+import numpy as np
 import pytest
 
 from groundctl.execute.sequence.policies.battery import (
@@ -15,12 +16,21 @@ from groundctl.execute.sequence.policies.battery import (
     battery_move,
 )
 from groundctl.execute.sequence.policies.homing import NoReturn, no_return
+from groundctl.execute.sequence.policies.lastresort import column_clear, say_blocked
 from groundctl.execute.sequence.policies.modes import (
     ModeLeft,
     fence_acted,
     link_failsafe,
     mode_left,
     retake_goes_on,
+)
+from groundctl.execute.sequence.policies.operator import (
+    KillVerdict,
+    LandHere,
+    LandOne,
+    kill_asked,
+    land_here_asked,
+    land_one_asked,
 )
 from groundctl.execute.sequence.policies.refusals import (
     Refused,
@@ -29,6 +39,13 @@ from groundctl.execute.sequence.policies.refusals import (
     takeoff_verdict,
 )
 from groundctl.execute.sequence.policies.rejoin import Landing, Rejoin, heard_landing, rejoin
+from groundctl.execute.sequence.policies.stranded import (
+    ArmedAgain,
+    GivenUp,
+    armed_again,
+    given_up,
+    too_many_stranded,
+)
 from groundctl.execute.sequence.policies.waysout import (
     Late,
     Offered,
@@ -38,10 +55,12 @@ from groundctl.execute.sequence.policies.waysout import (
     without_way_out,
 )
 from groundctl.execute.sequence.types import (
+    COLUMN_WAIT_S,
     FENCE_NOTICE_S,
     MAX_LATE_LEAVES,
     MAX_RETAKES,
     RETAKE_WINDOW_S,
+    STRANDED_LAND_ALL,
     Arm,
     Land,
     SetMode,
@@ -314,3 +333,116 @@ def test_without_a_way_out_only_a_vehicle_holding_off_its_plan_comes_straight_do
 def test_without_a_return_plan_the_fleet_flies_the_show_on_lands_in_columns_or_goes_straight(
         interrupted: bool, off_plan: bool, how: NoReturn) -> None:
     assert no_return(interrupted, off_plan) is how
+
+
+# -- vehicles off their plans and given up ----------------------------------------------------
+
+_FLYING = {"armed": True, "lost": False, "altitude_m": 8.0, "in_flight_mode": True}
+
+
+@pytest.mark.parametrize(("change", "verdict"), [
+    ({}, ArmedAgain.BACK),
+    ({"off_plan": True}, ArmedAgain.STRANDED),
+    ({"in_show": False}, ArmedAgain.LAND_HERE),  # before or after the show: down here
+    ({"in_show": False, "off_plan": True}, ArmedAgain.LAND_HERE),
+    ({"armed": False}, ArmedAgain.NOT_FLYING),
+    ({"lost": True}, ArmedAgain.NOT_FLYING),  # silent: its failsafe is in charge
+    ({"altitude_m": None}, ArmedAgain.NOT_FLYING),
+    ({"altitude_m": 0.2}, ArmedAgain.NOT_FLYING),  # armed on the ground is not flying
+    ({"in_flight_mode": False}, ArmedAgain.NOT_FLYING),  # a pilot or a failsafe has it
+])
+def test_a_vehicle_given_up_as_disarmed_is_judged_by_its_own_telemetry(
+        change: dict[str, object], verdict: ArmedAgain) -> None:
+    view: dict[str, object] = {**_FLYING, "in_show": True, "off_plan": False, **change}
+    assert armed_again(**view) is verdict
+
+
+def test_the_fleet_lands_once_enough_are_stranded_at_once() -> None:
+    assert not too_many_stranded(STRANDED_LAND_ALL - 1)
+    assert too_many_stranded(STRANDED_LAND_ALL) and too_many_stranded(STRANDED_LAND_ALL + 3)
+
+
+@pytest.mark.parametrize(("was", "where"), [
+    (VehiclePhase.LANDING, GivenUp.BY_HAND),
+    (VehiclePhase.ARMING, GivenUp.ON_THE_GROUND),
+    (VehiclePhase.TAKEOFF, GivenUp.LAND_ON_SLOT),  # its spot may be another's landing spot
+    (VehiclePhase.SHOW, GivenUp.LAND_HERE),
+    (VehiclePhase.READY, GivenUp.LAND_HERE),
+    (VehiclePhase.LEAVING, GivenUp.LAND_HERE),
+])
+def test_a_vehicle_given_up_goes_down_by_where_it_was(was: VehiclePhase, where: GivenUp) -> None:
+    assert given_up(was) is where
+
+
+# -- the last resort ---------------------------------------------------------------------------
+
+
+def _at(x: float, y: float, z: float) -> np.ndarray:
+    return np.array([x, y, z], dtype=float)
+
+
+def test_a_column_is_clear_of_drones_above_it_and_of_landed_drones_beside_its_spot() -> None:
+    here = _at(0.0, 0.0, 10.0)
+    limit = 1.5
+    assert column_clear(here, [], limit_m=limit, above_m=0.0)
+    # Below it within the limit sideways: blocked; beyond the limit (and margin): clear.
+    assert not column_clear(here, [(_at(1.0, 0.0, 4.0), False)], limit_m=limit, above_m=0.0)
+    assert column_clear(here, [(_at(1.6, 0.0, 4.0), False)], limit_m=limit, above_m=0.0)
+    assert not column_clear(here, [(_at(1.6, 0.0, 4.0), False)], limit_m=limit, above_m=0.0,
+                            margin_m=0.2)
+    # Above it: left behind by the descent (above_m 0), or counted up to above_m.
+    assert column_clear(here, [(_at(0.5, 0.0, 11.0), False)], limit_m=limit, above_m=0.0)
+    assert not column_clear(here, [(_at(0.5, 0.0, 11.0), False)], limit_m=limit,
+                            above_m=limit)
+    # A drone down on the ground counts only near where this one lands.
+    landed = [(_at(1.0, 0.0, 0.0), True)]
+    assert not column_clear(here, landed, limit_m=limit, above_m=0.0)
+    assert column_clear(here, landed, limit_m=limit, above_m=0.0, ground_m=0.8)
+    assert not column_clear(here, landed, limit_m=limit, above_m=0.0, ground_m=1.2)
+
+
+def test_a_blocked_column_is_said_once_after_the_wait() -> None:
+    assert not say_blocked(None, 100.0, False)
+    assert not say_blocked(10.0, 10.0 + COLUMN_WAIT_S - 0.1, False)
+    assert say_blocked(10.0, 10.0 + COLUMN_WAIT_S, False)
+    assert not say_blocked(10.0, 10.0 + 5 * COLUMN_WAIT_S, True)
+
+
+# -- the operator's per-vehicle commands ---------------------------------------------------------
+
+
+@pytest.mark.parametrize(("known", "columns", "mid_show", "leaving", "at", "verdict"), [
+    (False, False, True, False, 12.0, LandOne.UNKNOWN),
+    (True, True, True, False, 12.0, LandOne.IN_COLUMNS),  # it lands with the columns
+    (True, False, False, False, None, LandOne.LAND_NOW),  # before, after, returning
+    (True, False, True, True, None, LandOne.ALREADY_LEAVING),
+    (True, False, True, False, None, LandOne.NO_FORMATION_LEFT),
+    (True, False, True, False, 12.0, LandOne.LEAVE_AT_NEXT),  # never a line home mid-show
+])
+def test_land_one_lands_now_off_the_show_and_leaves_on_a_way_out_in_it(
+        known: bool, columns: bool, mid_show: bool, leaving: bool, at: float | None,
+        verdict: LandOne) -> None:
+    assert land_one_asked(known=known, in_columns=columns, mid_show=mid_show,
+                          leaving=leaving, next_instant=at) is verdict
+
+
+@pytest.mark.parametrize(("phase", "verdict"), [
+    (None, LandHere.UNKNOWN),
+    (VehiclePhase.LANDED, LandHere.ALREADY),
+    (VehiclePhase.LANDING, LandHere.ALREADY),
+    (VehiclePhase.FAILED, LandHere.ALREADY),
+    (VehiclePhase.PREFLIGHT, LandHere.STAND_DOWN),
+    (VehiclePhase.ARMING, LandHere.STAND_DOWN),
+    (VehiclePhase.TAKEOFF, LandHere.DOWN_HERE),
+    (VehiclePhase.SHOW, LandHere.DOWN_HERE),
+    (VehiclePhase.RETURNING, LandHere.DOWN_HERE),
+])
+def test_land_here_brings_down_whatever_flies_and_stands_down_what_does_not(
+        phase: VehiclePhase | None, verdict: LandHere) -> None:
+    assert land_here_asked(phase) is verdict
+
+
+def test_kill_needs_a_known_vehicle_and_a_confirmation() -> None:
+    assert kill_asked(False, True) is KillVerdict.UNKNOWN
+    assert kill_asked(True, False) is KillVerdict.NEEDS_CONFIRM
+    assert kill_asked(True, True) is KillVerdict.KILL

@@ -9,6 +9,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from groundctl.execute.sequence.lifecycle import Event
+from groundctl.execute.sequence.policies.lastresort import column_clear, say_blocked
 from groundctl.execute.sequence.returns import Returns
 from groundctl.execute.sequence.types import (
     _DONE,
@@ -116,8 +117,7 @@ class Columns(Returns):
             # Only drones below count: one above is left behind by the descent.
             if not self._column_clear(v, ground_m=GROUND_CLEARANCE_M, above_m=0.0,
                                       margin_m=COLUMN_MARGIN_M):
-                if v.column_since is not None and now - v.column_since >= COLUMN_WAIT_S \
-                        and not v.column_waited:
+                if say_blocked(v.column_since, now, v.column_waited):
                     v.column_waited = True
                     actions.append(Notice(
                         v.sysid, f"vehicle {v.sysid} has waited {COLUMN_WAIT_S:.0f} s to "
@@ -164,8 +164,5 @@ class Columns(Returns):
         if ground_m is not None:  # excluded drones, and those never airborne, on slots
             others += [(self.plan.home[t], True) for t in self.grounded_tracks
                        if t != v.track]
-        for pos, down in others:
-            reach = ground_m if ground_m is not None and down else limit + margin_m
-            if pos[2] < here[2] + above and float(np.hypot(*(pos[:2] - here[:2]))) < reach:
-                return False
-        return True
+        return column_clear(here, others, limit_m=limit, above_m=above, margin_m=margin_m,
+                            ground_m=ground_m)

@@ -6,7 +6,15 @@ from __future__ import annotations
 from groundctl.execute.leaving import leave_time
 from groundctl.execute.sequence.leaves import WaysOut
 from groundctl.execute.sequence.lifecycle import Event
-from groundctl.execute.sequence.types import _DONE, Action, Kill, Land, Notice, VehiclePhase
+from groundctl.execute.sequence.policies.operator import (
+    KillVerdict,
+    LandHere,
+    LandOne,
+    kill_asked,
+    land_here_asked,
+    land_one_asked,
+)
+from groundctl.execute.sequence.types import Action, Kill, Land, Notice, VehiclePhase
 
 
 class OperatorCommands(WaysOut):
@@ -69,20 +77,29 @@ class OperatorCommands(WaysOut):
         :attr:`leave_needed`); a straight line home would cut through the show.
         """
         v = self.vehicles.get(sysid)
-        if v is None:
+        mid_show = v is not None and self.streamed_as(v) is VehiclePhase.SHOW \
+            and not self._ended
+        leaving = v is not None and v.leave_at is not None
+        at = leave_time(self.plan, v.track, self.show_time(now)) \
+            if v is not None and mid_show and not leaving and not self._columns else None
+        verdict = land_one_asked(known=v is not None, in_columns=self._columns,
+                                 mid_show=mid_show, leaving=leaving, next_instant=at)
+        if verdict is LandOne.UNKNOWN:
             return [Notice(None, f"no vehicle {sysid} in this show")]
-        if self._columns:
+        assert v is not None
+        if verdict is LandOne.IN_COLUMNS:
             return [Notice(sysid, f"every vehicle lands straight down, one column at a time; "
                                   f"land-here {sysid} brings it down now")]
-        if self.streamed_as(v) is VehiclePhase.SHOW and not self._ended:
-            if v.leave_at is not None:
-                return [Notice(sysid, f"vehicle {sysid} already leaves the show at show time "
-                                      f"{v.leave_at:.1f} s")]
-            at = leave_time(self.plan, v.track, self.show_time(now))
-            if at is None:
-                return [Notice(sysid, f"vehicle {sysid}: no formation left to leave the show "
-                                      "from; it lands with the others at the end (land-here "
-                                      f"{sysid} brings it straight down now)")]
+        if verdict is LandOne.ALREADY_LEAVING:
+            assert v.leave_at is not None
+            return [Notice(sysid, f"vehicle {sysid} already leaves the show at show time "
+                                  f"{v.leave_at:.1f} s")]
+        if verdict is LandOne.NO_FORMATION_LEFT:
+            return [Notice(sysid, f"vehicle {sysid}: no formation left to leave the show "
+                                  "from; it lands with the others at the end (land-here "
+                                  f"{sysid} brings it straight down now)")]
+        if verdict is LandOne.LEAVE_AT_NEXT:
+            assert at is not None
             v.leave_at = at
             return [Notice(sysid, f"vehicle {sysid} leaves the show at show time {at:.1f} s, "
                                   "on a way out planned around the others")]
@@ -95,11 +112,13 @@ class OperatorCommands(WaysOut):
         the operator must know the column below it is clear.
         """
         v = self.vehicles.get(sysid)
-        if v is None:
+        verdict = land_here_asked(None if v is None else v.phase)
+        if verdict is LandHere.UNKNOWN:
             return [Notice(None, f"no vehicle {sysid} in this show")]
-        if v.phase in _DONE or v.phase is VehiclePhase.LANDING:
+        assert v is not None
+        if verdict is LandHere.ALREADY:
             return [Notice(sysid, f"vehicle {sysid} is already {v.phase}")]
-        if v.phase in (VehiclePhase.PREFLIGHT, VehiclePhase.ARMING):
+        if verdict is LandHere.STAND_DOWN:
             return [Notice(sysid, f"landing vehicle {sysid} here"), *self._land(v, now)]
         self._to(v, Event.LAND)
         return [Notice(sysid, f"landing vehicle {sysid} where it is"),
@@ -108,11 +127,13 @@ class OperatorCommands(WaysOut):
     def kill(self, sysid: int, now: float, confirm: bool = False) -> list[Action]:
         """Stop ``sysid``'s motors in flight; needs ``confirm`` because the drone falls."""
         v = self.vehicles.get(sysid)
-        if v is None:
+        verdict = kill_asked(v is not None, confirm)
+        if verdict is KillVerdict.UNKNOWN:
             return [Notice(None, f"no vehicle {sysid} in this show")]
-        if not confirm:
+        if verdict is KillVerdict.NEEDS_CONFIRM:
             return [Notice(sysid, f"kill vehicle {sysid} not sent: it stops the motors and "
                                   "the drone falls; confirm to kill")]
+        assert v is not None
         self._to(v, Event.KILL)
         v.pending = None
         return [Kill(sysid), Notice(sysid, f"vehicle {sysid} killed by the operator")]

@@ -10,13 +10,18 @@ from groundctl.execute.preflight import remaining_plan_conflicts
 from groundctl.execute.sequence.commands import OperatorCommands
 from groundctl.execute.sequence.lifecycle import Event
 from groundctl.execute.sequence.policies.rejoin import Landing, Rejoin, heard_landing, rejoin
+from groundctl.execute.sequence.policies.stranded import (
+    ArmedAgain,
+    GivenUp,
+    armed_again,
+    given_up,
+    too_many_stranded,
+)
 from groundctl.execute.sequence.types import (
     _DONE,
     _FLIGHT_MODE,
     _STREAMED,
-    AIRBORNE_M,
     OFF_PLAN_WINDOW_S,
-    STRANDED_LAND_ALL,
     Action,
     Land,
     Notice,
@@ -129,21 +134,25 @@ class OffPlan(OperatorCommands):
         from reports the link could not check).  Left alone it would hover where it was
         with nobody in charge while the show flies past: it holds there and leaves on a
         way out, as a vehicle heard again off its plan does; after the show, it lands."""
-        altitude = self._altitude(state)
-        if not state.armed or state.lost or altitude is None or altitude <= AIRBORNE_M \
-                or state.mode != _FLIGHT_MODE[v.flavour]:
+        in_show = not self._ended and self.started_at is not None \
+            and self._positions.get(v.sysid) is not None
+        off = self._off_plan(v, now) if in_show else None
+        verdict = armed_again(armed=state.armed, lost=state.lost,
+                              altitude_m=self._altitude(state),
+                              in_flight_mode=state.mode == _FLIGHT_MODE[v.flavour],
+                              in_show=in_show, off_plan=off is not None)
+        if verdict is ArmedAgain.NOT_FLYING:
             return []
         v.fell, v.reason = False, None
-        pos = self._positions.get(v.sysid)
-        if self._ended or self.started_at is None or pos is None:
+        if verdict is ArmedAgain.LAND_HERE:
             self._to(v, Event.LAND)
             return [Notice(v.sysid, f"vehicle {v.sysid} is armed in the air after all: "
                                     "landing it where it is"), self._send(v, Land(v.sysid), now)]
-        off = self._off_plan(v, now)
-        if off is None:
+        if verdict is ArmedAgain.BACK:
             self._to(v, Event.ALIVE)
             return [Notice(v.sysid, f"vehicle {v.sysid} is armed in the air after all, on its "
                                     "plan: back in the show")]
+        assert off is not None
         return self._strand(v, off, now, "armed in the air after all,")
 
     def _land_all_if_stranded(self, now: float) -> list[Action]:
@@ -153,7 +162,7 @@ class OffPlan(OperatorCommands):
         stranded = sorted(v.sysid for v in self.vehicles.values()
                           if v.hold_point is not None
                           and self.streamed_as(v) is VehiclePhase.LEAVING)
-        if len(stranded) < STRANDED_LAND_ALL:
+        if not too_many_stranded(len(stranded)):
             return []
         names = ", ".join(str(s) for s in stranded)
         return [Notice(None, f"vehicles {names} are off their plans at once: landing the whole "
@@ -173,22 +182,20 @@ class OffPlan(OperatorCommands):
         return self._strand(v, (distance, here), now, why)
 
     def _give_up(self, v: VehicleRun, why: str, now: float) -> list[Action]:
-        was, v.reason, v.pending = v.phase, why, None
+        where = given_up(v.phase)
+        v.reason, v.pending = why, None
         self._to(v, Event.GIVE_UP)
-        if was is VehiclePhase.LANDING:
+        if where is GivenUp.BY_HAND:
             return [Notice(v.sysid, f"vehicle {v.sysid}: {why}; land it by hand")]
         actions: list[Action] = [Notice(v.sysid, f"vehicle {v.sysid}: {why}")]
-        if was is not VehiclePhase.ARMING:
-            # In the air (or may be): bring it down where it is, straight below.
-            self._to(v, Event.LAND)
-            actions.append(self._send(v, Land(v.sysid), now))
-            if was is VehiclePhase.TAKEOFF:
-                # Straight below is its own takeoff spot, which may be where another
-                # drone lands: the same obstacle as a drone that never took off.
-                actions += self._left_on_slot(v, now)
-            return actions
-        v.never_flew = True
-        return actions + self._left_on_slot(v, now)
+        if where is GivenUp.ON_THE_GROUND:
+            v.never_flew = True
+            return actions + self._left_on_slot(v, now)
+        self._to(v, Event.LAND)
+        actions.append(self._send(v, Land(v.sysid), now))
+        if where is GivenUp.LAND_ON_SLOT:
+            actions += self._left_on_slot(v, now)
+        return actions
 
     def _left_on_slot(self, v: VehicleRun, now: float) -> list[Action]:
         # A drone that never took off stands on its slot: an obstacle for its

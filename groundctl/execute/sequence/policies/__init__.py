@@ -17,9 +17,16 @@ Pure functions of plain data: each is tested without a fleet, a plan or a clock
 * :mod:`.waysout` -- a way out handed over: taken, too late (the next instant, a bounded
   number of times) or overtaken; without one, on with the show or down where it holds;
 * :mod:`.homing` -- the land-all return when none can be planned: the show flies on to
-  its end, every drone lands in columns, or each goes straight to its landing point.
+  its end, every drone lands in columns, or each goes straight to its landing point;
+* :mod:`.stranded` -- a vehicle given up as disarmed that flies after all (back, stranded,
+  or down where it is), the fleet landed when too many are stranded at once, and where
+  a vehicle given up goes;
+* :mod:`.lastresort` -- landing in columns: whether a drone's column is clear, and when
+  to say that one still waits;
+* :mod:`.operator` -- what `land SYSID`, `land-here SYSID` and `kill SYSID` do to the
+  vehicle as it is.
 
-Holds are the guard's (:mod:`groundctl.execute.guard`, a unit of its own); the rest
-(the last resort, the operator's commands, stranded vehicles) are still layers of the
-sequence (see ``docs/architecture.md``, "Still to reshape"); spares are to come here.
+Holds are the guard's (:mod:`groundctl.execute.guard`, a unit of its own).  The layers
+of the sequence carry the decisions out through its own state (see
+``docs/architecture.md``, "Still to reshape"); spares are to come here.
 """
