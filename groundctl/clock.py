@@ -40,6 +40,11 @@ class Clock(Protocol):
         age from its kernel time stamp)."""
         ...
 
+    def dated(self, wall_seconds: list[float]) -> tuple[float, list[float]]:
+        """The clock now, and its reading ``w`` real seconds ago for each ``w`` (when each
+        of a batch of datagrams arrived), from one reading of the clock."""
+        ...
+
     def idle_until(self, t: float) -> None:
         """A loop on this clock has nothing to do before ``t`` (only a
         :class:`PacedClock` waits for it; the others ignore it)."""
@@ -86,6 +91,10 @@ class ScaledClock:
     def ago(self, wall_seconds: float) -> float:
         return wall_seconds * self.speed
 
+    def dated(self, wall_seconds: list[float]) -> tuple[float, list[float]]:
+        now = self.now()
+        return now, [now - w * self.speed for w in wall_seconds]
+
     def idle_until(self, t: float) -> None:
         pass  # runs on whatever anybody does
 
@@ -109,6 +118,9 @@ class ManualClock:
 
     def ago(self, wall_seconds: float) -> float:
         return 0.0  # real time does not move this clock
+
+    def dated(self, wall_seconds: list[float]) -> tuple[float, list[float]]:
+        return self._t, [self._t] * len(wall_seconds)
 
     def idle_until(self, t: float) -> None:
         pass
@@ -339,31 +351,27 @@ class PacedClock:
             now = self._read()
             return now - self._dated(time.monotonic() - wall_seconds, now)
 
-    def ago_many(self, wall_seconds: list[float]) -> list[float]:
-        """:meth:`ago` of each of ``wall_seconds`` (a link worker's batch of datagrams),
-        with one short look at the lock: the anchors the batch reaches back to are copied
-        under it, the datagrams dated outside it (a lock held while thousands were dated
-        against hundreds of anchors starved the simulator's processes of it)."""
-        if not wall_seconds:
-            return []
-        return self._ago_many(wall_seconds)[1]
-
     def dated(self, wall_seconds: list[float]) -> tuple[float, list[float]]:
         """The clock now, and its reading ``w`` real seconds ago for each ``w`` of
         ``wall_seconds`` (when each of a drain's datagrams arrived), with one look at
         the lock."""
         if len(wall_seconds) == 1:
             with self._locked() as ok:
-                if ok:
-                    now = self._read()
-                    return now, [self._dated(time.monotonic() - wall_seconds[0], now)]
+                if not ok:  # its holder died holding it: as _ago_many does then
+                    now = self._unlocked()
+                    return now, [now - self.speed * wall_seconds[0]]
+                now = self._read()
+                return now, [self._dated(time.monotonic() - wall_seconds[0], now)]
         if not wall_seconds:
             return self.now(), []
         now, agos = self._ago_many(wall_seconds)
         return now, [now - a for a in agos]
 
     def _ago_many(self, wall_seconds: list[float]) -> tuple[float, list[float]]:
-        """The clock now, and :meth:`ago` of each of ``wall_seconds`` (not empty)."""
+        """The clock now, and :meth:`ago` of each of ``wall_seconds`` (not empty), with
+        one short look at the lock: the anchors the batch reaches back to are copied
+        under it, the datagrams dated outside it (a lock held while thousands were dated
+        against hundreds of anchors starved the simulator's processes of it)."""
         with self._locked() as ok:
             if not ok:
                 return self._unlocked(), [self.speed * w for w in wall_seconds]

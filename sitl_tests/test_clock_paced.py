@@ -225,4 +225,4 @@ def test_a_process_killed_while_it_holds_the_lock_hangs_nobody(
     # Nor the report's figures (a dry-run whose simulator was killed hung in them) or
     # the dating of a link worker's batch.
     assert len(clock.held_s()) == 2 and clock.left_behind() == [0, 0]
-    assert len(clock.ago_many([0.0, 0.01])) == 2
+    assert len(clock.dated([0.0, 0.01])[1]) == 2 and len(clock.dated([0.01])[1]) == 1

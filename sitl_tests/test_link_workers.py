@@ -178,11 +178,13 @@ def test_the_worker_checks_signatures_with_the_network_key() -> None:
 def test_a_paced_clock_dates_a_batch_as_it_dates_each() -> None:
     clock = PacedClock(4.0, participants=1)
     ages = [0.0, 0.01, 0.05, 0.2]
-    many = clock.ago_many(ages)
+    now, times = clock.dated(ages)
+    many = [now - t for t in times]
     each = [clock.ago(a) for a in ages]
     assert many == pytest.approx(each, abs=4.0 * 0.01)  # read a moment apart, at x4
     assert many[0] == pytest.approx(0.0, abs=0.01)
     assert many[-1] == pytest.approx(0.8, abs=0.05)
+    assert clock.dated([0.2])[1] == [pytest.approx(times[-1], abs=4.0 * 0.01)]
 
 
 # -- FleetLink with receive workers, against the simulator over UDP ----------------------

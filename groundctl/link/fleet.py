@@ -365,40 +365,44 @@ class FleetLink:
         """A drain's datagrams, each dated when it arrived, not when our busy loop read
         it: one look at the clock for the batch (a paced clock's is a lock and a read of
         shared memory)."""
-        now, times = self._dated([age for _, _, age in batch])
-        for (data, addr, _), at in zip(batch, times, strict=True):
+        times, stamps = self._dated([arrived for _, _, arrived in batch], network)
+        for (data, addr, _), at, stamp in zip(batch, times, stamps, strict=True):
             try:
-                self._on_datagram(data, addr, at, network, (now - at) / self._speed)
+                self._on_datagram(data, addr, at, network, stamp)
             except Exception:  # a bug in a handler must cost one datagram, not the batch
                 log.exception("error handling datagram from %s:%s", addr[0], addr[1])
 
-    def _dated(self, ages: list[float]) -> tuple[float, list[float]]:
-        """Our clock now, and when each datagram ``ages`` wall seconds old arrived on it."""
-        clock = self.clock
-        dated = getattr(clock, "dated", None)
-        if dated is not None:
-            return dated(ages)  # type: ignore[no-any-return]
-        now = clock.now()
-        return now, [now - clock.ago(a) if a > 0.0 else now for a in ages]
+    def _dated(self, arrived: list[float], network: int
+               ) -> tuple[list[float], list[float | None]]:
+        """When each datagram that arrived at ``arrived`` (``time.monotonic()``) did so,
+        on our clock (one reading of it for the batch) and on the network's tlog's
+        (Unix time, one reading of its stamp for the batch: a backlog is stamped when
+        each packet arrived, not as the loop got to it; None without a tlog)."""
+        wall = time.monotonic()
+        now, times = self.clock.dated([max(wall - a, 0.0) for a in arrived])
+        tlog = self._tlogs[network]
+        if tlog is None:
+            return times, [None] * len(times)
+        base = tlog.stamp()
+        return times, [base - (now - t) / self._speed for t in times]
 
     def _on_datagram(self, data: bytes, addr: Address, now: float, network: int = 0,
-                     waited_s: float = 0.0) -> None:
-        """One datagram, arrived at ``now`` on our clock, ``waited_s`` real seconds (at the
-        clock's pace) before it is handled."""
+                     stamp: float | None = None) -> None:
+        """One datagram, arrived at ``now`` on our clock (``stamp`` on the tlog's)."""
         result = self._parser(addr, network).feed(data)
         self._on_parsed(addr, now, network, result.messages, result.bad,
-                        result.refused_signatures, result.unknown, waited_s)
+                        result.refused_signatures, result.unknown, stamp)
 
     def _on_parsed(self, addr: Address, now: float, network: int,
                    messages: Iterable[mavlink.MAVLink_message | Superseded],
                    bad: Iterable[str], refused_signatures: Iterable[int],
-                   unknown: int, waited_s: float = 0.0) -> None:
+                   unknown: int, stamp: float | None = None) -> None:
         """One datagram's content, parsed here or by the network's link worker (whose
         :class:`Superseded` entries stand for state messages a newer one replaced while
-        this loop was behind).  The tlog stamps each packet when it arrived, ``waited_s``
-        before now: a busy loop that read a backlog at once wrote it under one stamp,
-        and a replay dating the vehicles' clocks by those stamps tracked them centimetres
-        off the monitor's figures."""
+        this loop was behind).  The tlog stamps each packet ``stamp``, when it arrived
+        (:meth:`_dated`): a busy loop that read a backlog at once wrote it under one
+        stamp, and a replay dating the vehicles' clocks by those stamps tracked them
+        centimetres off the monitor's figures."""
         self.stats.datagrams += 1
         for reason in bad:
             self._bad_packet(addr, reason)
@@ -414,7 +418,7 @@ class FleetLink:
                 self._superseded(msg, addr, now, network)
                 continue
             if tlog is not None:
-                tlog.write(msg.get_msgbuf(), waited_s=waited_s)
+                tlog.write(msg.get_msgbuf(), stamp)
             try:
                 self._handle(msg, addr, now, network)
             except Exception:  # a bug here must cost one packet, not the link
@@ -443,17 +447,15 @@ class FleetLink:
         handled as if read here.  A restarted worker's first batch ends its network's
         silence (then heard again as any silent network is)."""
         self._worker_down[network] = False
-        wall = time.monotonic()
-        now, times = self._dated([max(wall - d.arrived, 0.0) for d in batch])
-        for datagram, at in zip(batch, times, strict=True):
+        times, stamps = self._dated([d.arrived for d in batch], network)
+        for datagram, at, stamp in zip(batch, times, stamps, strict=True):
             try:
                 messages = [unpack(m) for m in datagram.messages]
             except Exception as exc:  # a worker of another version, a bug: one datagram
                 self._bad_packet(datagram.address, f"unreadable from the worker: {exc}")
                 continue
             self._on_parsed(datagram.address, at, network, messages, datagram.bad,
-                            datagram.refused_signatures, datagram.unknown,
-                            (now - at) / self._speed)
+                            datagram.refused_signatures, datagram.unknown, stamp)
 
     def _on_worker_errors(self, count: int) -> None:
         self.stats.socket_errors += count

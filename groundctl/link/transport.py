@@ -25,7 +25,8 @@ log = logging.getLogger(__name__)
 SOCKET_BUFFER_BYTES = 4 * 1024 * 1024
 
 Address = tuple[str, int]
-#: A datagram as read: its bytes, its sender, its age (wall seconds in the socket).
+#: A datagram as read: its bytes, its sender, and when it arrived (``time.monotonic()``:
+#: the kernel's stamp, or when it was read where the kernel gives none).
 Received = tuple[bytes, Address, float]
 
 
@@ -57,13 +58,13 @@ class UdpTransport:
     def __init__(self, on_datagrams: Callable[[list[Received]], None],
                  on_error: Callable[[Exception], None] | None = None) -> None:
         """``on_datagrams(batch)``: every datagram one :meth:`drain` read, in order, each
-        ``(data, address, age_s)``.  ``age_s`` is how long (wall seconds) the datagram
-        waited in the socket before it was read, from the kernel's arrival stamp (0
-        where the kernel gives none).  On a busy ground station that wait is ours, not
-        the link's: telemetry is dated, and a TIMESYNC round trip measured, from when the
-        datagram arrived.  One call per drain, not per datagram: a dry-run's paced clock
-        is read once for the batch (about 10 µs a reading, a third of what the control
-        loop spent on each datagram)."""
+        ``(data, address, arrived)``: ``arrived`` is when (``time.monotonic()``) the
+        kernel stamped its arrival, or when it was read where the kernel gives no stamp.
+        On a busy ground station the wait in the socket is ours, not the link's:
+        telemetry is dated, and a TIMESYNC round trip measured, from when the datagram
+        arrived.  One call per drain, not per datagram: a dry-run's paced clock is read
+        once for the batch (about 10 µs a reading, a third of what the control loop
+        spent on each datagram)."""
         self._on_datagrams = on_datagrams
         self._on_error = on_error or (lambda exc: None)
         self._sock: socket.socket | None = None
@@ -160,13 +161,14 @@ class UdpTransport:
 
 
 def read_datagram(sock: socket.socket, stamped: bool) -> Received:
-    """One datagram, its sender and its age (wall seconds since the kernel stamped it; 0
-    unstamped); raises what the socket raises (BlockingIOError once it is empty)."""
+    """One datagram, its sender and when it arrived (``time.monotonic()``: the read less
+    its age since the kernel stamped it; the read itself unstamped); raises what the
+    socket raises (BlockingIOError once it is empty)."""
     if stamped:
         data, ancillary, _, addr = sock.recvmsg(65535, ANCILLARY)
-        return data, (addr[0], addr[1]), arrival_age(ancillary)
+        return data, (addr[0], addr[1]), time.monotonic() - arrival_age(ancillary)
     data, addr = sock.recvfrom(65535)
-    return data, (addr[0], addr[1]), 0.0
+    return data, (addr[0], addr[1]), time.monotonic()
 
 
 def arrival_age(ancillary: list[tuple[int, int, bytes]]) -> float:

@@ -456,7 +456,7 @@ class Receiver:
         sock = self.sock
         while len(out) < limit:
             try:
-                data, address, age = read_datagram(sock, self.setup.stamped)
+                data, address, arrived = read_datagram(sock, self.setup.stamped)
             except (BlockingIOError, InterruptedError):
                 break
             except ConnectionRefusedError:
@@ -466,7 +466,7 @@ class Receiver:
                 self.errors += 1
                 break
             result = self._parser(address).feed(data)
-            out.append(Datagram(address, time.monotonic() - age,
+            out.append(Datagram(address, arrived,
                                 tuple(pack_message(m) for m in result.messages),
                                 tuple(result.bad), tuple(result.refused_signatures),
                                 result.unknown))

@@ -47,17 +47,20 @@ class TlogWriter:
         self.packets = 0
         self._stamp = (-float("inf"), 0.0)  # (monotonic when read, Unix time read)
 
-    def write(self, packet: bytes, unix_s: float | None = None, *,
-              waited_s: float = 0.0) -> None:
-        """Record one MAVLink packet, stamped ``unix_s`` (default: now, less ``waited_s``:
-        a received packet is stamped when it arrived, not when a busy loop got to it)."""
+    def write(self, packet: bytes, unix_s: float | None = None) -> None:
+        """Record one MAVLink packet, stamped ``unix_s`` (default: now; a received packet
+        is stamped when it arrived, from :meth:`stamp` less its wait)."""
         if self._file is None:
             return  # closed: late packets during shutdown are dropped, not an error
-        t = self._now() - waited_s if unix_s is None else unix_s
+        t = self._now() if unix_s is None else unix_s
         self._file.write(_STAMP.pack(max(int(t * 1e6), 0)) + bytes(packet))
         self.packets += 1
         if t - self._last_flush >= self._flush_interval:
             self.flush()
+
+    def stamp(self) -> float:
+        """Now, as this tlog stamps it (Unix seconds)."""
+        return self._now()
 
     def _now(self) -> float:
         mono = time.monotonic()
