@@ -5,6 +5,8 @@ carries the decisions out is in test_execute_sequence.py."""
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import pytest
@@ -134,7 +136,7 @@ def test_after_the_show_a_low_fleet_is_already_on_its_way_down() -> None:
 
 
 def _vehicle(flavour: Flavour = Flavour.ARDUPILOT, **fields: object) -> VehicleRun:
-    return VehicleRun(sysid=2, track=1, flavour=flavour, phase=SHOW, **fields)  # type: ignore[arg-type]
+    return VehicleRun(sysid=2, track=1, flavour=flavour, phase=SHOW, **fields)
 
 
 def _state(mode: str, **fields: object) -> VehicleState:
@@ -299,15 +301,27 @@ def test_a_way_out_handed_over_is_taken_only_if_still_awaited_for_the_same_start
                    show_time=now, starts_at=12.0) is verdict
 
 
-@pytest.mark.parametrize(("times", "following", "verdict"), [
-    (1, 18.0, Late.NEXT_INSTANT),
-    (MAX_LATE_LEAVES - 1, 18.0, Late.NEXT_INSTANT),
-    (MAX_LATE_LEAVES, 18.0, Late.GIVE_UP),  # bounded: never a way out chased forever
-    (1, None, Late.GIVE_UP),  # no formation left to leave from
+def _asked(value: Any) -> tuple[list[int], Callable[[], Any]]:
+    """A lazy answer and the count of times it was asked for."""
+    count: list[int] = []
+
+    def answer() -> Any:
+        count.append(1)
+        return value
+    return count, answer
+
+
+@pytest.mark.parametrize(("times", "following", "verdict", "asked"), [
+    (1, 18.0, Late.NEXT_INSTANT, 1),
+    (MAX_LATE_LEAVES - 1, 18.0, Late.NEXT_INSTANT, 1),
+    (MAX_LATE_LEAVES, 18.0, Late.TOO_MANY, 0),  # bounded: never a way out chased forever
+    (1, None, Late.NO_INSTANT, 1),  # no formation left to leave from
 ])
 def test_a_late_way_out_is_tried_at_the_next_instant_a_bounded_number_of_times(
-        times: int, following: float | None, verdict: Late) -> None:
-    assert late(times, MAX_LATE_LEAVES, following) is verdict
+        times: int, following: float | None, verdict: Late, asked: int) -> None:
+    count, answer = _asked(following)
+    assert late(times, MAX_LATE_LEAVES, answer) is verdict
+    assert len(count) == asked
 
 
 @pytest.mark.parametrize(("phase", "holds", "where"), [
@@ -353,8 +367,11 @@ _FLYING = {"armed": True, "lost": False, "altitude_m": 8.0, "in_flight_mode": Tr
 ])
 def test_a_vehicle_given_up_as_disarmed_is_judged_by_its_own_telemetry(
         change: dict[str, object], verdict: ArmedAgain) -> None:
-    view: dict[str, object] = {**_FLYING, "in_show": True, "off_plan": False, **change}
-    assert armed_again(**view) is verdict
+    view: dict[str, object] = {**_FLYING, "in_show": True, **change}
+    count, answer = _asked(view.pop("off_plan", False))
+    assert armed_again(**view, off_plan=answer) is verdict
+    # The plan is evaluated only for a vehicle flying in the show (every update).
+    assert len(count) == (verdict in (ArmedAgain.BACK, ArmedAgain.STRANDED))
 
 
 def test_the_fleet_lands_once_enough_are_stranded_at_once() -> None:
@@ -422,8 +439,10 @@ def test_a_blocked_column_is_said_once_after_the_wait() -> None:
 def test_land_one_lands_now_off_the_show_and_leaves_on_a_way_out_in_it(
         known: bool, columns: bool, mid_show: bool, leaving: bool, at: float | None,
         verdict: LandOne) -> None:
+    count, answer = _asked(at)
     assert land_one_asked(known=known, in_columns=columns, mid_show=mid_show,
-                          leaving=leaving, next_instant=at) is verdict
+                          leaving=leaving, next_instant=answer) is verdict
+    assert len(count) == (verdict in (LandOne.NO_FORMATION_LEFT, LandOne.LEAVE_AT_NEXT))
 
 
 @pytest.mark.parametrize(("phase", "verdict"), [

@@ -77,13 +77,18 @@ class OperatorCommands(WaysOut):
         :attr:`leave_needed`); a straight line home would cut through the show.
         """
         v = self.vehicles.get(sysid)
-        mid_show = v is not None and self.streamed_as(v) is VehiclePhase.SHOW \
-            and not self._ended
-        leaving = v is not None and v.leave_at is not None
-        at = leave_time(self.plan, v.track, self.show_time(now)) \
-            if v is not None and mid_show and not leaving and not self._columns else None
-        verdict = land_one_asked(known=v is not None, in_columns=self._columns,
-                                 mid_show=mid_show, leaving=leaving, next_instant=at)
+        at: list[float | None] = []
+
+        def next_instant() -> float | None:
+            assert v is not None
+            at.append(leave_time(self.plan, v.track, self.show_time(now)))
+            return at[-1]
+
+        verdict = land_one_asked(
+            known=v is not None, in_columns=self._columns,
+            mid_show=v is not None and self.streamed_as(v) is VehiclePhase.SHOW
+            and not self._ended,
+            leaving=v is not None and v.leave_at is not None, next_instant=next_instant)
         if verdict is LandOne.UNKNOWN:
             return [Notice(None, f"no vehicle {sysid} in this show")]
         assert v is not None
@@ -99,10 +104,11 @@ class OperatorCommands(WaysOut):
                                   "from; it lands with the others at the end (land-here "
                                   f"{sysid} brings it straight down now)")]
         if verdict is LandOne.LEAVE_AT_NEXT:
-            assert at is not None
-            v.leave_at = at
-            return [Notice(sysid, f"vehicle {sysid} leaves the show at show time {at:.1f} s, "
-                                  "on a way out planned around the others")]
+            v.leave_at = at[-1]
+            assert v.leave_at is not None
+            return [Notice(sysid, f"vehicle {sysid} leaves the show at show time "
+                                  f"{v.leave_at:.1f} s, on a way out planned around the "
+                                  "others")]
         return [Notice(sysid, f"landing vehicle {sysid}"), *self._land(v, now)]
 
     def land_here(self, sysid: int, now: float) -> list[Action]:

@@ -81,14 +81,18 @@ class WaysOut(Columns):
         if v is None or v.leave is not None or v.leave_at is None:
             return []
         v.leave_late += 1
-        following = None if v.leave_late >= MAX_LATE_LEAVES else (
-            self._hold_leave_time(v, now) if v.hold_point is not None
-            else leave_time(self.plan, v.track, self.show_time(now)))
-        if late(v.leave_late, MAX_LATE_LEAVES, following) is Late.GIVE_UP:
-            why = f"{v.leave_late} times" if v.leave_late >= MAX_LATE_LEAVES \
-                else "no formation left to leave from"
-            return self.leave_failed(sysid, f"{reason}; {why}", now)
-        v.leave_at = following
+
+        def next_instant() -> float | None:
+            v.leave_at = (self._hold_leave_time(v, now) if v.hold_point is not None
+                          else leave_time(self.plan, v.track, self.show_time(now)))
+            return v.leave_at
+
+        verdict = late(v.leave_late, MAX_LATE_LEAVES, next_instant)
+        if verdict is Late.TOO_MANY:
+            return self.leave_failed(sysid, f"{reason}; {v.leave_late} times", now)
+        if verdict is Late.NO_INSTANT:
+            return self.leave_failed(sysid, f"{reason}; no formation left to leave from",
+                                     now)
         assert v.leave_at is not None
         return [Notice(sysid, f"vehicle {sysid}: {reason}; leaving at show time "
                               f"{v.leave_at:.1f} s instead", "leave_late",

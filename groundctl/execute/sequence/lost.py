@@ -134,13 +134,18 @@ class OffPlan(OperatorCommands):
         from reports the link could not check).  Left alone it would hover where it was
         with nobody in charge while the show flies past: it holds there and leaves on a
         way out, as a vehicle heard again off its plan does; after the show, it lands."""
-        in_show = not self._ended and self.started_at is not None \
-            and self._positions.get(v.sysid) is not None
-        off = self._off_plan(v, now) if in_show else None
+        off: list[tuple[float, tuple[float, float, float]] | None] = []
+
+        def off_plan() -> bool:
+            off.append(self._off_plan(v, now))
+            return off[-1] is not None
+
         verdict = armed_again(armed=state.armed, lost=state.lost,
                               altitude_m=self._altitude(state),
                               in_flight_mode=state.mode == _FLIGHT_MODE[v.flavour],
-                              in_show=in_show, off_plan=off is not None)
+                              in_show=not self._ended and self.started_at is not None
+                              and self._positions.get(v.sysid) is not None,
+                              off_plan=off_plan)
         if verdict is ArmedAgain.NOT_FLYING:
             return []
         v.fell, v.reason = False, None
@@ -152,8 +157,9 @@ class OffPlan(OperatorCommands):
             self._to(v, Event.ALIVE)
             return [Notice(v.sysid, f"vehicle {v.sysid} is armed in the air after all, on its "
                                     "plan: back in the show")]
-        assert off is not None
-        return self._strand(v, off, now, "armed in the air after all,")
+        stranded = off[-1]
+        assert stranded is not None
+        return self._strand(v, stranded, now, "armed in the air after all,")
 
     def _land_all_if_stranded(self, now: float) -> list[Action]:
         """Land the whole fleet when STRANDED_LAND_ALL or more hold off their plans."""

@@ -5,6 +5,7 @@ notice, never an exception)."""
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable
 
 from groundctl.execute.sequence.types import _DONE, VehiclePhase
 
@@ -30,10 +31,10 @@ class LandOne(enum.Enum):
 
 
 def land_one_asked(*, known: bool, in_columns: bool, mid_show: bool, leaving: bool,
-             next_instant: float | None) -> LandOne:
+                   next_instant: Callable[[], float | None]) -> LandOne:
     """``mid_show``: the vehicle is streamed in the show and the show is not over;
-    ``leaving``: its way out instant is set; ``next_instant``: the next show time it
-    could leave at (asked for only mid-show and not leaving)."""
+    ``leaving``: its way out instant is set; ``next_instant()``: the next show time it
+    could leave at (None: no formation left), asked only mid-show and not leaving."""
     if not known:
         return LandOne.UNKNOWN
     if in_columns:
@@ -42,7 +43,7 @@ def land_one_asked(*, known: bool, in_columns: bool, mid_show: bool, leaving: bo
         return LandOne.LAND_NOW
     if leaving:
         return LandOne.ALREADY_LEAVING
-    return LandOne.NO_FORMATION_LEFT if next_instant is None else LandOne.LEAVE_AT_NEXT
+    return LandOne.NO_FORMATION_LEFT if next_instant() is None else LandOne.LEAVE_AT_NEXT
 
 
 class LandHere(enum.Enum):

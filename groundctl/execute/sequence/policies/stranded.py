@@ -6,6 +6,7 @@ the fleet landed when too many are stranded at once, and where a vehicle given u
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable
 
 from groundctl.execute.sequence.types import AIRBORNE_M, STRANDED_LAND_ALL, VehiclePhase
 
@@ -25,17 +26,18 @@ class ArmedAgain(enum.Enum):
 
 
 def armed_again(*, armed: bool, lost: bool, altitude_m: float | None, in_flight_mode: bool,
-                in_show: bool, off_plan: bool) -> ArmedAgain:
+                in_show: bool, off_plan: Callable[[], bool]) -> ArmedAgain:
     """Judge a vehicle given up as disarmed in the air from its own telemetry (``armed``,
     ``lost``, ``altitude_m``, ``in_flight_mode``: in the mode our setpoints fly it in);
-    ``in_show``: the show runs and its position is known; ``off_plan``: it is farther
-    than the rejoin tolerance from its plan (asked only where it matters)."""
+    ``in_show``: the show runs and its position is known; ``off_plan()``: it is farther
+    than the rejoin tolerance from its plan (asked only of a vehicle flying in the show:
+    it evaluates the plan, and a fallen vehicle is judged every update)."""
     if not armed or lost or altitude_m is None or altitude_m <= AIRBORNE_M \
             or not in_flight_mode:
         return ArmedAgain.NOT_FLYING
     if not in_show:
         return ArmedAgain.LAND_HERE
-    return ArmedAgain.STRANDED if off_plan else ArmedAgain.BACK
+    return ArmedAgain.STRANDED if off_plan() else ArmedAgain.BACK
 
 
 def too_many_stranded(count: int) -> bool:

@@ -5,6 +5,7 @@ times), and where a vehicle without one goes (on with the show, or down where it
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable
 
 from groundctl.execute.sequence.types import VehiclePhase
 
@@ -42,18 +43,19 @@ class Late(enum.Enum):
     NEXT_INSTANT = "next_instant"
     """Leave at the next instant it can (the next formation it rests on, or a moment
     from now where it holds off its plan)."""
-    GIVE_UP = "give_up"
-    """Late too many times, or no instant left to leave from: no way out
-    (:func:`without_way_out`)."""
+    TOO_MANY = "too_many"
+    """Late too many times: no way out (:func:`without_way_out`)."""
+    NO_INSTANT = "no_instant"
+    """No instant left to leave from before the show ends: no way out."""
 
 
-def late(times_late: int, max_late: int, next_instant: float | None) -> Late:
-    """After its way out was late ``times_late`` times (this one included), with
-    ``next_instant`` the next show time it could leave at (None: none before the show
-    ends)."""
-    if times_late >= max_late or next_instant is None:
-        return Late.GIVE_UP
-    return Late.NEXT_INSTANT
+def late(times_late: int, max_late: int, next_instant: Callable[[], float | None]) -> Late:
+    """After its way out was late ``times_late`` times (this one included);
+    ``next_instant()``: the next show time it could leave at (None: none before the show
+    ends), asked only while it may still try."""
+    if times_late >= max_late:
+        return Late.TOO_MANY
+    return Late.NO_INSTANT if next_instant() is None else Late.NEXT_INSTANT
 
 
 class WithoutWayOut(enum.Enum):
