@@ -36,11 +36,21 @@ install.trusted-host='mirror.local'
 """
 
 
+def test_aliases_are_one_setting_and_empty_values_are_dropped_as_pip_does() -> None:
+    settings = install.pip_settings(
+        ":env:.default-timeout='180'\nglobal.timeout='10'\n:env:.index-url=''\n")
+    assert settings == {"timeout": "180"}  # the variable wins, whichever name it has
+    assert install.uv_call(settings).env == {"UV_HTTP_TIMEOUT": "180"}
+    assert install.uv_call({"timeout": "60.0"}).env == {"UV_HTTP_TIMEOUT": "60"}
+    for true in ("y", "t", "yes", "On", "1"):
+        assert "--no-index" in install.uv_call({"no-index": true}).args
+
+
 def test_pip_install_settings_env_over_install_over_global_other_commands_dropped() -> None:
     settings = install.pip_settings(LISTING)
     assert settings == {
         "cert": "/etc/ssl/certs/ca-certificates.crt",
-        "default-timeout": "180",
+        "timeout": "180",
         "disable-pip-version-check": "1",
         "find-links": "/opt/wheels",
         "constraint": "/etc/xdg/pip/constraints.txt",
@@ -51,8 +61,9 @@ def test_pip_install_settings_env_over_install_over_global_other_commands_droppe
 
 def test_uv_resolves_as_pip_does_with_every_index_constraint_and_certificate() -> None:
     call = install.uv_call(install.pip_settings(LISTING))
-    assert call.args[:2] == ["--index-strategy", "unsafe-best-match"]
-    pairs = list(zip(call.args[2::2], call.args[3::2], strict=True))
+    # Nothing of uv's own configuration; pip's choice among indexes.
+    assert call.args[:3] == ["--no-config", "--index-strategy", "unsafe-best-match"]
+    pairs = list(zip(call.args[3::2], call.args[4::2], strict=True))
     assert sorted(pairs) == sorted([
         ("--find-links", "/opt/wheels"),
         ("--constraint", "/etc/xdg/pip/constraints.txt"),
