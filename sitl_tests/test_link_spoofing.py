@@ -171,6 +171,35 @@ async def test_a_fleet_file_address_pins_its_vehicle_whoever_speaks_first() -> N
 
 
 @run
+async def test_a_pin_after_the_start_forgets_a_stranger_heard_first() -> None:
+    """The dry-run's case: the simulator's ports are known only once it runs, after the
+    link is up, and a stranger may have spoken for its vehicles by then."""
+    events = EventList()
+    clock = ScaledClock()
+    with VehiclePeer(3, ("127.0.0.1", 9), clock=clock, mode="GUIDED") as real, \
+         VehiclePeer(3, ("127.0.0.1", 9), clock=clock, mode="LAND") as stranger:
+        async with new_link(clock=clock, events=events, expected_ids={3}) as link:
+            assert link.local_address is not None
+            real.gcs = stranger.gcs = link.local_address
+            stranger.heartbeat()
+            await link.wait_for_vehicles([3], 2.0)
+            assert link.address_of(3) == stranger.address and link.vehicles[3].mode == "LAND"
+            link.pin({3: real.address})
+            assert link.address_of(3) is None and 3 not in link.vehicles  # all it said
+            (forgotten,) = events.named("address_forgotten")
+            assert forgotten["address"] == "{}:{}".format(*stranger.address)
+            assert forgotten["pinned"] == "{}:{}".format(*real.address)
+            stranger.heartbeat()
+            await eventually(lambda: link.stats.address_conflicts == 1, what="refused")
+            real.heartbeat()
+            await link.wait_for_vehicles([3], 2.0)
+            assert link.address_of(3) == real.address and link.vehicles[3].mode == "GUIDED"
+            link.pin({3: real.address})  # pinning it again where it is forgets nothing
+            assert link.vehicles[3].mode == "GUIDED"
+            assert len(events.named("address_forgotten")) == 1
+
+
+@run
 async def test_a_host_only_fleet_entry_pins_the_host_and_learns_the_port() -> None:
     clock = ScaledClock()
     with VehiclePeer(4, ("127.0.0.1", 9), clock=clock, mode="LAND") as elsewhere:
