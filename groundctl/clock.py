@@ -35,11 +35,6 @@ class Clock(Protocol):
         """Real (wall-clock) seconds that ``seconds`` of this clock's time take."""
         ...
 
-    def ago(self, wall_seconds: float) -> float:
-        """This clock's seconds since ``wall_seconds`` of real time ago (a datagram's
-        age from its kernel time stamp)."""
-        ...
-
     def dated(self, wall_seconds: list[float]) -> tuple[float, list[float]]:
         """The clock now, and its reading ``w`` real seconds ago for each ``w`` (when each
         of a batch of datagrams arrived), from one reading of the clock."""
@@ -88,9 +83,6 @@ class ScaledClock:
     def wall_interval(self, seconds: float) -> float:
         return seconds / self.speed
 
-    def ago(self, wall_seconds: float) -> float:
-        return wall_seconds * self.speed
-
     def dated(self, wall_seconds: list[float]) -> tuple[float, list[float]]:
         now = self.now()
         return now, [now - w * self.speed for w in wall_seconds]
@@ -115,9 +107,6 @@ class ManualClock:
 
     def wall_interval(self, seconds: float) -> float:
         return 0.0
-
-    def ago(self, wall_seconds: float) -> float:
-        return 0.0  # real time does not move this clock
 
     def dated(self, wall_seconds: list[float]) -> tuple[float, list[float]]:
         return self._t, [self._t] * len(wall_seconds)
@@ -343,14 +332,6 @@ class PacedClock:
                 return self._unlocked() - self.speed * max(time.monotonic() - wall, 0.0)
             return self._dated(wall, self._read())
 
-    def ago(self, wall_seconds: float) -> float:
-        """Clock seconds since ``wall_seconds`` of real time ago (one look at the lock)."""
-        with self._locked() as ok:
-            if not ok:
-                return self.speed * wall_seconds
-            now = self._read()
-            return now - self._dated(time.monotonic() - wall_seconds, now)
-
     def dated(self, wall_seconds: list[float]) -> tuple[float, list[float]]:
         """The clock now, and its reading ``w`` real seconds ago for each ``w`` of
         ``wall_seconds`` (when each of a drain's datagrams arrived), with one look at
@@ -368,7 +349,7 @@ class PacedClock:
         return now, [now - a for a in agos]
 
     def _ago_many(self, wall_seconds: list[float]) -> tuple[float, list[float]]:
-        """The clock now, and :meth:`ago` of each of ``wall_seconds`` (not empty), with
+        """The clock now, and its seconds since each of ``wall_seconds`` ago (not empty), with
         one short look at the lock: the anchors the batch reaches back to are copied
         under it, the datagrams dated outside it (a lock held while thousands were dated
         against hundreds of anchors starved the simulator's processes of it)."""

@@ -100,7 +100,8 @@ def test_the_past_is_dated_on_the_clock_as_it_ran() -> None:
     # age at full pace" (which would put it before the wait).
     assert clock.at_wall(during_wait) == pytest.approx(0.35)
     age = time.monotonic() - during_wait
-    assert me.ago(age) == pytest.approx(me.now() - 0.35, abs=0.02)
+    now, (then,) = me.dated([age])
+    assert now - then == pytest.approx(me.now() - 0.35, abs=0.02)
     # A drain's datagrams dated with one look: the one of the wait, and one just read.
     age = time.monotonic() - during_wait
     now, (first, last) = me.dated([age, 0.0])

@@ -12,7 +12,6 @@ import json
 import os
 import signal
 import socket
-import threading
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -21,6 +20,7 @@ import numpy as np
 import pymap3d
 import pytest
 from flight_fixtures import dry_run, flavours, quick_plan, show_time, until, vehicle
+from link_fixtures import VehiclePeer
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -296,43 +296,19 @@ def test_signed_link_flies_and_a_wrong_key_is_refused() -> None:
     assert result.report["safe"] is False
 
 
-class _Stranger:
-    """Another fleet's vehicles 1..9 on this machine, sending HEARTBEATs to our ground
-    station's port from a socket of their own (a `groundctl sim` left pointing at a port
-    the ground station then got): from before the simulator starts until stopped."""
-
-    def __init__(self, target: tuple[str, int]) -> None:
-        self.target, self.stop = target, threading.Event()
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.codecs = [mavlink.MAVLink(None, srcSystem=s, srcComponent=1) for s in range(1, 10)]
-        self.burst()  # heard before any simulated vehicle
-        self.thread = threading.Thread(target=self._run, daemon=True)
-        self.thread.start()
-
-    def burst(self) -> None:
-        for mav in self.codecs:
-            hb = mavlink.MAVLink_heartbeat_message(
-                mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
-                mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 4, mavlink.MAV_STATE_STANDBY, 3)
-            self.sock.sendto(hb.pack(mav), self.target)
-
-    def _run(self) -> None:
-        while not self.stop.wait(0.05):
-            self.burst()
-
-    def close(self) -> None:
-        self.stop.set()
-        self.thread.join()
-        self.sock.close()
-
-
 def test_malformed_and_unexpected_packets_at_the_ground_station_are_ignored(
         tmp_path: Path) -> None:
-    strangers: list[_Stranger] = []
+    # Another fleet's vehicles 1..9 on this machine heartbeating our ground station's port
+    # (a `groundctl sim` left pointing at a port the ground station then got): heard
+    # before the simulator starts, and on for the whole flight.
+    strangers: list[VehiclePeer] = []
 
     def stranger_first(config: SimConfig) -> SimConfig:
-        strangers.append(_Stranger(config.gcs))
+        for sysid in range(1, 10):
+            peer = VehiclePeer(sysid, config.gcs, mode="GUIDED")
+            peer.heartbeat()
+            peer.heartbeat_period = 0.05
+            strangers.append(peer)
         return config
 
     async def garbage(runner: ShowRunner, sim: SimProcess) -> None:

@@ -180,7 +180,7 @@ def test_a_paced_clock_dates_a_batch_as_it_dates_each() -> None:
     ages = [0.0, 0.01, 0.05, 0.2]
     now, times = clock.dated(ages)
     many = [now - t for t in times]
-    each = [clock.ago(a) for a in ages]
+    each = [n - t for n, (t,) in (clock.dated([a]) for a in ages)]  # one at a time
     assert many == pytest.approx(each, abs=4.0 * 0.01)  # read a moment apart, at x4
     assert many[0] == pytest.approx(0.0, abs=0.01)
     assert many[-1] == pytest.approx(0.8, abs=0.05)

@@ -3,6 +3,8 @@ each returns actions, and bad input comes back as a Notice, never an exception."
 
 from __future__ import annotations
 
+from functools import cache
+
 from groundctl.execute.leaving import leave_time
 from groundctl.execute.sequence.leaves import WaysOut
 from groundctl.execute.sequence.lifecycle import Event
@@ -77,13 +79,8 @@ class OperatorCommands(WaysOut):
         :attr:`leave_needed`); a straight line home would cut through the show.
         """
         v = self.vehicles.get(sysid)
-        at: list[float | None] = []
-
-        def next_instant() -> float | None:
-            assert v is not None
-            at.append(leave_time(self.plan, v.track, self.show_time(now)))
-            return at[-1]
-
+        next_instant = cache(lambda: None if v is None else
+                             leave_time(self.plan, v.track, self.show_time(now)))
         verdict = land_one_asked(
             known=v is not None, in_columns=self._columns,
             mid_show=v is not None and self.streamed_as(v) is VehiclePhase.SHOW
@@ -104,7 +101,7 @@ class OperatorCommands(WaysOut):
                                   "from; it lands with the others at the end (land-here "
                                   f"{sysid} brings it straight down now)")]
         if verdict is LandOne.LEAVE_AT_NEXT:
-            v.leave_at = at[-1]
+            v.leave_at = next_instant()
             assert v.leave_at is not None
             return [Notice(sysid, f"vehicle {sysid} leaves the show at show time "
                                   f"{v.leave_at:.1f} s, on a way out planned around the "

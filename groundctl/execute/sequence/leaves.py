@@ -3,6 +3,8 @@ flies a way out planned around the others, from the instant it leaves to its lan
 
 from __future__ import annotations
 
+from functools import cache
+
 import numpy as np
 
 from groundctl.execute.leaving import LEAVE_LEAD_S, Leave, leave_duration, leave_time
@@ -81,18 +83,16 @@ class WaysOut(Columns):
         if v is None or v.leave is not None or v.leave_at is None:
             return []
         v.leave_late += 1
-
-        def next_instant() -> float | None:
-            v.leave_at = (self._hold_leave_time(v, now) if v.hold_point is not None
-                          else leave_time(self.plan, v.track, self.show_time(now)))
-            return v.leave_at
-
+        held = v.hold_point is not None
+        next_instant = cache(lambda: self._hold_leave_time(v, now) if held
+                             else leave_time(self.plan, v.track, self.show_time(now)))
         verdict = late(v.leave_late, MAX_LATE_LEAVES, next_instant)
         if verdict is Late.TOO_MANY:
             return self.leave_failed(sysid, f"{reason}; {v.leave_late} times", now)
         if verdict is Late.NO_INSTANT:
             return self.leave_failed(sysid, f"{reason}; no formation left to leave from",
                                      now)
+        v.leave_at = next_instant()
         assert v.leave_at is not None
         return [Notice(sysid, f"vehicle {sysid}: {reason}; leaving at show time "
                               f"{v.leave_at:.1f} s instead", "leave_late",

@@ -4,6 +4,8 @@ on its slot may abort the show."""
 
 from __future__ import annotations
 
+from functools import cache
+
 import numpy as np
 
 from groundctl.execute.preflight import remaining_plan_conflicts
@@ -97,8 +99,8 @@ class OffPlan(OperatorCommands):
         """(distance, position) if a vehicle is mid-show farther than
         ``rejoin_tolerance_m`` from its plan over the last ``OFF_PLAN_WINDOW_S`` (so a
         late telemetry sample or a lagging autopilot does not count); None otherwise."""
-        pos = self._positions.get(v.sysid)
-        if self.started_at is None or self._ended or pos is None:
+        pos = self._mid_show_at(v)
+        if pos is None:
             return None
         t = self.show_time(now)
         recent = np.linspace(max(t - OFF_PLAN_WINDOW_S, 0.0), t, 6)
@@ -107,6 +109,12 @@ class OffPlan(OperatorCommands):
         if distance <= self.config.rejoin_tolerance_m:
             return None
         return distance, (float(pos[0]), float(pos[1]), float(pos[2]))
+
+    def _mid_show_at(self, v: VehicleRun) -> np.ndarray | None:
+        """Where a vehicle is, while the show runs (None before or after it, or unheard)."""
+        if self.started_at is None or self._ended:
+            return None
+        return self._positions.get(v.sysid)
 
     def _strand(self, v: VehicleRun, off: tuple[float, tuple[float, float, float]],
                 now: float, how: str) -> list[Action]:
@@ -134,18 +142,12 @@ class OffPlan(OperatorCommands):
         from reports the link could not check).  Left alone it would hover where it was
         with nobody in charge while the show flies past: it holds there and leaves on a
         way out, as a vehicle heard again off its plan does; after the show, it lands."""
-        off: list[tuple[float, tuple[float, float, float]] | None] = []
-
-        def off_plan() -> bool:
-            off.append(self._off_plan(v, now))
-            return off[-1] is not None
-
+        off = cache(lambda: self._off_plan(v, now))
         verdict = armed_again(armed=state.armed, lost=state.lost,
                               altitude_m=self._altitude(state),
                               in_flight_mode=state.mode == _FLIGHT_MODE[v.flavour],
-                              in_show=not self._ended and self.started_at is not None
-                              and self._positions.get(v.sysid) is not None,
-                              off_plan=off_plan)
+                              in_show=self._mid_show_at(v) is not None,
+                              off_plan=lambda: off() is not None)
         if verdict is ArmedAgain.NOT_FLYING:
             return []
         v.fell, v.reason = False, None
@@ -157,7 +159,7 @@ class OffPlan(OperatorCommands):
             self._to(v, Event.ALIVE)
             return [Notice(v.sysid, f"vehicle {v.sysid} is armed in the air after all, on its "
                                     "plan: back in the show")]
-        stranded = off[-1]
+        stranded = off()
         assert stranded is not None
         return self._strand(v, stranded, now, "armed in the air after all,")
 
