@@ -19,13 +19,16 @@ It prints µs per datagram and the CPU per vehicle per second the mix costs.
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import time
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from groundctl.clock import PacedClock, ScaledClock
+from groundctl.link.codec import DatagramParser, new_codec
 from groundctl.link.fleet import FleetLink
+from groundctl.link.worker import Datagram, decode_batch, encode_batch, pack_message
 
 #: Message -> Hz, as the dry-run's tlog counts them per vehicle.
 MIX: dict[str, float] = {
@@ -106,6 +109,31 @@ def run(clock_kind: str, vehicles: int, seconds: float, batch: int) -> tuple[flo
     return time.process_time() - start, len(stream)
 
 
+def run_worker_path(clock_kind: str, vehicles: int, seconds: float,
+                    batch: int) -> tuple[float, int]:
+    """CPU seconds the control loop spends on every datagram when a link worker parsed
+    them (``batch`` to a pipe read): the batch's bytes unpickled, each message rebuilt and
+    handled.  The worker's own parse is not counted (it runs in its own process)."""
+    stream = datagrams(vehicles, seconds)
+    clock = ScaledClock(1.0) if clock_kind == "scaled" else \
+        PacedClock(1.0, participants=1).participant(0)
+    link = FleetLink(("127.0.0.1", 0), clock=clock,
+                     expected_ids=range(1, vehicles + 1))
+    parsers: dict[tuple[str, int], DatagramParser] = {}
+    parsed = []
+    for _, data, addr in stream:
+        parser = parsers.setdefault(addr, DatagramParser(new_codec(255, 190)))
+        result = parser.feed(data)
+        parsed.append(Datagram(addr, 0.0, tuple(pack_message(m) for m in result.messages)))
+    frames = [encode_batch(parsed[k:k + batch]) for k in range(0, len(parsed), batch)]
+    start = time.process_time()
+    for frame in frames:
+        _, got = decode_batch(frame)
+        arrived = time.monotonic() - 1e-4
+        link._on_batch(0, [Datagram(d.address, arrived, d.messages) for d in got])
+    return time.process_time() - start, len(stream)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--vehicles", type=int, default=9)
@@ -113,21 +141,27 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--batches", type=int, nargs="+", default=[1, 8],
                     help="datagrams a drain reads at once (1: an idle loop woken by each)")
+    ap.add_argument("--paths", nargs="+", choices=["loop", "worker"],
+                    default=["loop", "worker"],
+                    help="loop: the control loop parses the socket's bytes itself (small "
+                         "fleets); worker: a link worker parsed them, the loop takes its "
+                         "batches (from 100 vehicles; --batches then counts a pipe read)")
     args = ap.parse_args()
     per_s = sum(MIX.values())
     print(f"{args.vehicles} vehicles, {args.seconds:g} s of telemetry, "
           f"{per_s:g} datagrams per vehicle per second")
-    for kind in ("paced", "scaled"):
+    for path, kind in itertools.product(args.paths, ("paced", "scaled")):
         for batch in args.batches:
             best = math.inf
             n = 0
             for _ in range(args.repeat):
-                cpu, n = run(kind, args.vehicles, args.seconds, batch)
+                cpu, n = (run if path == "loop" else run_worker_path)(
+                    kind, args.vehicles, args.seconds, batch)
                 best = min(best, cpu)
             us = best / n * 1e6
-            print(f"{kind:>6} clock, {batch:3d} a drain: {us:5.1f} µs per datagram (best of "
-                  f"{args.repeat}, {n} datagrams), {us * per_s / 1000:.2f} ms of CPU per "
-                  f"vehicle per second")
+            print(f"{path:>6} path, {kind:>6} clock, {batch:3d} a drain: {us:5.1f} µs per "
+                  f"datagram (best of {args.repeat}, {n} datagrams), "
+                  f"{us * per_s / 1000:.2f} ms of CPU per vehicle per second")
 
 
 if __name__ == "__main__":

@@ -46,6 +46,10 @@ class _Stream:
 
     def advance(self, seq: int, step: int) -> None:
         """``seq`` is ``step`` ahead of ``last``: the numbers in between are missing."""
+        if step == 1 and not self.missing:  # the common case: the next, nothing owed
+            self.last = seq
+            self.run_last, self.run = None, 0
+            return
         self.missing.update((self.last + k) % 256 for k in range(1, step))
         self.last = seq
         self.missing = {s for s in self.missing if (seq - s) % 256 < WINDOW}
