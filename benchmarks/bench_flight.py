@@ -52,6 +52,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -118,7 +119,7 @@ def _descendants(root: int) -> list[int]:
 
 
 async def _load_run(n: int, seconds: float, console: bool = False,
-                    link_workers: str = "auto", slot_vehicles: int = 64) -> dict[str, float]:
+                    link_workers: str = "auto", slot_vehicles: int = 64) -> dict[str, Any]:
     plan = drift_plan(n, seconds)
     marks: dict[str, tuple[float, float, int, dict[int, float], float]] = {}
     workers: list[int] = [0]
@@ -196,7 +197,8 @@ async def _load_run(n: int, seconds: float, console: bool = False,
             "workers": workers[0],
             "safe": bool(result.report.get("safe")),
             "landed": sum(1 for v in result.report.get("vehicles", [])
-                          if v.get("phase") == "landed")}
+                          if v.get("phase") == "landed"),
+            "pacing": result.report.get("pacing") or {}}
 
 
 def bench_load(sizes: list[int], seconds: float, consoles: list[str] | None = None,
@@ -236,6 +238,13 @@ def bench_load(sizes: list[int], seconds: float, consoles: list[str] | None = No
                       f"{r['p50']:>7.2f} "
                       f"{r['p99']:>7.2f} {r['max']:>7.2f} {r['ticks']:>6} "
                       f"{r['safe']!s:>5} {r['landed']:>6} {refresh:>14}", flush=True)
+                pacing = r["pacing"]
+                if pacing:  # the whole flight's, pre-flight included
+                    print("         the paced clock held by: ground station "
+                          f"{pacing.get('held_by_ground_station_s', 0.0):.1f} s, simulator "
+                          f"{pacing.get('held_by_simulator_s', 0.0):.1f} s, link workers "
+                          f"{pacing.get('held_by_link_workers_s', 0.0):.1f} s (the whole "
+                          "flight)", flush=True)
     real, flown = per_vehicle[-1]
     # Per real second undercounts a paced run's cost (the clock ran slower than x1), per
     # flown second overcounts it (the loop's polling while the clock waited is in it):

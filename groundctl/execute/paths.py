@@ -23,6 +23,7 @@ position now.  So land-one, land-all, hold, rejoin and the landing are all
 from __future__ import annotations
 
 import enum
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -186,3 +187,10 @@ def sample_paths(paths: Sequence[Path], at: FloatArray, clocks: PathClocks
         vel[ret] = fr[:, None] * v
         acc[ret] = (fr * fr)[:, None] * a + fdr[:, None] * v
     return pos, vel, acc
+
+
+@functools.cache
+def plan_path(track: int) -> Path:
+    """Track ``track``'s show plan as a :class:`Path`: one object per track (paths are
+    values, and most vehicles follow their plan every tick)."""
+    return Path(PathKind.PLAN, "the show plan", track)

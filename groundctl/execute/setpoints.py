@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from groundctl.execute.frames import show_to_ned, show_vel_to_ned
-from groundctl.execute.paths import Path, PathClocks, PathKind, sample_paths
+from groundctl.execute.paths import Path, PathClocks, plan_path, sample_paths
 from groundctl.execute.showclock import ShowClock
 from groundctl.link.state import GeoPoint, Vec3
 from groundctl.plan.plan import Plan
@@ -162,7 +162,7 @@ class SetpointStream:
         bad = [s for s in paths if s not in self._index]
         if bad:
             raise ValueError(f"`paths` names vehicle {bad[0]}, which is not streamed")
-        rows = [paths.get(t.sysid) or Path(PathKind.PLAN, "the show plan", t.track)
+        rows = [paths.get(t.sysid) or plan_path(t.track)
                 for t in self.targets]
         pos, vel, acc = sample_paths(rows, stamp_s, clocks)
         for sysid, (p, v, a) in (replanned or {}).items():

@@ -802,8 +802,9 @@ class FleetLink:
         """
         self.drain()
         for sysid, state in self.vehicles.items():
-            for change in expire_chunks(state, now):
-                self._emit(change.event, system_id=sysid, **change.fields)
+            if state.text_chunks:  # (most have none: no call a vehicle a duty)
+                for change in expire_chunks(state, now):
+                    self._emit(change.event, system_id=sysid, **change.fields)
         silences = self._network_silences(now)
         fleet = self._fleet_silence_of(silences)
         silent = fleet > self.fleet_silence and bool(self.vehicles)
@@ -827,8 +828,10 @@ class FleetLink:
                 if now - self._back_by_network[k] < self.fleet_silence:
                     quiet.add(k)
         newly = []
+        timeout = self.lost_timeout
         for sysid, state in self.vehicles.items():
-            if not state.lost and state.silent_for(now) > self.lost_timeout \
+            heard = state.last_heard  # (state.silent_for, inline: every vehicle, 20 Hz)
+            if not state.lost and (heard is None or now - heard > timeout) \
                     and network_index(sysid) not in quiet:
                 state.lost = True
                 newly.append(sysid)

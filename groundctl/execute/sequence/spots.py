@@ -9,7 +9,7 @@ from collections.abc import Collection
 import numpy as np
 
 from groundctl.execute.leaving import free_spots, landing_candidates
-from groundctl.execute.paths import Path, PathKind
+from groundctl.execute.paths import Path, PathKind, plan_path
 from groundctl.execute.sequence.lifecycle import Event
 from groundctl.execute.sequence.state import SequenceState
 from groundctl.execute.sequence.types import (
@@ -158,7 +158,7 @@ class PathsAndSpots(SequenceState):
         if v.hold_point is not None:
             return Path(PathKind.HOLD, "holding off its plan until its way out", v.track,
                         point=v.hold_point)
-        return Path(PathKind.PLAN, "the show plan", v.track)
+        return plan_path(v.track)
 
     def _landing_point(self, v: VehicleRun) -> np.ndarray:
         """Where ``v`` descends from.

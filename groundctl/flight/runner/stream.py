@@ -73,8 +73,10 @@ class Streaming(LinkTiming):
                 and seq.clock.at(now).rate >= 1.0
             self._leds.tick(now, seq.show_time(now) if running else None,
                             [sp.sysids[i] for i in rows], sp.rgb[rows])
-        in_show = [s for s, v in seq.vehicles.items() if v.phase is VehiclePhase.SHOW] \
-            if seq.started_at is not None and not seq.ended else []
+        # A set: the monitor and the leads ask it of every vehicle (a list was O(n²)).
+        in_show = frozenset(s for s, v in seq.vehicles.items()
+                            if v.phase is VehiclePhase.SHOW) \
+            if seq.started_at is not None and not seq.ended else frozenset()
         rate = req.clock.at(now).rate if req.clock is not None and not req.ended else 0.0
         self.monitor.observe(now, req.show_time, in_show, self.link.vehicles, rate)
         self._commanded_at_closest(seq, req, now)
@@ -129,11 +131,12 @@ class Streaming(LinkTiming):
                     if seq.vehicles[s].phase in (VehiclePhase.SHOW, VehiclePhase.LEAVING,
                                                  VehiclePhase.RETURNING)
                     and s in positions}
-        velocities = {}
-        for sysid in eligible:
-            vel = self.link.vehicles[sysid].velocity_ned
-            if vel is not None:
-                velocities[sysid] = ned_vel_to_show(self.plan.origin, np.array(vel))
+        measured = [(s, ned) for s in eligible
+                    if (ned := self.link.vehicles[s].velocity_ned) is not None]
+        velocities = dict(zip((s for s, _ in measured),
+                              ned_vel_to_show(self.plan.origin,  # one rotation for all
+                                              np.array([ned for _, ned in measured])),
+                              strict=True)) if measured else {}
         obstacles = {s: p for s, p in positions.items() if s not in eligible
                      and s in seq.vehicles and p[2] > AIRBORNE_M}
         throttles = {s: (st.throttle_pct, st.throttle_at) for s in eligible

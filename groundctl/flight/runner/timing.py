@@ -4,6 +4,8 @@ the LED stage's: :mod:`groundctl.flight.runner.leds`)."""
 
 from __future__ import annotations
 
+from collections.abc import Collection
+
 import numpy as np
 
 from groundctl.execute.paths import PathKind
@@ -26,7 +28,7 @@ class LinkTiming(Planning):
         return self._delays[1]
 
     def _lead_tick(self, seq: ShowSequence, req: StreamRequest, now: float,
-                   in_show: list[int]) -> None:
+                   in_show: Collection[int]) -> None:
         """Feed the lead estimate with the vehicles flying their plan on a steady clock,
         and stream each with its lead."""
         if self.leads is None or self._stream is None or self.monitor is None:
