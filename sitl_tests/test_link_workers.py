@@ -93,7 +93,10 @@ def test_a_batch_crosses_the_pipe_unchanged() -> None:
     batch = [Datagram(("127.0.0.1", 14551), 12.5, packed),
              Datagram(("127.0.0.2", 9), 12.75, (), ("bad CRC", "truncated packet (3 bytes)"),
                       (5,), 2)]
-    assert decode_batch(encode_batch(batch, 3)) == (3, batch)
+    errors, back = decode_batch(encode_batch(batch, 3))
+    assert (errors, back) == (3, batch)
+    assert all(type(d) is Datagram for d in back)  # not bare tuples that compare equal
+    assert back[1].refused_signatures == (5,) and back[1].unknown == 2
     assert decode_batch(encode_batch([])) == (0, [])
 
 

@@ -112,8 +112,9 @@ def _affines(origin: GeoOrigin, ekf_origin: GeoPoint | Sequence[GeoPoint], pts: 
         raise ValueError(f"`ekf_origin` has {len(ekf_origin)} origins but `{what}` has shape "
                          f"{pts.shape}")
     key = (id(origin), *map(id, ekf_origin))
-    hit = _STACKED.get(key)
+    hit = _STACKED.pop(key, None)
     if hit is not None:
+        _STACKED[key] = hit  # the most recently used goes last: evicted last
         return hit[1], hit[2]
     pairs = [_ned_affine(origin, p) for p in ekf_origin]
     a = np.array([a for a, _ in pairs]).reshape(-1, 3, 3)
@@ -121,7 +122,7 @@ def _affines(origin: GeoOrigin, ekf_origin: GeoPoint | Sequence[GeoPoint], pts: 
     a.setflags(write=False)
     b.setflags(write=False)
     if len(_STACKED) >= _STACKED_MAX:
-        del _STACKED[next(iter(_STACKED))]
+        _STACKED.pop(next(iter(_STACKED)), None)  # the least recently used
     # The objects are kept with their stack: while they live no other can take their ids.
     _STACKED[key] = ((origin, tuple(ekf_origin)), a, b)
     return a, b
@@ -129,7 +130,8 @@ def _affines(origin: GeoOrigin, ekf_origin: GeoPoint | Sequence[GeoPoint], pts: 
 
 #: The last fleets' stacked affines (:func:`_affines`), by the identity of their origin
 #: objects (immutable): every tick converts the same fleet's setpoints and telemetry,
-#: and stacking 1,000 matrices was a millisecond each time.
+#: and stacking 1,000 matrices was a millisecond each time.  For the control loop's own
+#: thread (nothing else converts frames).
 _STACKED: dict[tuple[int, ...], tuple[object, FloatArray, FloatArray]] = {}
 _STACKED_MAX = 8
 

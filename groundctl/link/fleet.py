@@ -582,11 +582,11 @@ class FleetLink:
                     network: int) -> None:
         """A packet heard and numbered, its content replaced by a newer one (the worker's
         conflation): judged only as far as its number goes (:func:`account`)."""
-        sysid = VehicleId(network * NETWORK_STRIDE + entry.system)
-        state = self.vehicles.get(sysid)
+        state = self.vehicles.get(network * NETWORK_STRIDE + entry.system)
         if state is None or entry.system == self.system_id \
-                or self._addresses.get(sysid) != addr:
+                or self._addresses.get(state.system_id) != addr:
             return  # not one of ours (its newer one, handled whole, says what it is)
+        sysid = state.system_id
         self.last_packet_at = now
         self._last_by_network[network] = now
         self._emit_changes(sysid, account(state, entry.component, entry.seq, entry.crc,
@@ -748,7 +748,17 @@ class FleetLink:
     def network_silent_for(self, network: int, now: float) -> float:
         """Seconds since network ``network`` (from 0) was heard, as
         :meth:`fleet_silent_for` judges it (infinite while its link worker is down)."""
+        if self.silence_ids is None:
+            return self._heard_silence(network, now)  # no pass over the fleet needed
         return self._network_silences(now)[0][network]
+
+    def _heard_silence(self, network: int, now: float) -> float:
+        """Seconds since anything was heard on ``network`` (infinite while its link
+        worker is down, or before its first packet)."""
+        if self._worker_down[network]:
+            return math.inf  # its link worker died: nothing of it is heard
+        last = self._last_by_network[network]
+        return math.inf if last is None else now - last
 
     def _fleet_silence_of(self, silences: tuple[list[float], list[bool]]) -> float:
         """The fleet's silence from its networks' (:meth:`_network_silences`): the
@@ -770,6 +780,8 @@ class FleetLink:
         if ids is not None or n > 1:
             for sysid, state in self.vehicles.items():
                 k = sysid // NETWORK_STRIDE
+                if k >= n:
+                    continue  # (only a test's hand-made state: the link keys what it hears)
                 known[k] = True
                 if ids is None or state.lost or sysid not in ids:
                     continue
@@ -779,14 +791,10 @@ class FleetLink:
                     latest[k] = heard
         each = []
         for k in range(n):
-            if self._worker_down[k]:
-                each.append(math.inf)  # its link worker died: nothing of it is heard
-            elif ids is not None:
-                # Nobody to judge a fleet-wide silence by: not silent.
+            if ids is None or self._worker_down[k]:
+                each.append(self._heard_silence(k, now))
+            else:  # (nobody to judge a fleet-wide silence by: not silent)
                 each.append(now - latest[k] if judged[k] else 0.0)
-            else:
-                last = self._last_by_network[k]
-                each.append(math.inf if last is None else now - last)
         return each, known
 
     def check_lost(self, now: float) -> list[int]:

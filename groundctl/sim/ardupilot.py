@@ -162,14 +162,15 @@ class ArduPilotVehicle(Vehicle):
         if not self.heading.face_travel:
             return None
         vned = self.frames.vec_enu_to_ned(self.i, self.ph.vel[self.i])
-        speed = math.hypot(float(vned[0]), float(vned[1]))
+        north, east = float(vned[0]), float(vned[1])
+        speed = math.hypot(north, east)
         if int(self.params["WP_YAW_BEHAVIOR"]) == 3:
             threshold = _LOOK_AHEAD_MIN_SPEED
         else:
             threshold = 0.05 * self.params.si("WPNAV_SPEED")
         if speed <= threshold:
             return None
-        return math.atan2(float(vned[1]), float(vned[0]))
+        return math.atan2(east, north)
 
     def fence_bits(self, now: float) -> tuple[bool, bool, bool]:
         """AC_Fence::sys_status_present / _enabled / !_failed."""

@@ -123,21 +123,36 @@ class FleetFrames:
 
     def enu_to_ned(self, index: int | np.ndarray | slice, enu: np.ndarray) -> np.ndarray:
         """Show-frame ENU point(s) to vehicle ``index``'s local NED."""
-        rel = enu - self.ekf_origin_enu[index]
-        return np.einsum("...ji,...j->...i", self.ned_to_enu[index], rel)
+        return self._rotate(index, enu - self.ekf_origin_enu[index], transposed=True)
 
     def ned_to_show(self, index: int | np.ndarray | slice, ned: np.ndarray) -> np.ndarray:
         """Vehicle ``index``'s local NED point(s) to show-frame ENU."""
-        return np.einsum("...ij,...j->...i", self.ned_to_enu[index], ned) \
-            + self.ekf_origin_enu[index]
+        return self._rotate(index, ned, transposed=False) + self.ekf_origin_enu[index]
 
     def vec_enu_to_ned(self, index: int | np.ndarray | slice, vec: np.ndarray) -> np.ndarray:
         """Rotate a show-frame vector (velocity) into the vehicle's NED axes."""
-        return np.einsum("...ji,...j->...i", self.ned_to_enu[index], vec)
+        return self._rotate(index, vec, transposed=True)
 
     def vec_ned_to_show(self, index: int | np.ndarray | slice, vec: np.ndarray) -> np.ndarray:
         """Rotate a vehicle NED vector (velocity) into show-frame ENU axes."""
-        return np.einsum("...ij,...j->...i", self.ned_to_enu[index], vec)
+        return self._rotate(index, vec, transposed=False)
+
+    def _rotate(self, index: int | np.ndarray | slice, vec: np.ndarray,
+                transposed: bool) -> np.ndarray:
+        """``ned_to_enu[index]`` (``transposed``: its transpose) times ``vec``.  One
+        vehicle's one vector, the simulator's usual question (each vehicle's heading every
+        physics tick, each setpoint it decodes), in floats: an einsum call for three
+        numbers was 6 % of a simulator process (1.9 µs a call; this, 1.0 µs)."""
+        if type(index) is int and type(vec) is np.ndarray and vec.shape == (3,):
+            (a, b, c), (d, e, f), (g, h, k) = self.ned_to_enu[index].tolist()
+            x, y, z = vec.tolist()
+            if transposed:
+                return np.array([a * x + d * y + g * z, b * x + e * y + h * z,
+                                 c * x + f * y + k * z])
+            return np.array([a * x + b * y + c * z, d * x + e * y + f * z,
+                             g * x + h * y + k * z])
+        spec = "...ji,...j->...i" if transposed else "...ij,...j->...i"
+        return np.einsum(spec, self.ned_to_enu[index], vec)
 
     def geodetic(self, enu: np.ndarray) -> np.ndarray:
         """Show-frame ENU points ``(..., 3)`` to geodetic ``(..., 3)`` (lat, lon, alt).

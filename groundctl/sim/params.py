@@ -266,6 +266,8 @@ class ParamStore:
         self._names = [s.name for s in specs]
         self._index = {name: i for i, name in enumerate(self._names)}
         self.values: dict[str, float] = {s.name: float(s.default) for s in specs}
+        self._si_names: dict[str, tuple[str, str | None]] = {}
+        """:meth:`si`'s names: asked for -> (held as, the SI-named one to convert to)."""
         self.values["SYSID_THISMAV" if flavour is Flavour.ARDUPILOT else "MAV_SYS_ID"] = sysid
         if dynamics is not None:
             for name, (attr, scale) in DYNAMICS_PARAMS[flavour].items():
@@ -297,11 +299,16 @@ class ParamStore:
         """The value of the parameter called ``name`` before ArduCopter 4.8, in SI units
         (m, m/s) whichever name this vehicle's firmware gives it: ``si("RTL_ALT")`` is
         RTL_ALT / 100 on 4.7 and RTL_ALT_M on 4.8."""
-        held = self._held_as(name)
-        if held is None:
-            raise KeyError(name)
-        renamed = si_name(name)
-        return convert(held, self.values[held], renamed[0]) if renamed else self.values[held]
+        resolved = self._si_names.get(name)
+        if resolved is None:  # (the names a vehicle holds never change: resolved once)
+            held = self._held_as(name)
+            if held is None:
+                raise KeyError(name)
+            renamed = si_name(name)
+            resolved = self._si_names[name] = (held, renamed[0] if renamed else None)
+        held, unit_name = resolved
+        value = self.values[held]
+        return convert(held, value, unit_name) if unit_name is not None else value
 
     def __len__(self) -> int:
         return len(self._names)

@@ -794,8 +794,8 @@ def _yaw_fields(msg: Msg, mask: int) -> tuple[float | None, float | None]:
 
 
 def _finite(sp: Setpoint) -> Setpoint | None:
-    for part in (sp.pos, sp.vel, sp.acc):
-        if part is not None and not np.all(np.isfinite(part)):
+    for part in (sp.pos, sp.vel, sp.acc):  # (3 floats each: math, not a numpy call)
+        if part is not None and not all(map(math.isfinite, part)):
             return None  # NaN in a used field: the autopilots reject the whole message
     return sp
 
