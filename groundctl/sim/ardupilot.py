@@ -382,8 +382,10 @@ class ArduPilotVehicle(Vehicle):
             self.statustext(mavlink.MAV_SEVERITY_CRITICAL, "GCS Failsafe Cleared")
 
     def _battery_failsafe(self, now: float) -> None:
-        volt = self.battery_readings()[0] / 1000.0
-        if self._battery_warned or volt >= self.params["BATT_LOW_VOLT"]:
+        if self._battery_warned:
+            return  # once
+        volt = self.battery_mv() / 1000.0
+        if volt >= self.params["BATT_LOW_VOLT"]:
             return
         self._battery_warned = True
         self.statustext(mavlink.MAV_SEVERITY_CRITICAL, f"Battery 1 is low {volt:.2f}V used")

@@ -248,9 +248,12 @@ class Vehicle:
     def battery_readings(self) -> tuple[int, int, int]:
         """(voltage mV, current cA, remaining %) of a 4S pack."""
         frac = float(self.ph.battery[self.i])
-        volt = int((4 * (3.5 + 0.7 * frac)) * 1000)
         current = 1800 if self.flying else (100 if self.armed else 50)
-        return volt, current, round(frac * 100)
+        return self.battery_mv(), current, round(frac * 100)
+
+    def battery_mv(self) -> int:
+        """The pack's voltage, mV (a 4S pack, 3.5-4.2 V a cell with its charge)."""
+        return int((4 * (3.5 + 0.7 * float(self.ph.battery[self.i]))) * 1000)
 
     # -- I/O-free interface -------------------------------------------------------------------
 
