@@ -150,6 +150,20 @@ class SeparationConflict(PlanningError):
         super().__init__(transition, "no separation-feasible solution", detail)
 
 
+class SpareError(GroundctlError):
+    """Spare drones that cannot wait where the show file puts them, or nowhere beside the
+    show (``[spares]``).  Keeps the spare (0-based) and how close it came, when known."""
+
+    exit_code = EXIT_INFEASIBLE
+
+    def __init__(self, message: str, spare: int | None = None,
+                 distance: float | None = None) -> None:
+        self.message = message
+        self.spare = spare
+        self.distance = distance
+        super().__init__(message)
+
+
 class PlanFileError(GroundctlError):
     """A plan file that cannot be read or is not a groundctl plan."""
 

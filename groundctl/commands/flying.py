@@ -150,6 +150,7 @@ def load_or_plan(path: Path, quiet: bool, *, show_file: Path | None = None,
         ver = verify(plan)
         if not ver.safe:
             raise UnsafePlan(ver.violations)
+        _say_spares(plan, quiet)
         return plan
     from groundctl.plan.planner import plan_show
     from groundctl.show.loader import load_show
@@ -166,7 +167,15 @@ def load_or_plan(path: Path, quiet: bool, *, show_file: Path | None = None,
     if not quiet:
         print(f"planned and verified in {result.seconds:.1f} s: {result.plan.duration:.0f} s "
               f"show", file=sys.stderr, flush=True)
+    _say_spares(result.plan, quiet)
     return result.plan
+
+
+def _say_spares(plan: Plan, quiet: bool) -> None:
+    """Spares are planned (where they wait), not yet flown: said, not silently dropped."""
+    if plan.spares is not None and not quiet:
+        print(f"spares: the plan places {plan.spares.count}, but this version does not fly "
+              "spares yet: the show is flown without them", file=sys.stderr, flush=True)
 
 
 def plan_for(args: argparse.Namespace) -> Plan:

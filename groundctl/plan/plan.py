@@ -26,7 +26,7 @@ from groundctl.show.model import GeoOrigin, Limits, MpcSettings
 
 FloatArray = NDArray[np.float64]
 
-__all__ = ["PLAN_FORMAT", "Cue", "FormationWindow", "Plan", "State"]
+__all__ = ["PLAN_FORMAT", "Cue", "FormationWindow", "Plan", "SparePlan", "State"]
 
 
 @dataclass(frozen=True)
@@ -55,6 +55,28 @@ class FormationWindow:
     """Show time the hold ends (the next transition begins), s."""
     goals: FloatArray
     """(n, 3) slot each drone was assigned in this formation."""
+
+
+@dataclass(frozen=True)
+class SparePlan:
+    """Where the show's spare drones wait (:mod:`groundctl.plan.spares`), verified clear
+    of every show drone."""
+
+    standby: str
+    """"ground" (waiting on their pads) or "air" (hovering above them)."""
+    pads: FloatArray
+    """(k, 3) each spare's pad on the ground, show frame, m: it takes off and lands there."""
+    points: FloatArray
+    """(k, 3) where each waits: the pad itself on the ground, or the point above it."""
+    clearance_m: float
+    """The closest any spare waiting, or climbing to or from its point, comes to a show
+    drone or another spare, m (verified in continuous time)."""
+    given: bool = False
+    """The show file gave the pads or points (False: laid out by the planner)."""
+
+    @property
+    def count(self) -> int:
+        return len(self.pads)
 
 
 @dataclass(frozen=True)
@@ -105,6 +127,8 @@ class Plan:
     ``drone_7``), in track order; empty: the tracks are only numbered."""
     cues: tuple[Cue, ...] = ()
     """The show's cues in time order (a Skybrush show's), plan time."""
+    spares: SparePlan | None = None
+    """Where the show's spare drones wait; None: the show has none."""
 
     def name_of(self, track: int) -> str | None:
         """Track ``track``'s drone name, or None if the plan names none."""
@@ -181,6 +205,9 @@ class Plan:
             meta["names"] = list(self.names)
         if self.cues:
             meta["cues"] = [{"time": c.time, "name": c.name} for c in self.cues]
+        if self.spares is not None:
+            meta["spares"] = {"standby": self.spares.standby, "given": self.spares.given,
+                              "clearance_m": self.spares.clearance_m}
         arrays: dict[str, Any] = {
             "meta": np.array(json.dumps(meta)),
             "times": self.trajectories.times,
@@ -192,6 +219,9 @@ class Plan:
         }
         for i, f in enumerate(self.formations):
             arrays[f"goals_{i}"] = f.goals
+        if self.spares is not None:
+            arrays["spare_pads"] = self.spares.pads
+            arrays["spare_points"] = self.spares.points
         with path.open("wb") as fh:
             np.savez_compressed(fh, **arrays)
         return path
@@ -213,4 +243,5 @@ class Plan:
                    trajectories=Trajectories(c.times, c.pos, c.vel), color_times=c.color_times,
                    colors=c.colors, formations=formations, mpc=c.mpc,
                    show_digest=c.show_digest, names=c.names,
-                   cues=tuple(Cue(t, n) for t, n in c.cues))
+                   cues=tuple(Cue(t, n) for t, n in c.cues),
+                   spares=None if c.spares is None else SparePlan(*c.spares))

@@ -46,6 +46,7 @@ from groundctl.show.ranges import (
     MAX_FORMATIONS,
     MAX_GEOFENCE_CORNERS,
     MAX_NAME_CHARS,
+    MAX_SPARES,
     MAX_STEPS,
     MPC_RANGES,
     ORIGIN_RANGES,
@@ -69,8 +70,8 @@ MAX_KNOTS = MAX_WINDOWS * (MAX_STEPS + 1) + 1
 MAX_DRONE_KNOTS = MAX_DRONE_STEPS + MAX_DRONES * (MAX_WINDOWS + 1)
 #: Most colour keyframes: the start, each arrival and each hold's end.
 MAX_COLOR_KEYS = 2 * MAX_WINDOWS + 1
-#: Most members a plan has: meta, six arrays, a goals array per window.
-MAX_MEMBERS = 7 + MAX_WINDOWS
+#: Most members a plan has: meta, six arrays, the spares' two, a goals array per window.
+MAX_MEMBERS = 9 + MAX_WINDOWS
 #: Largest zip central directory read: MAX_MEMBERS entries of ~100 bytes, with room.
 MAX_DIRECTORY_BYTES = 64 * 1024
 #: Longest metadata document, characters.
@@ -80,13 +81,14 @@ MAX_DURATION = LIMIT_RANGES["max_flight_time"].high
 #: How far a trajectory may start from its takeoff point raised to the takeoff altitude, m.
 START_TOLERANCE = 0.01
 
-_MEMBER = re.compile(r"(meta|times|pos|vel|home|color_times|colors|goals_(?:0|[1-9]\d{0,2}))"
-                     r"\.npy")
+_MEMBER = re.compile(r"(meta|times|pos|vel|home|color_times|colors|spare_pads|spare_points"
+                     r"|goals_(?:0|[1-9]\d{0,2}))\.npy")
 _ARRAYS = ("times", "pos", "vel", "home", "color_times", "colors")
 _META_KEYS = {"format", "show_name", "origin", "limits", "mpc", "model", "takeoff_altitude",
-              "formations", "show_digest", "names", "cues"}
+              "formations", "show_digest", "names", "cues", "spares"}
 #: Keys a plan may leave out (older plans, plans built from a TOML show).
-_OPTIONAL_KEYS = {"mpc", "show_digest", "names", "cues"}
+_OPTIONAL_KEYS = {"mpc", "show_digest", "names", "cues", "spares"}
+_SPARE_ARRAYS = ("spare_pads", "spare_points")
 #: Most cues a plan holds.
 MAX_CUES = 1000
 _DIGEST = re.compile(r"[0-9a-f]{64}")
@@ -124,6 +126,9 @@ class PlanContents:
     color_times: FloatArray
     colors: FloatArray
     goals: tuple[FloatArray, ...]
+    spares: tuple[str, FloatArray, FloatArray, float, bool] | None = None
+    """(standby, pads, points, clearance, given), as :class:`~groundctl.plan.plan.SparePlan`
+    takes them."""
 
 
 @dataclass(frozen=True)
@@ -274,6 +279,16 @@ def _shapes(h: Mapping[str, _Header]) -> tuple[int, int, int]:
     if len(keys_shape) != 1 or not 1 <= keys_shape[0] <= MAX_COLOR_KEYS:
         raise _Bad(f"'color_times' declares the shape {keys_shape}: 1 to {MAX_COLOR_KEYS} keys")
     keys = keys_shape[0]
+    spares = [name for name in _SPARE_ARRAYS if name in h]
+    if spares and len(spares) != len(_SPARE_ARRAYS):
+        raise _Bad(f"'{spares[0]}' without its companion array")
+    if spares:
+        shape = h["spare_pads"].shape
+        if len(shape) != 2 or shape[1] != 3 or not 1 <= shape[0] <= MAX_SPARES \
+                or h["spare_points"].shape != shape:
+            raise _Bad(f"'spare_pads' and 'spare_points' declare the shapes {shape} and "
+                       f"{h['spare_points'].shape}, not both (spares, 3) with 1 to "
+                       f"{MAX_SPARES} spares")
     want = {"vel": (n, knots, 3), "home": (n, 3), "colors": (n, keys, 3)}
     want.update({name: (n, 3) for name in h if name.startswith("goals_")})
     for name, shape in want.items():
@@ -482,7 +497,27 @@ def _contents(meta: dict[str, Any], arrays: dict[str, FloatArray]) -> PlanConten
         windows=_windows(meta["formations"]), show_digest=digest,
         names=_names(meta.get("names", [])), cues=_cues(meta.get("cues", [])),
         times=arrays["times"], pos=arrays["pos"], vel=arrays["vel"], home=arrays["home"],
-        color_times=arrays["color_times"], colors=arrays["colors"], goals=goals)
+        color_times=arrays["color_times"], colors=arrays["colors"], goals=goals,
+        spares=_spares(meta.get("spares"), arrays))
+
+
+def _spares(value: object, arrays: dict[str, FloatArray]
+            ) -> tuple[str, FloatArray, FloatArray, float, bool] | None:
+    """Where the spares wait: the meta's 'spares' and the two arrays, both or neither."""
+    if value is None and "spare_pads" not in arrays:
+        return None
+    if value is None or "spare_pads" not in arrays:
+        raise _Bad("meta 'spares' and the 'spare_pads' / 'spare_points' arrays come together")
+    doc = _Doc(value, "spares")
+    doc.keys({"standby", "given", "clearance_m"}, {"standby", "given", "clearance_m"})
+    standby = doc.data["standby"]
+    if standby not in ("ground", "air"):
+        raise _Bad(f"meta 'spares.standby' must be \"ground\" or \"air\", got {_kind(standby)}")
+    given = doc.data["given"]
+    if not isinstance(given, bool):
+        raise _Bad(f"meta 'spares.given' must be true or false, got {_kind(given)}")
+    clearance = doc.number("clearance_m", Range(0.0, 2 * MAX_COORD))
+    return standby, arrays["spare_pads"], arrays["spare_points"], clearance, given
 
 
 # -- the plan as a whole ------------------------------------------------------------------
@@ -504,8 +539,10 @@ def _check_consistency(c: PlanContents) -> None:
         raise _Bad("'color_times' lies outside the plan's times")
     if c.colors.min() < 0.0 or c.colors.max() > 1.0:
         raise _Bad("'colors' must lie in [0, 1]")
-    for name, arr in (("home", c.home), ("pos", c.pos), *((f"goals_{i}", g) for i, g in
-                                                        enumerate(c.goals))):
+    spare_arrays = () if c.spares is None else (("spare_pads", c.spares[1]),
+                                                ("spare_points", c.spares[2]))
+    for name, arr in (("home", c.home), ("pos", c.pos), *spare_arrays,
+                      *((f"goals_{i}", g) for i, g in enumerate(c.goals))):
         if np.abs(arr).max() > MAX_COORD:
             raise _Bad(f"'{name}' lies more than {MAX_COORD:g} m from the origin")
     prev_end = 0.0

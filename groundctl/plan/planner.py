@@ -12,7 +12,7 @@ import logging
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -149,5 +149,9 @@ def plan_show(show: Show, workers: int | None = None,
         colors=np.stack(key_c, axis=1), formations=tuple(windows), mpc=show.mpc,
         show_digest=show.digest)
     verification = verify(plan)
+    if show.spares is not None:
+        from groundctl.plan.spares import place_spares
+
+        plan = replace(plan, spares=place_spares(show.spares, plan))
     return PlanResult(plan=plan, transitions=tuple(results), verification=verification,
                       seconds=time.perf_counter() - t0)

@@ -99,6 +99,25 @@ def _first_difference(plan: Plan, show: Show) -> str | None:
         return "MPC settings differ from the show's"
     if plan.show_name != show.name:
         return "show name differs from the show's"
+    return _spares_difference(plan, show)
+
+
+def _spares_difference(plan: Plan, show: Show) -> str | None:
+    """The spares the plan places against the show's ``[spares]``: how many, how they
+    wait, and where, if the show file says."""
+    sp, asked = plan.spares, show.spares
+    if sp is None or asked is None:
+        return None if sp is None and asked is None else "spares differ from the show's"
+    if sp.count != asked.count or sp.standby != asked.standby:
+        return f"spares ({sp.count} waiting on the {sp.standby}) differ from the show's " \
+               f"({asked.count} on the {asked.standby})"
+    given = asked.points if asked.points is not None else asked.pads
+    if given is not None:
+        mine = sp.points if asked.points is not None else sp.pads[:, :2]
+        if not sp.given or not np.array_equal(mine, given):
+            return "spares' positions differ from the show's"
+    elif sp.given:
+        return "spares' positions differ from the show's (it lets the planner lay them out)"
     return None
 
 

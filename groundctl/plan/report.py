@@ -5,6 +5,9 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numpy as np
+
+from groundctl.plan.plan import SparePlan
 from groundctl.plan.planner import PlanResult
 
 
@@ -58,7 +61,15 @@ def report_dict(result: PlanResult) -> dict[str, Any]:
         "plan_seconds": result.seconds,
         "violations": list(ver.violations),
         "safe": ver.safe,
+        **({} if plan.spares is None else {"spares": _spares(plan.spares)}),
     }
+
+
+def _spares(sp: SparePlan) -> dict[str, Any]:
+    """Where the spares wait (``spares`` of the report)."""
+    return {"count": sp.count, "standby": sp.standby, "given": sp.given,
+            "clearance_m": sp.clearance_m,
+            "pads": np.round(sp.pads, 3).tolist(), "points": np.round(sp.points, 3).tolist()}
 
 
 COLUMNS = (
@@ -89,6 +100,13 @@ def report_table(report: dict[str, Any]) -> str:
         f"pattern error {report['pattern_error_m']:.3f} m, planned in "
         f"{report['plan_seconds']:.2f} s")
     lines.extend(f"  violation: {v}" for v in report["violations"])
+    spares = report.get("spares")
+    if spares is not None:
+        where = "on their pads" if spares["standby"] == "ground" else "in the air over their pads"
+        laid = "as the show file gives them" if spares["given"] else \
+            "laid out beside the takeoff grid"
+        lines.append(f"spares: {spares['count']} waiting {where}, {laid}, clear of every show "
+                     f"drone and each other by {spares['clearance_m']:.2f} m")
     lines.extend(
         f"  transition {row['index']} '{row['name']}': the [planner] budget ran out before "
         "the SCP converged; its last iterate, which keeps every pair apart, is the plan "

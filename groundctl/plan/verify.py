@@ -144,11 +144,11 @@ def _power_basis(tr: Trajectories, k: int, rows: NDArray[np.intp] | slice = slic
                  ) -> FloatArray:
     """(m, 4, 3) coefficients c0..c3 of p(s) = sum c_q s^q, s in [0, 1], on knot segment k."""
     h = tr.times[k + 1] - tr.times[k]
-    return _hermite_power(tr.pos[rows, k], tr.pos[rows, k + 1], tr.vel[rows, k] * h,
+    return hermite_power(tr.pos[rows, k], tr.pos[rows, k + 1], tr.vel[rows, k] * h,
                           tr.vel[rows, k + 1] * h)
 
 
-def _hermite_power(p0: FloatArray, p1: FloatArray, m0: FloatArray, m1: FloatArray
+def hermite_power(p0: FloatArray, p1: FloatArray, m0: FloatArray, m1: FloatArray
                    ) -> FloatArray:
     """Power-basis coefficients (stacked on axis 1) of the cubic Hermite curves from p0 to
     p1 with end tangents m0, m1 (velocities times the segment's length)."""
@@ -165,7 +165,7 @@ def _bounding_spheres(coef: FloatArray) -> tuple[FloatArray, FloatArray]:
     return centre, np.linalg.norm(b - centre[:, None], axis=2).max(axis=1)
 
 
-def _closest_on_segment(d: FloatArray, shared: bool = False, below: float = np.inf,
+def closest_on_segment(d: FloatArray, shared: bool = False, below: float = np.inf,
                         tol: float = CLOSEST_TOL) -> tuple[FloatArray, FloatArray]:
     """Min over s in [0, 1] of |d(s)| for relative cubics d (m, 4, 3), and where, to
     within ``tol`` (branch and bound: certified, whatever the number of dips).
@@ -260,7 +260,7 @@ def _separation(tr: Trajectories
         best_d, best_s, best_q = np.inf, 0.0, 0
         for b in range(0, len(pairs), PAIR_BLOCK):
             blk = pairs[b:b + PAIR_BLOCK]
-            dmin, at = _closest_on_segment(coef[blk[:, 0]] - coef[blk[:, 1]], shared=True)
+            dmin, at = closest_on_segment(coef[blk[:, 0]] - coef[blk[:, 1]], shared=True)
             q = int(np.argmin(dmin))
             if dmin[q] < best_d:
                 best_d, best_s, best_q = float(dmin[q]), float(at[q]), b + q
@@ -284,7 +284,7 @@ def close_segments(tr: Trajectories, limit: float
         h = tr.times[k + 1] - tr.times[k]
         for b in range(0, len(pairs), PAIR_BLOCK):
             blk = pairs[b:b + PAIR_BLOCK]
-            dmin, at = _closest_on_segment(coef[blk[:, 0]] - coef[blk[:, 1]], below=limit,
+            dmin, at = closest_on_segment(coef[blk[:, 0]] - coef[blk[:, 1]], below=limit,
                                            tol=1e-4)
             hit = dmin < limit
             rows.append(np.column_stack([blk[hit], np.full(int(hit.sum()), k)]))
@@ -340,7 +340,7 @@ def _dense_pass(tr: Trajectories, geofence: NDArray[np.float64] | None = None) -
         # ends, each from the segment's own cubic (a sample at a knot would read the next
         # segment's).
         h = np.diff(tr.times)[None, :, None]
-        coef = _hermite_power(tr.pos[rows, :-1], tr.pos[rows, 1:], tr.vel[rows, :-1] * h,
+        coef = hermite_power(tr.pos[rows, :-1], tr.pos[rows, 1:], tr.vel[rows, :-1] * h,
                               tr.vel[rows, 1:] * h)  # (m, 4, segments, 3)
         c2, c3 = coef[:, 2], coef[:, 3]
         a_ends = np.maximum(np.linalg.norm(2 * c2, axis=2),
@@ -428,5 +428,15 @@ def verify(plan: Plan) -> Verification:
     if airborne > lim.max_flight_time * (1 + LIMIT_TOL):
         v.append(f"drones are airborne {airborne:.0f} s with the climb and descent "
                  f"(max_flight_time {lim.max_flight_time:g} s)")
+    if plan.spares is not None:
+        from groundctl.plan.spares import clearance
+        from groundctl.show.checks import inside_polygon as inside_fence
+
+        near = clearance(plan, plan.spares.pads, plan.spares.points)
+        if near.distance < lim.min_separation - DIST_TOL:
+            v.append(f"spare {near.spare + 1} comes {near.distance:.3f} m from {near.what} "
+                     f"(min_separation {lim.min_separation} m)")
+        if fence is not None and not inside_fence(plan.spares.points, fence).all():
+            v.append("a spare waits outside the geofence")
     return Verification(overall=overall, windows=windows, pattern_errors=tuple(errors),
                         separation_limit=lim.min_separation, violations=tuple(v))

@@ -65,6 +65,8 @@ from groundctl.show.model import (
     PlannerSettings,
     QuadrotorModel,
     Show,
+    SpareSettings,
+    SpareStandby,
     UnicycleModel,
     VehicleSettings,
 )
@@ -79,6 +81,7 @@ from groundctl.show.ranges import (
     MAX_NAME_CHARS,
     MAX_RAW_PARAMS,
     MAX_SHOW_FILE_BYTES,
+    MAX_SPARES,
     MAX_STEPS,
     MPC_RANGES,
     ORIGIN_RANGES,
@@ -92,7 +95,8 @@ from groundctl.show.reader import MISSING, Table, closest, describe, fmt
 from groundctl.show.takeoff import read_headings, read_home
 
 TOP_LEVEL = ("show", "origin", "limits", "model", "planner", "takeoff", "formation", "landing",
-             "mpc", "vehicle")
+             "mpc", "vehicle", "spares")
+SPARE_STANDBY = ("ground", "air")
 FENCE_ACTIONS = ("land", "rtl", "brake", "report")
 GCS_FAILSAFES = ("off", "land", "rtl", "brake")
 OFFBOARD_LOSS = ("land", "rtl", "hold")
@@ -497,14 +501,65 @@ def parse_show(data: dict[str, Any], path: str, base_dir: str | Path = ".", *,
     mpc = _read_mpc(_table(data, "mpc", path))
     vehicle = _read_vehicle(_table(data, "vehicle", path), limits) if "vehicle" in data \
         else None
+    spares = _read_spares(_table(data, "spares", path), limits, unicycle) \
+        if "spares" in data else None
     digest = "" if source is None else _digest(source, ctx.files_read)
     show = Show(name=name, drones=drones, origin=origin, limits=limits, model=model, home=home,
                 takeoff_altitude=takeoff_altitude, formations=tuple(formations),
                 planner=planner, start_headings=headings, mpc=mpc, vehicle=vehicle,
-                source=path, digest=digest)
+                spares=spares, source=path, digest=digest)
     _check_budget(show, path)
     _check_transitions(show, path)
     return show
+
+
+def _read_spares(t: Table, limits: Limits, unicycle: bool) -> SpareSettings:
+    """``[spares]``: how many, where they wait, and the pads or points if given.  Only
+    what the table says on its own is checked here; that they keep clear of the show's
+    drones is the planner's to verify, once their paths exist."""
+    t.check_keys(("count", "standby", "pads", "points", "altitude"))
+    if unicycle:
+        raise t.error("spares need a vehicle that can hover: [model] kind = \"quadrotor\"")
+    count = t.integer("count", minimum=1, maximum=MAX_SPARES)
+    standby: SpareStandby = "air" if t.string("standby", "ground",
+                                              choices=SPARE_STANDBY) == "air" else "ground"
+    pads = points = None
+    altitude = None
+    if standby == "ground":
+        for key in ("points", "altitude"):
+            if t.has(key):
+                raise t.error(f"'{key}' is for spares waiting in the air (standby = \"air\"); "
+                              "on the ground give 'pads' = [[x, y], ...]")
+        if t.has("pads"):
+            pads = t.point_list("pads", (2,), min_count=count, max_count=count)
+    else:
+        if t.has("pads"):
+            raise t.error("'pads' is for spares waiting on the ground; in the air give "
+                          "'points' = [[x, y, z], ...] (each spare's pad is straight below)")
+        if t.has("points"):
+            if t.has("altitude"):
+                raise t.error("give either 'points' or 'altitude', not both (the points "
+                              "say their own height)")
+            points = t.point_list("points", (3,), min_count=count, max_count=count)
+            z = points[:, 2]
+            low = np.flatnonzero((z < limits.min_alt - 1e-9) | (z > limits.max_alt + 1e-9))
+            if len(low):
+                raise t.error(f"'points' point {int(low[0]) + 1} is at z = "
+                              f"{fmt(float(z[low[0]]))} m, outside min_altitude "
+                              f"{fmt(limits.min_alt)} .. max_altitude {fmt(limits.max_alt)} m")
+        elif t.has("altitude"):
+            altitude = t.number("altitude", minimum=limits.min_alt, maximum=limits.max_alt)
+    given = points if points is not None else pads
+    if given is not None:
+        problem = (checks.separation_problem(given[:, :2], limits.min_separation, None, 1.0)
+                   or checks.geofence_problem(np.column_stack([given[:, :2],
+                                                               np.zeros(len(given))]),
+                                              limits, "spare"))
+        if problem:
+            key = "points" if points is not None else "pads"
+            raise t.error(f"'{key}': {problem.replace('points ', key + ' ', 1)}")
+    return SpareSettings(count=count, standby=standby, pads=pads, points=points,
+                         altitude=altitude)
 
 
 def _digest(source: bytes, files: Sequence[tuple[str, bytes]]) -> str:

@@ -207,6 +207,33 @@ class PlannerSettings:
         return self.steps or max(4, math.ceil(duration / self.dt - 1e-9))
 
 
+SpareStandby = Literal["ground", "air"]
+
+
+@dataclass(frozen=True)
+class SpareSettings:
+    """Spare drones (``[spares]``): vehicles beyond the show's tracks that wait, clear of
+    every show drone, to take over a failed drone's part.
+
+    Where they wait is planned with the show (:mod:`groundctl.plan.spares`): on pads
+    beside the takeoff grid (``"ground"``) or hovering above them (``"air"``), laid out
+    by the planner unless given."""
+
+    count: int
+    """How many spares the show asks for."""
+    standby: SpareStandby = "ground"
+    """Where they wait: on the ground on their pads, or in the air above them."""
+    pads: FloatArray | None = None
+    """(count, 2) given ground pads (x, y), show frame, m; None: laid out beside the
+    takeoff grid.  ``"ground"`` only."""
+    points: FloatArray | None = None
+    """(count, 3) given standby points, show frame, m (each spare's pad straight below);
+    None: above laid-out pads.  ``"air"`` only."""
+    altitude: float | None = None
+    """Height of laid-out standby points above the ground, m (None: the show's takeoff
+    altitude).  ``"air"`` only."""
+
+
 @dataclass(frozen=True)
 class Formation:
     """One formation of the show and the transition that leads into it."""
@@ -255,6 +282,8 @@ class Show:
     """MPC replanning in flight."""
     vehicle: VehicleSettings | None = None
     """The vehicles' own safety settings (``[vehicle]``); None: not checked."""
+    spares: SpareSettings | None = None
+    """Spare drones (``[spares]``); None: the show has none."""
     source: str = ""
     """Path of the show file it came from ("" if built in code)."""
     digest: str = ""

@@ -42,6 +42,8 @@ from groundctl.files import MiB
 MIN_SEPARATION = 0.5
 MAX_DRONES = 10_000
 MAX_SLOTS = 10_000
+#: Spare drones a show may ask for (``[spares] count``).
+MAX_SPARES = 1000
 MAX_ASSIGN_CELLS = 5_000_000
 MAX_FORMATIONS = 100
 MAX_STEPS = 2000

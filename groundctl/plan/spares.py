@@ -1,0 +1,238 @@
+"""Where a show's spare drones wait, and the proof that they wait clear of the show.
+
+A spare waits on its pad (``[spares] standby = "ground"``) or hovering at a point
+straight above it (``"air"``).  It takes off from its pad and lands on it with the
+fleet, before the show clock starts and after the show ends, so its *column* (from the
+pad up to its waiting point) must clear every show drone's takeoff and landing column,
+and its waiting point must clear every show drone's path at every instant of the plan,
+in continuous time: the verifier's branch and bound on each drone's cubic, as for two
+drones (:func:`groundctl.plan.verify.closest_on_segment`).  Spares keep the same
+distance from one another.
+
+Without given pads or points the planner lays them out: a block of pads beside the
+takeoff grid, on whichever side (+x or -x) is clear at the smaller step out, stepped out
+a pad spacing at a time until every spare clears the show by the limit plus
+:data:`LAYOUT_MARGIN_M` (a hovering spare wanders, and so do the show's drones) and
+stands inside the geofence.  Given pads or points are verified as they are: one that
+comes within the limit is refused (:class:`~groundctl.errors.SpareError`), naming the
+drone, where and when.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from groundctl.errors import SpareError
+from groundctl.plan.plan import Plan, SparePlan
+from groundctl.plan.trajectory import Trajectories
+from groundctl.plan.verify import DIST_TOL, PAIR_BLOCK, closest_on_segment, hermite_power
+from groundctl.show.checks import closest_pair, inside_polygon
+from groundctl.show.model import SpareSettings
+from groundctl.show.ranges import MAX_COORD
+
+FloatArray = NDArray[np.float64]
+
+#: Laid-out spares clear every show drone (and each other) by the limit plus this, m.
+LAYOUT_MARGIN_M = 1.0
+#: Steps of one pad spacing a laid-out block is moved out at most, each side.
+MAX_STEPS_OUT = 200
+#: Drones whose every segment is measured against a point at once (bounds temporaries).
+DRONE_CHUNK = 256
+
+
+@dataclass(frozen=True)
+class Clearance:
+    """The closest any spare comes to the show or to another spare."""
+
+    distance: float
+    """How close, m (infinite: nothing to come close to)."""
+    spare: int
+    """Which spare, 0-based (-1: none)."""
+    what: str
+    """What it comes that close to, in words ("drone 17 at show time 34.2 s")."""
+
+
+def _vertical_gaps(a_xy: FloatArray, a_lo: FloatArray, a_hi: FloatArray,
+                   b_xy: FloatArray, b_lo: FloatArray, b_hi: FloatArray) -> FloatArray:
+    """(k, m) distances between k and m vertical segments (x, y, from z lo to z hi)."""
+    dxy = np.linalg.norm(a_xy[:, None, :] - b_xy[None, :, :], axis=2)
+    dz = np.maximum(0.0, np.maximum(b_lo[None, :] - a_hi[:, None],
+                                    a_lo[:, None] - b_hi[None, :]))
+    return np.hypot(dxy, dz)
+
+
+def _boxes(tr: Trajectories) -> tuple[FloatArray, FloatArray]:
+    """(n, 3) corners of a box holding each drone's whole path (its Bezier hulls)."""
+    h = np.diff(tr.times)[None, :, None]
+    lo = np.empty((tr.drones, 3))
+    hi = np.empty((tr.drones, 3))
+    for a in range(0, tr.drones, DRONE_CHUNK):
+        p, v = tr.pos[a:a + DRONE_CHUNK], tr.vel[a:a + DRONE_CHUNK]
+        b1 = p[:, :-1] + v[:, :-1] * h / 3
+        b2 = p[:, 1:] - v[:, 1:] * h / 3
+        lo[a:a + DRONE_CHUNK] = np.minimum(p.min(axis=1), np.minimum(b1.min(axis=1),
+                                                                   b2.min(axis=1)))
+        hi[a:a + DRONE_CHUNK] = np.maximum(p.max(axis=1), np.maximum(b1.max(axis=1),
+                                                                   b2.max(axis=1)))
+    return lo, hi
+
+
+def closest_to_point(tr: Trajectories, q: FloatArray,
+                     boxes: tuple[FloatArray, FloatArray] | None = None
+                     ) -> tuple[float, int, float]:
+    """(distance, drone 0-based, show time) of the closest any drone's path comes to the
+    fixed point ``q``, exact in continuous time (to the verifier's tolerance).
+
+    Drones are taken nearest box first, a chunk at a time, until the next chunk's box
+    is farther than the best found: every drone that could be closer is measured."""
+    lo, hi = boxes if boxes is not None else _boxes(tr)
+    box_gap = np.linalg.norm(np.maximum(np.maximum(lo - q, q - hi), 0.0), axis=1)
+    order = np.argsort(box_gap, kind="stable")
+    h = np.diff(tr.times)
+    best, best_drone, best_t = math.inf, -1, 0.0
+    for a in range(0, len(order), DRONE_CHUNK):
+        chunk = order[a:a + DRONE_CHUNK]
+        if box_gap[chunk[0]] >= best:
+            break
+        p, v = tr.pos[chunk], tr.vel[chunk]
+        coef = hermite_power(p[:, :-1].reshape(-1, 3), p[:, 1:].reshape(-1, 3),
+                             (v[:, :-1] * h[None, :, None]).reshape(-1, 3),
+                             (v[:, 1:] * h[None, :, None]).reshape(-1, 3))
+        coef[:, 0] -= q
+        # A segment's hull bounds it from below; the nearer of its ends from above.
+        b = np.stack([coef[:, 0], coef[:, 0] + coef[:, 1] / 3,
+                      coef[:, 0] + 2 * coef[:, 1] / 3 + coef[:, 2] / 3,
+                      coef.sum(axis=1)], axis=1)
+        centre = b.mean(axis=1)
+        lower = np.linalg.norm(centre, axis=1) - np.linalg.norm(
+            b - centre[:, None], axis=2).max(axis=1)
+        upper = float(np.minimum(np.linalg.norm(b[:, 0], axis=1),
+                                 np.linalg.norm(b[:, 3], axis=1)).min())
+        rows = np.flatnonzero(lower < min(best, upper))
+        for c in range(0, len(rows), PAIR_BLOCK):
+            blk = rows[c:c + PAIR_BLOCK]
+            dmin, at = closest_on_segment(coef[blk], shared=True, below=best)
+            k = int(np.argmin(dmin))
+            if dmin[k] < best:
+                seg = int(blk[k]) % len(h)
+                best = float(dmin[k])
+                best_drone = int(chunk[int(blk[k]) // len(h)])
+                best_t = float(tr.times[seg] + at[k] * h[seg])
+    return best, best_drone, best_t
+
+
+def clearance(plan: Plan, pads: FloatArray, points: FloatArray) -> Clearance:
+    """The closest the spares waiting at ``points`` (each over its pad in ``pads``) come
+    to a show drone -- its path in the plan, its takeoff and landing columns -- or to one
+    another, exact in continuous time."""
+    tr = plan.trajectories
+    boxes = _boxes(tr)
+    found = Clearance(math.inf, -1, "nothing")
+    for j, q in enumerate(points):
+        d, drone, t = closest_to_point(tr, q, boxes)
+        if d < found.distance:
+            found = Clearance(d, j, f"drone {drone + 1} at show time {t:.1f} s")
+    s_xy, s_lo, s_hi = pads[:, :2], pads[:, 2], np.maximum(points[:, 2], pads[:, 2])
+    landing = plan.landing
+    for kind, ground in (("takeoff", plan.home), ("landing", landing)):
+        gaps = _vertical_gaps(s_xy, s_lo, s_hi, ground[:, :2], ground[:, 2],
+                              ground[:, 2] + plan.takeoff_altitude)
+        a, b = (int(x) for x in np.unravel_index(int(np.argmin(gaps)), gaps.shape))
+        if gaps[a, b] < found.distance:
+            found = Clearance(float(gaps[a, b]), a, f"drone {b + 1}'s {kind} column")
+    if len(pads) > 1:
+        gaps = _vertical_gaps(s_xy, s_lo, s_hi, s_xy, s_lo, s_hi)
+        gaps[np.tril_indices(len(pads))] = np.inf
+        a, b = (int(x) for x in np.unravel_index(int(np.argmin(gaps)), gaps.shape))
+        if gaps[a, b] < found.distance:
+            found = Clearance(float(gaps[a, b]), a, f"spare {b + 1}")
+    return found
+
+
+def _ground(plan: Plan) -> float:
+    """The ground's height in the show frame: where the takeoff grid stands."""
+    return float(np.median(plan.home[:, 2]))
+
+
+def _spacing(plan: Plan) -> float:
+    """Laid-out pads' spacing: the takeoff grid's, and never under the limit plus margin."""
+    floor = plan.limits.min_separation + LAYOUT_MARGIN_M
+    if len(plan.home) < 2:
+        return floor
+    return max(floor, closest_pair(plan.home[:, :2])[0])
+
+
+def layout(plan: Plan, count: int, side: int, step: int, height: float
+           ) -> tuple[FloatArray, FloatArray]:
+    """(pads, points) of ``count`` spares in a block beside the takeoff grid and the
+    landing spots: columns of pads along y (as many rows as the grid is deep), the first
+    ``step`` pad spacings out from its ``side`` (+1: +x, -1: -x); points ``height``
+    above the ground (0: the pads)."""
+    home = np.vstack([plan.home, plan.landing])
+    spacing = _spacing(plan)
+    depth = float(home[:, 1].max() - home[:, 1].min())
+    rows = min(count, int(depth // spacing) + 1)
+    edge = float(home[:, 0].max() if side > 0 else home[:, 0].min())
+    middle = float(home[:, 1].max() + home[:, 1].min()) / 2
+    k = np.arange(count)
+    x = edge + side * spacing * (step + k // rows)
+    y = middle + spacing * (k % rows - (rows - 1) / 2)
+    ground = _ground(plan)
+    pads = np.column_stack([x, y, np.full(count, ground)])
+    points = pads + np.array([0.0, 0.0, height])
+    return pads, points
+
+
+def _inside(plan: Plan, pads: FloatArray) -> bool:
+    """Every pad within the show frame's range and the geofence (if any)."""
+    if np.abs(pads[:, :2]).max() > MAX_COORD:
+        return False
+    fence = plan.limits.geofence
+    return fence is None or bool(inside_polygon(pads, np.array(fence, dtype=float)).all())
+
+
+def place_spares(settings: SpareSettings, plan: Plan) -> SparePlan:
+    """Where ``settings``' spares wait in ``plan``: given pads or points verified, or a
+    block laid out beside the takeoff grid (module docstring).  SpareError if given ones
+    come within the limit, or no block fits within :data:`MAX_STEPS_OUT` steps."""
+    limit = plan.limits.min_separation
+    ground = _ground(plan)
+    if settings.points is not None or settings.pads is not None:
+        if settings.points is not None:
+            points = np.asarray(settings.points, dtype=float)
+            pads = np.column_stack([points[:, :2], np.full(len(points), ground)])
+            what = "standby point"
+        else:
+            xy = np.asarray(settings.pads, dtype=float)
+            pads = np.column_stack([xy, np.full(len(xy), ground)])
+            points = pads.copy()
+            what = "pad"
+        found = clearance(plan, pads, points)
+        if found.distance < limit - DIST_TOL:
+            j = found.spare
+            where = ", ".join(f"{c:g}" for c in np.round(points[j], 2))
+            raise SpareError(
+                f"[spares] {what} {j + 1} at ({where}) comes within {found.distance:.2f} m "
+                f"of {found.what} (min_separation {limit:g} m): give it a place outside the "
+                "show's volume, or leave the spares' positions out and the planner lays "
+                "them out beside the takeoff grid", spare=j, distance=found.distance)
+        return SparePlan(settings.standby, pads, points, found.distance, given=True)
+    height = 0.0 if settings.standby == "ground" else (
+        settings.altitude if settings.altitude is not None else plan.takeoff_altitude)
+    want = limit + LAYOUT_MARGIN_M
+    for step in range(1, MAX_STEPS_OUT + 1):
+        for side in (1, -1):
+            pads, points = layout(plan, settings.count, side, step, height)
+            if not _inside(plan, pads):
+                continue
+            found = clearance(plan, pads, points)
+            if found.distance >= want - DIST_TOL:
+                return SparePlan(settings.standby, pads, points, found.distance)
+    raise SpareError(
+        f"[spares] no room for {settings.count} spares beside the takeoff grid within "
+        f"{MAX_STEPS_OUT} pad spacings of it, clear of the show by {want:g} m and inside "
+        "the geofence: give their 'pads' or 'points'", spare=None, distance=None)
