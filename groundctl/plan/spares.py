@@ -25,6 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from groundctl.errors import SpareError
 from groundctl.plan.plan import Plan, SparePlan
@@ -65,75 +66,91 @@ def _vertical_gaps(a_xy: FloatArray, a_lo: FloatArray, a_hi: FloatArray,
     return np.hypot(dxy, dz)
 
 
-def _boxes(tr: Trajectories) -> tuple[FloatArray, FloatArray]:
-    """(n, 3) corners of a box holding each drone's whole path (its Bezier hulls)."""
-    h = np.diff(tr.times)[None, :, None]
-    lo = np.empty((tr.drones, 3))
-    hi = np.empty((tr.drones, 3))
-    for a in range(0, tr.drones, DRONE_CHUNK):
-        p, v = tr.pos[a:a + DRONE_CHUNK], tr.vel[a:a + DRONE_CHUNK]
-        b1 = p[:, :-1] + v[:, :-1] * h / 3
-        b2 = p[:, 1:] - v[:, 1:] * h / 3
-        lo[a:a + DRONE_CHUNK] = np.minimum(p.min(axis=1), np.minimum(b1.min(axis=1),
-                                                                   b2.min(axis=1)))
-        hi[a:a + DRONE_CHUNK] = np.maximum(p.max(axis=1), np.maximum(b1.max(axis=1),
-                                                                   b2.max(axis=1)))
-    return lo, hi
+@dataclass(frozen=True)
+class Hulls:
+    """Every drone's every knot segment as a sphere holding its Bezier hull, flattened
+    drone-major (row ``drone * segments + k``): computed once per plan, then each point
+    asked about costs one pass over them."""
+
+    centre: FloatArray
+    """(n * segments, 3) sphere centres."""
+    radius: FloatArray
+    """(n * segments,) sphere radii."""
+    segments: int
+    """Knot segments per drone."""
+    tree: cKDTree
+    """A KD-tree on the centres."""
+
+    @classmethod
+    def of(cls, tr: Trajectories) -> Hulls:
+        h = np.diff(tr.times)[None, :, None]
+        segs = len(tr.times) - 1
+        centre = np.empty((tr.drones * segs, 3))
+        radius = np.empty(tr.drones * segs)
+        for a in range(0, tr.drones, DRONE_CHUNK):
+            p, v = tr.pos[a:a + DRONE_CHUNK], tr.vel[a:a + DRONE_CHUNK]
+            b = np.stack([p[:, :-1], p[:, :-1] + v[:, :-1] * h / 3,
+                          p[:, 1:] - v[:, 1:] * h / 3, p[:, 1:]], axis=2)  # (c, S, 4, 3)
+            c = b.mean(axis=2)
+            rows = slice(a * segs, (a + len(p)) * segs)
+            centre[rows] = c.reshape(-1, 3)
+            radius[rows] = np.linalg.norm(b - c[:, :, None], axis=3).max(axis=2).ravel()
+        return cls(centre, radius, segs, cKDTree(centre))
+
+    def near(self, q: FloatArray) -> tuple[NDArray[np.intp], FloatArray]:
+        """The segments that can hold the closest approach to ``q``, nearest hull first,
+        and each one's lower bound: a few nearest centres bound the distance from above
+        (a curve lies within its sphere), one ball query finds every hull under it."""
+        d, i = self.tree.query(q, k=min(8, len(self.radius)))
+        upper = float(np.min(np.atleast_1d(d) + self.radius[np.atleast_1d(i)]))
+        rows = np.asarray(self.tree.query_ball_point(q, upper + float(self.radius.max())),
+                          dtype=np.intp)
+        lower = np.linalg.norm(self.centre[rows] - q, axis=1) - self.radius[rows]
+        keep = lower < upper
+        order = np.argsort(lower[keep], kind="stable")
+        return rows[keep][order], lower[keep][order]
 
 
-def closest_to_point(tr: Trajectories, q: FloatArray,
-                     boxes: tuple[FloatArray, FloatArray] | None = None
+def closest_to_point(tr: Trajectories, q: FloatArray, hulls: Hulls | None = None
                      ) -> tuple[float, int, float]:
     """(distance, drone 0-based, show time) of the closest any drone's path comes to the
     fixed point ``q``, exact in continuous time (to the verifier's tolerance).
 
-    Drones are taken nearest box first, a chunk at a time, until the next chunk's box
-    is farther than the best found: every drone that could be closer is measured."""
-    lo, hi = boxes if boxes is not None else _boxes(tr)
-    box_gap = np.linalg.norm(np.maximum(np.maximum(lo - q, q - hi), 0.0), axis=1)
-    order = np.argsort(box_gap, kind="stable")
+    A few nearest hulls bound the distance from above, each segment's hull from below;
+    only the segments whose hull reaches under the bound are measured, by the verifier's branch
+    and bound (:func:`~groundctl.plan.verify.closest_on_segment`)."""
+    hulls = hulls if hulls is not None else Hulls.of(tr)
+    rows, lower = hulls.near(q)
+    segs = hulls.segments
     h = np.diff(tr.times)
     best, best_drone, best_t = math.inf, -1, 0.0
-    for a in range(0, len(order), DRONE_CHUNK):
-        chunk = order[a:a + DRONE_CHUNK]
-        if box_gap[chunk[0]] >= best:
+    for c in range(0, len(rows), PAIR_BLOCK):
+        blk = rows[c:c + PAIR_BLOCK]
+        if lower[c] >= best:
             break
-        p, v = tr.pos[chunk], tr.vel[chunk]
-        coef = hermite_power(p[:, :-1].reshape(-1, 3), p[:, 1:].reshape(-1, 3),
-                             (v[:, :-1] * h[None, :, None]).reshape(-1, 3),
-                             (v[:, 1:] * h[None, :, None]).reshape(-1, 3))
+        drone, seg = blk // segs, blk % segs
+        coef = hermite_power(tr.pos[drone, seg], tr.pos[drone, seg + 1],
+                             tr.vel[drone, seg] * h[seg, None],
+                             tr.vel[drone, seg + 1] * h[seg, None])
         coef[:, 0] -= q
-        # A segment's hull bounds it from below; the nearer of its ends from above.
-        b = np.stack([coef[:, 0], coef[:, 0] + coef[:, 1] / 3,
-                      coef[:, 0] + 2 * coef[:, 1] / 3 + coef[:, 2] / 3,
-                      coef.sum(axis=1)], axis=1)
-        centre = b.mean(axis=1)
-        lower = np.linalg.norm(centre, axis=1) - np.linalg.norm(
-            b - centre[:, None], axis=2).max(axis=1)
-        upper = float(np.minimum(np.linalg.norm(b[:, 0], axis=1),
-                                 np.linalg.norm(b[:, 3], axis=1)).min())
-        rows = np.flatnonzero(lower < min(best, upper))
-        for c in range(0, len(rows), PAIR_BLOCK):
-            blk = rows[c:c + PAIR_BLOCK]
-            dmin, at = closest_on_segment(coef[blk], shared=True, below=best)
-            k = int(np.argmin(dmin))
-            if dmin[k] < best:
-                seg = int(blk[k]) % len(h)
-                best = float(dmin[k])
-                best_drone = int(chunk[int(blk[k]) // len(h)])
-                best_t = float(tr.times[seg] + at[k] * h[seg])
+        dmin, at = closest_on_segment(coef, shared=True, below=best)
+        k = int(np.argmin(dmin))
+        if dmin[k] < best:
+            best, best_drone = float(dmin[k]), int(drone[k])
+            best_t = float(tr.times[seg[k]] + at[k] * h[seg[k]])
     return best, best_drone, best_t
 
 
-def clearance(plan: Plan, pads: FloatArray, points: FloatArray) -> Clearance:
+def clearance(plan: Plan, pads: FloatArray, points: FloatArray,
+              hulls: Hulls | None = None) -> Clearance:
     """The closest the spares waiting at ``points`` (each over its pad in ``pads``) come
     to a show drone -- its path in the plan, its takeoff and landing columns -- or to one
-    another, exact in continuous time."""
+    another, exact in continuous time.  ``hulls``: the plan's, if already computed."""
     tr = plan.trajectories
-    boxes = _boxes(tr)
+    hulls = hulls if hulls is not None else Hulls.of(tr)
     found = Clearance(math.inf, -1, "nothing")
     for j, q in enumerate(points):
-        d, drone, t = closest_to_point(tr, q, boxes)
+        d, drone, t = closest_to_point(tr, q, hulls)
         if d < found.distance:
             found = Clearance(d, j, f"drone {drone + 1} at show time {t:.1f} s")
     s_xy, s_lo, s_hi = pads[:, :2], pads[:, 2], np.maximum(points[:, 2], pads[:, 2])
@@ -211,7 +228,7 @@ def place_spares(settings: SpareSettings, plan: Plan) -> SparePlan:
             pads = np.column_stack([xy, np.full(len(xy), ground)])
             points = pads.copy()
             what = "pad"
-        found = clearance(plan, pads, points)
+        found = clearance(plan, pads, points, Hulls.of(plan.trajectories))
         if found.distance < limit - DIST_TOL:
             j = found.spare
             where = ", ".join(f"{c:g}" for c in np.round(points[j], 2))
@@ -224,12 +241,13 @@ def place_spares(settings: SpareSettings, plan: Plan) -> SparePlan:
     height = 0.0 if settings.standby == "ground" else (
         settings.altitude if settings.altitude is not None else plan.takeoff_altitude)
     want = limit + LAYOUT_MARGIN_M
+    hulls = Hulls.of(plan.trajectories)
     for step in range(1, MAX_STEPS_OUT + 1):
         for side in (1, -1):
             pads, points = layout(plan, settings.count, side, step, height)
             if not _inside(plan, pads):
                 continue
-            found = clearance(plan, pads, points)
+            found = clearance(plan, pads, points, hulls)
             if found.distance >= want - DIST_TOL:
                 return SparePlan(settings.standby, pads, points, found.distance)
     raise SpareError(
