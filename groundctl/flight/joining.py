@@ -1,0 +1,319 @@
+"""A spare's way into a failed drone's track, planned on the spot (issue 29).
+
+When a show drone leaves its track (a way out, a fall, a lost link), a spare waiting
+beside the show (:mod:`groundctl.plan.spares`) can fly its part from the next moment
+it can reach: :func:`plan_join` looks, formation by formation, for the earliest show
+time ``until`` at which the spare, starting at rest where it waits, can be at the
+track's slot at rest -- quadrotor transitions are rest to rest, so every formation's
+arrival and hold is such a moment -- and plans the path there with the show's own SCP
+planner among every drone that keeps flying (:func:`~groundctl.plan.scp_quad.plan_among`:
+the others on their plans, on their ways out, or on their own joins, and the points
+where drones hover or lie).  From ``until`` on the spare flies the track's plan.
+
+Nothing is taken on trust: the path, and the track's plan from ``until`` on while the
+failed drone is still on its way out, are checked against every obstacle exactly in
+continuous time -- both sides are cubic between knots, so on the union of their knots
+the distance's minimum is found by the verifier's branch and bound
+(:func:`~groundctl.plan.verify.closest_on_segment`).  A window where planning fails
+or the check finds less than the limit is skipped for the next; no window left is a
+:class:`~groundctl.errors.PlanningError` naming the last reason.  Pure: the driver
+decides when and which spare, runs this in a worker with a deadline, and flies it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Collection, Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from groundctl.errors import GroundctlError, PlanningError
+from groundctl.execute.leaving import Leave, return_duration
+from groundctl.flight.returning import (
+    DESCENT_MARGIN_S,
+    DESCENT_SPEED_MPS,
+    TRACKING_MARGIN_M,
+    column,
+)
+from groundctl.plan.plan import Plan
+from groundctl.plan.scp_quad import plan_among
+from groundctl.plan.trajectory import Trajectories
+from groundctl.plan.verify import DIST_TOL, PAIR_BLOCK, closest_on_segment, hermite_power
+from groundctl.show.model import PlannerSettings
+
+FloatArray = NDArray[np.float64]
+
+#: The least a join is planned to last, s: time for the spare's autopilot to settle
+#: from its hover onto the path.
+MIN_JOIN_S = 4.0
+
+
+@dataclass(frozen=True)
+class Join:
+    """A spare's way into ``track``: ``trajectory`` (one row, time 0 at show time ``at``)
+    from where it waits to the track's slot, reached at rest at show time :attr:`until`;
+    the track's plan after that."""
+
+    track: int
+    """The plan track it takes over (0-based)."""
+    at: float
+    """Show time it leaves where it waits, s."""
+    trajectory: Trajectories
+    """Its path there, one row, from time 0."""
+    plan_ms: float = 0.0
+    """Wall time the planning took, ms (said in the report)."""
+
+    @property
+    def until(self) -> float:
+        """Show time it is on the track's plan, s."""
+        return self.at + self.trajectory.end
+
+    def state(self, show_time: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Position, velocity, acceleration (3,) on the path at ``show_time`` (clamped)."""
+        tau = min(max(show_time - self.at, 0.0), self.trajectory.end)
+        p, v, a = self.trajectory.evaluate(tau)
+        return p[0], v[0], a[0]
+
+    def position(self, show_times: FloatArray) -> FloatArray:
+        """(len(show_times), 3) positions on the path (clamped at both ends)."""
+        tau = np.clip(np.asarray(show_times, dtype=float) - self.at, 0.0,
+                      self.trajectory.end)
+        return self.trajectory.evaluate(tau)[0][0]
+
+
+@dataclass(frozen=True)
+class Moving:
+    """One drone that is not on its plan for part of the time: on ``trajectory`` (one
+    row, time 0 at show time ``offset``) from show time ``start`` to ``end``, clamped."""
+
+    trajectory: Trajectories
+    offset: float
+    start: float
+    end: float
+
+    def position(self, show_times: FloatArray) -> FloatArray:
+        tau = np.clip(np.asarray(show_times, dtype=float) - self.offset, 0.0,
+                      self.trajectory.end)
+        return self.trajectory.evaluate(tau)[0][0]
+
+
+def _still(point: FloatArray, start: float, end: float) -> Moving:
+    """A drone that does not move over show times [start, end]."""
+    pos = np.repeat(np.asarray(point, dtype=float)[None, None, :], 2, axis=1)
+    return Moving(Trajectories(np.array([0.0, 1.0]), pos, np.zeros_like(pos)), start, start,
+                  end)
+
+
+def _leave_pieces(plan: Plan, track: int, leave: Leave, t0: float, t1: float
+                  ) -> list[Moving]:
+    """Where ``track``'s drone is over [t0, t1] while it leaves: on its plan until its way
+    out begins (hovering at the way out's start if it was heard again off its plan), then
+    on the way out; then anywhere on the column down to its landing spot for as long as a
+    descent takes (:data:`~groundctl.flight.returning.DESCENT_SPEED_MPS`, with margin),
+    then on the ground there."""
+    pieces: list[Moving] = []
+    row = Trajectories(plan.trajectories.times, plan.trajectories.pos[track:track + 1],
+                       plan.trajectories.vel[track:track + 1])
+    if t0 < leave.at and not leave.held:
+        pieces.append(Moving(row, 0.0, t0, min(leave.at, t1)))
+    began = t0 if leave.held else max(leave.at, t0)
+    if min(leave.until, t1) > began:
+        pieces.append(Moving(leave.trajectory, leave.at, began, min(leave.until, t1)))
+    top = leave.state(leave.until)[0]
+    down = leave.until + float(top[2]) / DESCENT_SPEED_MPS + DESCENT_MARGIN_S
+    if t1 > leave.until:
+        for point in column(top):
+            pieces.append(_still(point, max(leave.until, t0), min(down, t1)))
+    if t1 > down:
+        pieces.append(_still(column(top)[-1], max(down, t0), t1))
+    return pieces
+
+
+def closest_approach(path: Moving, plan: Plan, tracks: NDArray[np.intp],
+                     moving: Sequence[Moving], static: FloatArray,
+                     t0: float, t1: float) -> tuple[float, str]:
+    """The closest ``path`` comes over show times [t0, t1] to the plan's ``tracks``, to
+    each of ``moving`` over its own stretch, and to the ``static`` points, exact in
+    continuous time; and to what, in words.
+
+    Every side is piecewise cubic; refined to the union of their knots it is still
+    exactly itself (a cubic restricted to part of its segment is a cubic), so each pair
+    is a relative cubic per segment, bounded by its Bezier hull and measured by the
+    verifier's branch and bound where the hull reaches under the best found."""
+    best, what = math.inf, "nothing"
+    if t1 <= t0:
+        return best, what
+    p_knots = path.trajectory.times + path.offset
+    sides: list[tuple[str, FloatArray, float, float, Moving | None]] = []
+    if len(tracks):
+        sides.append(("plan", plan.trajectories.times, t0, t1, None))
+    for k, m in enumerate(moving):
+        lo, hi = max(m.start, t0), min(m.end, t1)
+        if hi > lo:
+            sides.append((f"moving {k}", m.trajectory.times + m.offset, lo, hi, m))
+    for name, knots, lo, hi, piece in sides:
+        t = np.unique(np.concatenate([[lo, hi], p_knots[(p_knots > lo) & (p_knots < hi)],
+                                      knots[(knots > lo) & (knots < hi)]]))
+        h = np.diff(t)
+        tau = np.clip(t - path.offset, 0.0, path.trajectory.end)
+        pp, pv, _ = path.trajectory.evaluate(tau)
+        pp, pv = pp[0], pv[0]
+        # Clamped before its start or after its end, the path holds still there.
+        pv = np.where(((t - path.offset < 0) | (t - path.offset > path.trajectory.end))
+                      [:, None], 0.0, pv)
+        if piece is None:
+            op, ov, _ = plan.trajectories.evaluate(np.clip(t, 0.0, plan.duration), tracks)
+            labels = [f"drone {int(j) + 1}" for j in tracks]
+        else:
+            mt = t - piece.offset
+            op, ov, _ = piece.trajectory.evaluate(np.clip(mt, 0.0, piece.trajectory.end))
+            ov = np.where(((mt < 0) | (mt > piece.trajectory.end))[None, :, None], 0.0, ov)
+            labels = [name]
+        a = hermite_power(pp[:-1], pp[1:], pv[:-1] * h[:, None], pv[1:] * h[:, None])
+        b = hermite_power(op[:, :-1].reshape(-1, 3), op[:, 1:].reshape(-1, 3),
+                          (ov[:, :-1] * h[None, :, None]).reshape(-1, 3),
+                          (ov[:, 1:] * h[None, :, None]).reshape(-1, 3))
+        segs = len(h)
+        d = np.tile(a, (len(op), 1, 1)) - b  # row i * segs + k
+        ctl = np.stack([d[:, 0], d[:, 0] + d[:, 1] / 3,
+                        d[:, 0] + 2 * d[:, 1] / 3 + d[:, 2] / 3, d.sum(axis=1)], axis=1)
+        centre = ctl.mean(axis=1)
+        lower = np.linalg.norm(centre, axis=1) - np.linalg.norm(
+            ctl - centre[:, None], axis=2).max(axis=1)
+        upper = float(np.linalg.norm(ctl[:, [0, 3]], axis=2).min())
+        rows = np.flatnonzero(lower < min(best, upper))
+        rows = rows[np.argsort(lower[rows], kind="stable")]
+        for c in range(0, len(rows), PAIR_BLOCK):
+            blk = rows[c:c + PAIR_BLOCK]
+            if lower[blk[0]] >= best:
+                break
+            dmin, at = closest_on_segment(d[blk], shared=True, below=best)
+            q = int(np.argmin(dmin))
+            if dmin[q] < best:
+                i, k = divmod(int(blk[q]), segs)
+                best = float(dmin[q])
+                what = f"{labels[i]} at show time {t[k] + at[q] * h[k]:.1f} s"
+    if len(static):
+        t = np.unique(np.concatenate([[t0, t1], p_knots[(p_knots > t0) & (p_knots < t1)]]))
+        h = np.diff(t)
+        tau = np.clip(t - path.offset, 0.0, path.trajectory.end)
+        pp, pv, _ = path.trajectory.evaluate(tau)
+        a = hermite_power(pp[0, :-1], pp[0, 1:], pv[0, :-1] * h[:, None],
+                          pv[0, 1:] * h[:, None])
+        for point in np.asarray(static, dtype=float).reshape(-1, 3):
+            rel = a.copy()
+            rel[:, 0] -= point
+            dmin, at = closest_on_segment(rel, shared=True, below=best)
+            k = int(np.argmin(dmin))
+            if dmin[k] < best:
+                best = float(dmin[k])
+                where = ", ".join(f"{c:.1f}" for c in point)
+                what = f"the drone at ({where}) at show time {t[k] + at[k] * h[k]:.1f} s"
+    return best, what
+
+
+def join_windows(plan: Plan, track: int, start: FloatArray, earliest: float,
+                 vacating: Leave | None = None) -> list[tuple[float, float, FloatArray]]:
+    """(leave, arrive, slot): show times and the track's slot of each chance to join
+    ``track`` from ``start`` (at rest) no sooner than ``earliest``: per formation, the
+    earliest arrival at the track's slot while it rests there (its arrival to the end of
+    its hold), with the time a way home of that length would be given
+    (:func:`~groundctl.execute.leaving.return_duration`), at least :data:`MIN_JOIN_S`;
+    the spare waits where it is until it must leave.  ``vacating``: the failed drone's
+    own way out; a formation it leaves during its hold also offers the moment its slot
+    is clear again (the limit plus the join's margin away)."""
+    out = []
+    clear = plan.limits.min_separation + TRACKING_MARGIN_M
+    for w in plan.formations:
+        goal = w.goals[track]
+        need = max(return_duration(plan, start[None, :], goal[None, :]), MIN_JOIN_S)
+        arrivals = [max(earliest + need, w.arrive)]
+        if vacating is not None and vacating.at < w.end:
+            t = np.arange(max(vacating.at, w.arrive), w.end + 1e-9, 0.05)
+            gone = np.linalg.norm(vacating.position(t) - goal, axis=1) >= clear
+            if gone.any():
+                arrivals.append(max(float(t[int(np.argmax(gone))]), arrivals[0]))
+        for arrive in sorted(set(arrivals)):
+            if arrive <= w.end + 1e-9 and arrive < plan.duration:
+                out.append((arrive - need, arrive, goal))
+    return out
+
+
+def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
+              absent: Collection[int] = (), leaves: Mapping[int, Leave] | None = None,
+              joins: Mapping[int, Join] | None = None,
+              static: FloatArray | None = None) -> Join:
+    """The spare waiting at rest at ``start`` takes over ``track`` at the earliest window
+    it can (module docstring), leaving no sooner than show time ``earliest``.
+
+    ``absent`` tracks fly no plan (their drones left, fell or are down: where they are
+    goes in ``static``, (k, 3) points that do not move, like waiting spares); ``leaves``
+    (track -> Leave) are ways out being flown -- the failed ``track``'s own among them;
+    ``joins`` (track -> Join) other spares on their way in (their tracks count as flown
+    from each one's ``until``).  PlanningError if no window works."""
+    import time
+
+    t_start = time.perf_counter()
+    leaves = dict(leaves or {})
+    joins = dict(joins or {})
+    static = np.zeros((0, 3)) if static is None else np.asarray(static, dtype=float)
+    start = np.asarray(start, dtype=float)
+    gone = set(absent) | {track} | set(leaves) | set(joins)
+    flown = np.array([j for j in range(plan.drones) if j not in gone], dtype=np.intp)
+    limit = plan.limits.min_separation
+    reasons: list[str] = []
+    for leave_at, arrive, goal in join_windows(plan, track, start, earliest,
+                                               leaves.get(track)):
+        moving: list[Moving] = []
+        for j, lv in leaves.items():
+            moving += _leave_pieces(plan, j, lv, leave_at, plan.duration)
+        for j, jn in joins.items():
+            moving.append(Moving(jn.trajectory, jn.at, leave_at, jn.until))
+            moving.append(_plan_row(plan, j, jn.until, plan.duration))
+
+        def others_at(times: FloatArray, moving: list[Moving] = moving,
+                      leave_at: float = leave_at) -> FloatArray:
+            show_t = leave_at + times
+            pos = plan.trajectories.evaluate(np.clip(show_t, 0.0, plan.duration), flown)[0]
+            extra = [np.where(((show_t >= m.start) & (show_t <= m.end))[:, None],
+                              m.position(show_t), np.nan) for m in moving]
+            # A piece outside its stretch is elsewhere: far away, not in the way.
+            rows = [np.nan_to_num(e, nan=1e6) for e in extra]
+            still = np.repeat(static[:, None, :], len(times), axis=1)
+            return np.concatenate([pos, *(r[None] for r in rows), still])
+
+        try:
+            result = plan_among(0, f"join of track {track}", start[None, :], goal[None, :],
+                                arrive - leave_at, plan.limits,
+                                PlannerSettings(tracking_margin=TRACKING_MARGIN_M), others_at)
+        except GroundctlError as exc:
+            reasons.append(f"arriving at {arrive:.1f} s: {exc}")
+            continue
+        path = Moving(result.trajectories, leave_at, leave_at, arrive)
+        closest, what = closest_approach(path, plan, flown, moving, static, leave_at, arrive)
+        if closest < limit - DIST_TOL:
+            reasons.append(f"arriving at {arrive:.1f} s it would come {closest:.2f} m from "
+                           f"{what}")
+            continue
+        # Then on the track's plan, while drones off their plans are still about.
+        after = _plan_row(plan, track, arrive, plan.duration)
+        later = [m for m in moving if m.end > arrive]
+        closest, what = closest_approach(after, plan, np.zeros(0, dtype=np.intp), later,
+                                         static, arrive, plan.duration)
+        if closest < limit - DIST_TOL:
+            reasons.append(f"arriving at {arrive:.1f} s the track's plan would then come "
+                           f"{closest:.2f} m from {what}")
+            continue
+        return Join(track, leave_at, result.trajectories,
+                    plan_ms=(time.perf_counter() - t_start) * 1000.0)
+    raise PlanningError(0, "no join", f"track {track + 1}: " + (
+        "; ".join(reasons) if reasons else "no formation left to join before the show ends"))
+
+
+def _plan_row(plan: Plan, track: int, start: float, end: float) -> Moving:
+    """``track`` on its plan over show times [start, end]."""
+    tr = plan.trajectories
+    row = Trajectories(tr.times, tr.pos[track:track + 1], tr.vel[track:track + 1])
+    return Moving(row, 0.0, start, end)

@@ -1,0 +1,114 @@
+"""A spare's way into a failed drone's track (issue 29): planned among the drones that
+fly on, at the first formation it can reach, and checked exactly in continuous time."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from groundctl.errors import PlanningError
+from groundctl.flight.joining import Moving, closest_approach, join_windows, plan_join
+from groundctl.flight.returning import plan_leave
+from groundctl.plan.plan import Plan
+from groundctl.plan.planner import plan_show
+from groundctl.show.loader import load_show
+from groundctl.show.model import SpareSettings
+
+TRACK = 4
+
+
+@pytest.fixture(scope="module")
+def plan() -> Plan:
+    show = load_show("shows/quick.toml")
+    return plan_show(replace(show, spares=SpareSettings(count=2, standby="air")),
+                     workers=1).plan
+
+
+def _dense_gap(plan: Plan, path: Moving, t0: float, t1: float, tracks: list[int],
+               others: list[Moving] = ()) -> float:  # type: ignore[assignment]
+    """The closest ``path`` comes to ``tracks`` and ``others`` on a 2 ms grid."""
+    t = np.arange(t0, t1, 0.002)
+    mine = path.position(t)
+    gaps = [np.linalg.norm(plan.trajectories.evaluate(t, np.array(tracks))[0] - mine,
+                           axis=2).min()] if tracks else []
+    for m in others:
+        inside = (t >= m.start) & (t <= m.end)
+        if inside.any():
+            gaps.append(np.linalg.norm(m.position(t[inside]) - mine[inside], axis=1).min())
+    return float(min(gaps, default=np.inf))
+
+
+def test_a_spare_joins_at_the_first_formation_it_can_reach(plan: Plan) -> None:
+    assert plan.spares is not None
+    start = plan.spares.points[0]
+    join = plan_join(plan, TRACK, start, earliest=3.0, static=plan.spares.points[1:])
+    first = plan.formations[0]
+    assert join.at >= 3.0 and first.arrive <= join.until <= first.end
+    assert join.until == pytest.approx(join_windows(plan, TRACK, start, 3.0)[0][1])
+    # It starts where it waits, at rest, and ends on the track's plan, at rest.
+    p0, v0, _ = join.state(join.at)
+    p1, v1, _ = join.state(join.until)
+    assert np.allclose(p0, start, atol=1e-6) and np.allclose(v0, 0.0, atol=1e-6)
+    assert np.allclose(p1, plan.state_at(join.until).pos[TRACK], atol=1e-6)
+    assert np.allclose(v1, 0.0, atol=1e-6)
+    # Clear of every drone flying on, on a fine grid as well as by the exact check.
+    others = [j for j in range(plan.drones) if j != TRACK]
+    path = Moving(join.trajectory, join.at, join.at, join.until)
+    assert _dense_gap(plan, path, join.at, join.until, others) >= plan.limits.min_separation
+    assert join.plan_ms > 0
+
+
+def test_closest_approach_is_exact_against_dense_sampling(plan: Plan) -> None:
+    assert plan.spares is not None
+    join = plan_join(plan, TRACK, plan.spares.points[0], earliest=3.0)
+    path = Moving(join.trajectory, join.at, join.at, join.until)
+    tracks = np.array([j for j in range(plan.drones) if j != TRACK], dtype=np.intp)
+    exact, what = closest_approach(path, plan, tracks, [], np.zeros((0, 3)), join.at,
+                                   join.until)
+    dense = _dense_gap(plan, path, join.at, join.until, tracks.tolist())
+    assert exact <= dense + 1e-6 and dense - exact < 5e-3
+    assert what.startswith("drone ") and "at show time" in what
+    # A static point: the distance to it, from the path's own cubic.
+    point = join.state((join.at + join.until) / 2)[0] + np.array([0.3, 0.0, 0.0])
+    exact, what = closest_approach(path, plan, tracks[:0], [], point[None, :], join.at,
+                                   join.until)
+    assert exact == pytest.approx(0.3, abs=1e-3) or exact < 0.3
+    assert what.startswith("the drone at (")
+
+
+def test_a_join_waits_until_the_failed_drone_has_left_its_slot(plan: Plan) -> None:
+    """The failed drone hovers on its ring slot until show time 9 (heard again off its
+    plan, held), then takes its way out: joining the ring at 8.4 s would meet it; the
+    spare takes the square instead, and the check covers its way out too."""
+    assert plan.spares is not None
+    slot = plan.formations[0].goals[TRACK]
+    leave = plan_leave(plan, TRACK, 9.0, {}, start=slot)
+    assert leave.held
+    join = plan_join(plan, TRACK, plan.spares.points[0], earliest=3.0,
+                     leaves={TRACK: leave})
+    square = plan.formations[1]
+    assert square.arrive <= join.until <= square.end
+    hovering = Moving(leave.trajectory, leave.at, 3.0, leave.until)
+    path = Moving(join.trajectory, join.at, join.at, join.until)
+    assert _dense_gap(plan, path, join.at, join.until, [], [hovering]) \
+        >= plan.limits.min_separation
+
+
+def test_a_join_that_meets_a_drone_is_refused_and_retried_later(plan: Plan) -> None:
+    """A drone down on the ground is no obstacle to a join in the air; one hovering at
+    the ring slot (another spare, say) is, for the ring: the square is taken."""
+    assert plan.spares is not None
+    ring_slot = plan.formations[0].goals[TRACK]
+    join = plan_join(plan, TRACK, plan.spares.points[0], earliest=3.0,
+                     static=ring_slot[None, :] + np.array([[0.0, 0.0, 0.5]]))
+    assert join.until >= plan.formations[1].arrive
+
+
+def test_no_window_left_is_one_line(plan: Plan) -> None:
+    assert plan.spares is not None
+    with pytest.raises(PlanningError) as exc:
+        plan_join(plan, TRACK, plan.spares.points[0], earliest=plan.duration)
+    assert str(exc.value) == (f"transition 0: planner failed: no join (track {TRACK + 1}: "
+                              "no formation left to join before the show ends)")
