@@ -108,7 +108,8 @@ def test_dry_run_refuses_bad_options(args: list[str], message: str) -> None:
 
 
 @pytest.mark.parametrize("option, value", [("--gust-on", "12@5:9@270"),
-                                            ("--push", "2:3@5:0,0,3"), ("--weak", "10:0.5")])
+                                            ("--push", "2:3@5:0,0,3"), ("--weak", "10:0.5"),
+                                            ("--fail", "11@5:motor")])
 def test_a_fault_on_a_vehicle_the_fleet_does_not_have_is_one_line_before_the_flight(
         option: str, value: str) -> None:
     out = _run("dry-run", str(QUICK_SHOW), option, value, "--no-record")

@@ -22,7 +22,7 @@ from groundctl.execute.guard import GuardConfig
 from groundctl.execute.preflight import Thresholds
 from groundctl.execute.sequence import VehiclePhase
 from groundctl.execute.wind import WindConfig
-from groundctl.flight.dryrun import Gust
+from groundctl.flight.dryrun import Failure, Gust
 from groundctl.flight.runner import RunnerConfig, ShowRunner
 from groundctl.link.flavours import Flavour
 from groundctl.record.events import read_events
@@ -217,14 +217,13 @@ def test_a_motor_failure_takes_the_vehicle_out_and_keeps_its_crash_site_clear(
     assert report["simulator"]["down_and_disarmed"] == 9
 
 
-def test_a_low_battery_sends_the_vehicle_home_on_a_way_out() -> None:
-    async def drain(runner: ShowRunner, sim: SimProcess) -> None:
-        await until(runner, lambda: show_time(runner) > 1.0)
-        sim.call("low_battery", 0.15, 6)
-
-    result = dry_run(during=drain)
+def test_a_low_battery_sends_the_vehicle_home_on_a_way_out(tmp_path: Path) -> None:
+    # As `--fail 6@1:battery` asks it: the pack drops to 15 % at show time 1.
+    result = dry_run(tmp_path, failures=(Failure(6, 1.0, "battery", battery=0.15),))
     _assert_safe(result.report)
     assert vehicle(result.report, 6)["reason"].startswith("battery 15 %")
+    (failure,) = _events(tmp_path, "failure")
+    assert failure == {**failure, "system_id": 6, "kind": "battery", "show_time": 1.0}
 
 
 @pytest.mark.parametrize("speed,seed", [(6.0, 3), pytest.param(8.0, 4, marks=pytest.mark.extended)])

@@ -52,6 +52,11 @@ def test_cli_fleet_is_seen_by_a_ground_station_and_stops_on_ctrl_c(stop: int) ->
                              "5@20:9@270,4: 9 m/s from the west for 4 s), not '1@5:9'"),
     (["--count", "2", "--gust-on", "3@5:9@270"], "system id 3"),
     (["--count", "2", "--weak", "9:0.5"], "system id 9"),
+    (["--fail", "1@5:engine"], "--fail must be SYSID@T:KIND with KIND one of motor, battery, "
+                               "link (e.g. 5@20:motor), not '1@5:engine'"),
+    (["--fail", "1@-2:motor"], "--fail must be SYSID@T:KIND"),
+    (["--fail", "1:motor"], "--fail must be SYSID@T:KIND"),
+    (["--count", "2", "--fail", "3@5:link"], "system id 3"),
 ])
 def test_cli_rejects_bad_arguments(args: list[str], message: str,
                                    capsys: pytest.CaptureFixture[str]) -> None:

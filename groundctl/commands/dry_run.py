@@ -25,6 +25,8 @@ from groundctl.commands.flying import (
     then,
 )
 from groundctl.commands.options import (
+    FAILED_BATTERY,
+    add_fail,
     add_gust_on,
     non_negative,
     positive,
@@ -72,6 +74,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
                         "show time T (repeatable), whatever its autopilot does: kinematic, "
                         "a GPS jump or a bird strike (a gust is --gust-on)")
     add_gust_on(p, "show time T")
+    add_fail(p, "show time T")
     p.add_argument("--weak", type=weak, action="append", default=[],
                    metavar="SYSID[,SYSID...]:FACTOR",
                    help="scale those vehicles' maximum speed and acceleration by FACTOR "
@@ -102,7 +105,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-ar
 
 
 def run(args: argparse.Namespace) -> int:
-    from groundctl.flight.dryrun import DryRunOptions, Gust, Push, fly_dry_run
+    from groundctl.flight.dryrun import DryRunOptions, Failure, Gust, Push, fly_dry_run
     from groundctl.record.recording import default_directory
 
     console = console_wanted(args)
@@ -116,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
         ready_delay_s=args.ready_delay, runner=runner_config(args), record_dir=record,
         pushes=tuple(Push(s, t, v) for s, t, v in args.push),
         gusts=tuple(Gust(*g) for g in args.gust_on),
+        failures=tuple(Failure(s, t, k, battery=FAILED_BATTERY) for s, t, k in args.fail),
         weak=tuple(w for group in args.weak for w in group), profile=args.profile,
         rtk=args.rtk, gcs_sysid=args.gcs_sysid, paced=args.paced, networks=args.networks,
         link_workers=args.link_workers, sim_processes=args.sim_processes)

@@ -122,6 +122,39 @@ def gust_on(text: str) -> tuple[int, float, float, float, float]:
     return sysid, t, speed, frm % 360.0, duration
 
 
+#: ``--fail`` kinds: what goes wrong with the vehicle.
+FAIL_KINDS = ("motor", "battery", "link")
+#: What ``--fail SYSID@T:battery`` leaves in the pack: below the show's default
+#: land_battery_pct (20 %), above half of it, so the ground station flies the vehicle out
+#: on a way out and lands it (and its own failsafe warns).
+FAILED_BATTERY = 0.15
+
+
+def fail(text: str) -> tuple[int, float, str]:
+    """``--fail SYSID@T:KIND``: (vehicle id, time s, kind in FAIL_KINDS)."""
+    usage = (f"--fail must be SYSID@T:KIND with KIND one of {', '.join(FAIL_KINDS)} (e.g. "
+             f"5@20:motor), not {text!r} (SYSID 2:5 is network 2's system id 5)")
+    who, at, rest = text.partition("@")
+    when, colon, kind = rest.partition(":")
+    try:
+        sysid, t = parse_vehicle(who), float(when)
+    except ValueError:
+        raise argparse.ArgumentTypeError(usage) from None
+    if not at or not colon or kind not in FAIL_KINDS or not math.isfinite(t) or t < 0:
+        raise argparse.ArgumentTypeError(usage)
+    return sysid, t, kind
+
+
+def add_fail(p: argparse.ArgumentParser, when: str) -> None:
+    """``--fail SYSID@T:KIND``; ``when`` says what T counts."""
+    p.add_argument("--fail", type=fail, action="append", default=[], metavar="SYSID@T:KIND",
+                   help=f"make one vehicle fail at {when} (repeatable): motor (it loses "
+                        "thrust and falls), battery (its pack drops to "
+                        f"{FAILED_BATTERY:.0%}: below the show's landing level, it is flown "
+                        "out and lands), link (it goes silent both ways for good and its "
+                        "own failsafe takes over)")
+
+
 def weak(text: str) -> list[tuple[int, float]]:
     """``--weak SYSID[,SYSID...]:FACTOR``: [(vehicle id, factor in (0, 1])]."""
     usage = f"--weak must be SYSID[,SYSID...]:FACTOR with FACTOR in (0, 1], not {text!r}"

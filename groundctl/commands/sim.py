@@ -24,6 +24,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from groundctl.commands.options import (
+    FAILED_BATTERY,
+    add_fail,
     add_gust_on,
     add_points_dir,
     push,
@@ -186,6 +188,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                         "kinematic, a GPS jump or a bird strike (repeatable; a gust is "
                         "--gust-on)")
     add_gust_on(p, "T simulated seconds after boot")
+    add_fail(p, "T simulated seconds after boot")
     p.add_argument("--weak", type=weak, action="append", default=[],
                    metavar="SYSID[,SYSID...]:FACTOR",
                    help="scale those vehicles' speed and acceleration authority by FACTOR")
@@ -316,6 +319,13 @@ def run(args: argparse.Namespace) -> int:
             fleet.gust(wind_from(speed, frm), duration, sysid, at=at)
         for sysid, factor in (w for group in args.weak for w in group):
             fleet.weaken(factor, sysid)
+        for sysid, at, kind in args.fail:
+            if kind == "motor":
+                fleet.motor_failure(sysid, at=at)
+            elif kind == "battery":
+                fleet.low_battery(FAILED_BATTERY, sysid, at=at)
+            else:
+                fleet.cut_link(sysid, at=at)
         fleet.start()
         while True:
             time.sleep(1.0)

@@ -100,6 +100,20 @@ class Gust:
 
 
 @dataclass(frozen=True)
+class Failure:
+    """A vehicle that fails mid-show, ``--fail``."""
+
+    sysid: int
+    """The vehicle."""
+    show_time: float
+    """Show time it fails, s."""
+    kind: str
+    """motor (falls), battery (its pack drops to ``battery``), link (goes silent)."""
+    battery: float = 0.15
+    """What a battery failure leaves in the pack, fraction."""
+
+
+@dataclass(frozen=True)
 class DryRunOptions:
     """How to rehearse."""
 
@@ -133,6 +147,8 @@ class DryRunOptions:
     """Vehicles displaced mid-show (``--push``)."""
     gusts: tuple[Gust, ...] = ()
     """Wind on single vehicles mid-show (``--gust-on``)."""
+    failures: tuple[Failure, ...] = ()
+    """Vehicles that fail mid-show (``--fail``)."""
     weak: tuple[tuple[int, float], ...] = ()
     """(system id, factor): vehicles whose speed and acceleration authority is scaled
     from the start (``--weak``)."""
@@ -244,7 +260,8 @@ def _check_named(options: DryRunOptions, ids: set[int]) -> None:
     show flew and the dry-run exited 0)."""
     named = [("--push", p.sysid) for p in options.pushes] \
         + [("--gust-on", g.sysid) for g in options.gusts] \
-        + [("--weak", w[0]) for w in options.weak]
+        + [("--weak", w[0]) for w in options.weak] \
+        + [("--fail", f.sysid) for f in options.failures]
     for option, sysid in named:
         if sysid not in ids:
             raise SimulatorError(f"{option} names vehicle {spell(sysid)}, which this fleet "
@@ -352,9 +369,10 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
                            if networks > 1 else {}))
         for sysid, factor in options.weak:
             fleet.call("weaken", factor, sysid)
-        if during is not None or options.pushes or options.gusts:
+        if during is not None or options.pushes or options.gusts or options.failures:
             helper = asyncio.create_task(_alongside(runner, fleet, options.pushes,
-                                                    options.gusts, during))
+                                                    options.gusts, during,
+                                                    options.failures))
         await runner.run()
     except GroundctlError as exc:
         error = exc
@@ -446,10 +464,12 @@ def _pacing(paced: PacedClock | None, clock: Clock, started: float,
 
 async def _alongside(runner: ShowRunner, fleet: SimProcess | SimGroup,
                      pushes: tuple[Push, ...], gusts: tuple[Gust, ...],
-                     during: During | None) -> None:
-    """The caller's ``during`` and the scheduled pushes and gusts, side by side."""
+                     during: During | None, failures: tuple[Failure, ...] = ()) -> None:
+    """The caller's ``during`` and the scheduled pushes, gusts and failures, side by
+    side."""
     tasks = [asyncio.create_task(_push(runner, fleet, p)) for p in pushes]
     tasks += [asyncio.create_task(_gust(runner, fleet, g)) for g in gusts]
+    tasks += [asyncio.create_task(_fail(runner, fleet, f)) for f in failures]
     if during is not None:
         tasks.append(asyncio.create_task(during(runner, fleet)))
     try:
@@ -478,6 +498,20 @@ async def _gust(runner: ShowRunner, fleet: SimProcess | SimGroup, gust: Gust) ->
         runner.events.emit("gust", system_id=gust.sysid, speed_ms=gust.speed,
                            from_deg=gust.from_deg, duration_s=gust.duration,
                            show_time=round(gust.show_time, 2))
+
+
+async def _fail(runner: ShowRunner, fleet: SimProcess | SimGroup, failure: Failure) -> None:
+    """Wait for the failure's show time on the show clock, then break the vehicle."""
+    await _show_time(runner, failure.show_time)
+    if failure.kind == "motor":
+        fleet.call("motor_failure", failure.sysid)
+    elif failure.kind == "battery":
+        fleet.call("low_battery", failure.battery, failure.sysid)
+    else:
+        fleet.call("cut_link", failure.sysid)
+    if runner.events is not None:
+        runner.events.emit("failure", system_id=failure.sysid, kind=failure.kind,
+                           show_time=round(failure.show_time, 2))
 
 
 async def _push(runner: ShowRunner, fleet: SimProcess | SimGroup, push: Push) -> None:
