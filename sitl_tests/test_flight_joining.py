@@ -13,6 +13,7 @@ from groundctl.flight.joining import Moving, closest_approach, join_windows, pla
 from groundctl.flight.returning import plan_leave
 from groundctl.plan.plan import Plan
 from groundctl.plan.planner import plan_show
+from groundctl.plan.trajectory import Trajectories
 from groundctl.show.loader import load_show
 from groundctl.show.model import SpareSettings
 
@@ -74,8 +75,39 @@ def test_closest_approach_is_exact_against_dense_sampling(plan: Plan) -> None:
     point = join.state((join.at + join.until) / 2)[0] + np.array([0.3, 0.0, 0.0])
     exact, what = closest_approach(path, plan, tracks[:0], [], point[None, :], join.at,
                                    join.until)
-    assert exact == pytest.approx(0.3, abs=1e-3) or exact < 0.3
+    t = np.arange(join.at, join.until, 0.0005)
+    dense = float(np.linalg.norm(path.position(t) - point, axis=1).min())
+    assert exact <= min(dense, 0.3) + 1e-6 and dense - exact < 1e-3
     assert what.startswith("the drone at (")
+
+
+def _still_path(point: list[float], start: float, end: float, spacing: float = 0.0) -> Moving:
+    pos = np.array([[point, point]], dtype=float)
+    return Moving(Trajectories(np.array([0.0, 1.0]), pos, np.zeros_like(pos)), start, start,
+                  end, spacing)
+
+
+def test_closest_approach_between_drones_at_rest(plan: Plan) -> None:
+    """Relative cubics that are constant (both at rest) have hulls that only touch the
+    bound: they are measured, not pruned (they were: nothing found, or a farther one)."""
+    path = _still_path([0.0, 0.0, 10.0], 2.0, 6.0)
+    near = _still_path([1.3, 0.0, 10.0], 0.0, 9.0)
+    far = _still_path([5.0, 0.0, 10.0], 0.0, 9.0)
+    none = np.zeros(0, dtype=np.intp)
+    got, what = closest_approach(path, plan, none, [far, near], np.zeros((0, 3)), 2.0, 6.0)
+    assert got == pytest.approx(1.3) and what.startswith("moving 1")
+
+
+def test_a_column_counts_by_the_nearest_it_can_be(plan: Plan) -> None:
+    """A descending drone is anywhere on its column: a column point 1 m from the next
+    counts as the column stretch around it, never nearer than the column can be."""
+    path = _still_path([1.42, 0.0, 5.5], 0.0, 4.0)  # between the points at 5 and 6 m
+    columns = [_still_path([0.0, 0.0, z], 0.0, 4.0, spacing=1.0) for z in (5.0, 6.0)]
+    got, _ = closest_approach(path, plan, np.zeros(0, dtype=np.intp), columns,
+                              np.zeros((0, 3)), 0.0, 4.0)
+    assert got <= 1.42 + 1e-9  # the column itself is 1.42 m away
+    assert got == pytest.approx(1.42, abs=1e-6)  # not the 1.506 m to either point
+
 
 
 def test_a_join_waits_until_the_failed_drone_has_left_its_slot(plan: Plan) -> None:

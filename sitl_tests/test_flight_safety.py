@@ -218,8 +218,9 @@ def test_a_motor_failure_takes_the_vehicle_out_and_keeps_its_crash_site_clear(
 
 
 def test_a_low_battery_sends_the_vehicle_home_on_a_way_out(tmp_path: Path) -> None:
-    # As `--fail 6@1:battery` asks it: the pack drops to 15 % at show time 1.
-    result = dry_run(tmp_path, failures=(Failure(6, 1.0, "battery", battery=0.15),))
+    # As `--fail 6@1:battery` asks it: at show time 1 the pack drops to three quarters
+    # of the show's landing level (20 %): 15 %.
+    result = dry_run(tmp_path, failures=(Failure(6, 1.0, "battery"),))
     _assert_safe(result.report)
     assert vehicle(result.report, 6)["reason"].startswith("battery 15 %")
     (failure,) = _events(tmp_path, "failure")

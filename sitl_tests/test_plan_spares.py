@@ -330,3 +330,50 @@ def test_a_plan_whose_spares_were_edited_is_not_trusted(tmp_path: Path) -> None:
     ]:
         with pytest.raises(UntrustedPlan, match=re.escape(fragment)):
             check_against_show(edited, show, "p.npz")
+
+
+def test_a_drone_at_rest_the_whole_show_is_measured(plan: Plan) -> None:
+    """A segment at rest has a hull of radius 0 that only touches the upper bound: it
+    is measured, not pruned (it was: a drone hovering 2 m away went unseen)."""
+    tr = plan.trajectories
+    pos = np.concatenate([tr.pos, np.repeat([[[30.0, 0.0, 10.0]]], len(tr.times), axis=1)])
+    still = replace(tr, pos=pos, vel=np.concatenate([tr.vel, np.zeros((1, len(tr.times), 3))]))
+    d, drone, _ = closest_to_point(still, np.array([32.0, 0.0, 10.0]))
+    assert d == pytest.approx(2.0) and drone == plan.drones
+
+
+@pytest.mark.parametrize("points, fragment", [
+    (lambda sp: sp.points + np.array([0.5, 0.0, 0.0]), "not straight above their 'spare_pads'"),
+    (lambda sp: sp.pads.copy(), "is not above its pad's"),
+])
+def test_spare_points_edited_off_their_pads_are_refused(plan: Plan, tmp_path: Path,
+                                                        points: object, fragment: str) -> None:
+    sp = place_spares(SpareSettings(count=2, standby="air"), plan)
+    good = replace(plan, spares=sp).save(tmp_path / "good.plan.npz")
+    bad = _rewrite(good, tmp_path / "bad.plan.npz",
+                   arrays={"spare_points": points(sp)})  # type: ignore[operator]
+    with pytest.raises(PlanFileError, match=re.escape(fragment)):
+        Plan.load(bad)
+
+
+def test_verifier_refuses_a_spare_waiting_above_the_ceiling(plan: Plan) -> None:
+    sp = place_spares(SpareSettings(count=1, standby="air"), plan)
+    high = replace(sp, points=sp.points + np.array([0.0, 0.0, 500.0]))
+    ver = verify(replace(plan, spares=high))
+    assert any("a spare waits at" in v and "max_altitude" in v for v in ver.violations)
+
+
+def test_laid_out_spares_moved_in_the_plan_are_not_trusted(tmp_path: Path) -> None:
+    from groundctl.errors import UntrustedPlan
+    from groundctl.plan.provenance import check_against_show
+    from groundctl.show.loader import load_show
+
+    show_path = tmp_path / "s.toml"
+    show_path.write_text(SHOW.format(spares='[spares]\ncount = 2\nstandby = "air"', limits=""))
+    show = load_show(show_path)
+    plan = plan_show(show, workers=1).plan
+    assert plan.spares is not None
+    moved = replace(plan.spares, pads=plan.spares.pads + np.array([3.0, 0.0, 0.0]),
+                    points=plan.spares.points + np.array([3.0, 0.0, 0.0]))
+    with pytest.raises(UntrustedPlan, match="differ from where the planner lays them out"):
+        check_against_show(replace(plan, spares=moved), show, "p.npz")

@@ -25,7 +25,6 @@ from groundctl.commands.flying import (
     then,
 )
 from groundctl.commands.options import (
-    FAILED_BATTERY,
     add_fail,
     add_gust_on,
     non_negative,
@@ -119,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         ready_delay_s=args.ready_delay, runner=runner_config(args), record_dir=record,
         pushes=tuple(Push(s, t, v) for s, t, v in args.push),
         gusts=tuple(Gust(*g) for g in args.gust_on),
-        failures=tuple(Failure(s, t, k, battery=FAILED_BATTERY) for s, t, k in args.fail),
+        failures=tuple(Failure(*f) for f in args.fail),
         weak=tuple(w for group in args.weak for w in group), profile=args.profile,
         rtk=args.rtk, gcs_sysid=args.gcs_sysid, paced=args.paced, networks=args.networks,
         link_workers=args.link_workers, sim_processes=args.sim_processes)

@@ -124,12 +124,6 @@ def gust_on(text: str) -> tuple[int, float, float, float, float]:
 
 #: ``--fail`` kinds: what goes wrong with the vehicle.
 FAIL_KINDS = ("motor", "battery", "link")
-#: What ``--fail SYSID@T:battery`` leaves in the pack: below the show's default
-#: land_battery_pct (20 %), above half of it, so the ground station flies the vehicle out
-#: on a way out and lands it (and its own failsafe warns).
-FAILED_BATTERY = 0.15
-
-
 def fail(text: str) -> tuple[int, float, str]:
     """``--fail SYSID@T:KIND``: (vehicle id, time s, kind in FAIL_KINDS)."""
     usage = (f"--fail must be SYSID@T:KIND with KIND one of {', '.join(FAIL_KINDS)} (e.g. "
@@ -149,10 +143,11 @@ def add_fail(p: argparse.ArgumentParser, when: str) -> None:
     """``--fail SYSID@T:KIND``; ``when`` says what T counts."""
     p.add_argument("--fail", type=fail, action="append", default=[], metavar="SYSID@T:KIND",
                    help=f"make one vehicle fail at {when} (repeatable): motor (it loses "
-                        "thrust and falls), battery (its pack drops to "
-                        f"{FAILED_BATTERY:.0%}: below the show's landing level, it is flown "
-                        "out and lands), link (it goes silent both ways for good and its "
-                        "own failsafe takes over)")
+                        "thrust and falls), battery (its pack drops to three quarters of "
+                        "the level at which a drone leaves the show, [limits] "
+                        "land_battery_pct, 20 %% unless the show says: it is flown out and "
+                        "lands), link (it goes "
+                        "silent both ways for good and its own failsafe takes over)")
 
 
 def weak(text: str) -> list[tuple[int, float]]:

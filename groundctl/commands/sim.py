@@ -24,7 +24,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from groundctl.commands.options import (
-    FAILED_BATTERY,
     add_fail,
     add_gust_on,
     add_points_dir,
@@ -35,7 +34,7 @@ from groundctl.commands.options import (
 from groundctl.errors import EXIT_OK, SimulatorError
 from groundctl.execute.frames import show_to_enu
 from groundctl.link.flavours import Flavour
-from groundctl.show.model import GeoOrigin
+from groundctl.show.model import GeoOrigin, Limits
 from groundctl.sim.config import PROFILE_NAMES, SimConfig, grid_layout, profile_for, wind_from
 from groundctl.sim.faults import LinkFaults
 from groundctl.vehicleid import VehicleId, network_layout, networks_for
@@ -295,6 +294,7 @@ def run(args: argparse.Namespace) -> int:
     slots = takeoff_slots(args.show, args.points_dir) if args.show is not None else None
     config = build_config(args, slots)
     from groundctl.clock import ScaledClock
+    from groundctl.sim.faults import failed_battery
     from groundctl.sim.fleet import SimFleet
 
     fleet = SimFleet(config, ScaledClock(args.speed))
@@ -323,7 +323,8 @@ def run(args: argparse.Namespace) -> int:
             if kind == "motor":
                 fleet.motor_failure(sysid, at=at)
             elif kind == "battery":
-                fleet.low_battery(FAILED_BATTERY, sysid, at=at)
+                # The simulator knows no show: of the default landing level (20 %).
+                fleet.low_battery(failed_battery(Limits().land_battery_pct), sysid, at=at)
             else:
                 fleet.cut_link(sysid, at=at)
         fleet.start()

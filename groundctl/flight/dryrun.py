@@ -47,6 +47,7 @@ from groundctl.rtk.forwarder import RtkForwarder
 from groundctl.rtk.sources import RtkSource, SourceSpec
 from groundctl.sim import LinkFaults, SimConfig
 from groundctl.sim.config import profile_for, wind_from
+from groundctl.sim.faults import failed_battery
 from groundctl.sim.group import SimGroup, split_config
 from groundctl.sim.process import SimProcess
 from groundctl.vehicleid import (
@@ -108,9 +109,10 @@ class Failure:
     show_time: float
     """Show time it fails, s."""
     kind: str
-    """motor (falls), battery (its pack drops to ``battery``), link (goes silent)."""
-    battery: float = 0.15
-    """What a battery failure leaves in the pack, fraction."""
+    """motor (falls), battery (its pack drops to
+    :func:`~groundctl.sim.faults.failed_battery`), link (goes silent)."""
+
+
 
 
 @dataclass(frozen=True)
@@ -506,7 +508,8 @@ async def _fail(runner: ShowRunner, fleet: SimProcess | SimGroup, failure: Failu
     if failure.kind == "motor":
         fleet.call("motor_failure", failure.sysid)
     elif failure.kind == "battery":
-        fleet.call("low_battery", failure.battery, failure.sysid)
+        fleet.call("low_battery", failed_battery(runner.plan.limits.land_battery_pct),
+                   failure.sysid)
     else:
         fleet.call("cut_link", failure.sysid)
     if runner.events is not None:

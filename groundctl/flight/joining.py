@@ -16,7 +16,9 @@ continuous time -- both sides are cubic between knots, so on the union of their 
 the distance's minimum is found by the verifier's branch and bound
 (:func:`~groundctl.plan.verify.closest_on_segment`).  A window where planning fails
 or the check finds less than the limit is skipped for the next; no window left is a
-:class:`~groundctl.errors.PlanningError` naming the last reason.  Pure: the driver
+:class:`~groundctl.errors.PlanningError` giving every window's reason.  A drone coming
+down its landing column is somewhere on the column, not at a point: the column counts
+by a certified lower bound of its distance (:attr:`Moving.spacing`).  Pure: the driver
 decides when and which spare, runs this in a worker with a deadline, and flies it.
 """
 
@@ -32,6 +34,7 @@ from numpy.typing import NDArray
 from groundctl.errors import GroundctlError, PlanningError
 from groundctl.execute.leaving import Leave, return_duration
 from groundctl.flight.returning import (
+    COLUMN_STEP_M,
     DESCENT_MARGIN_S,
     DESCENT_SPEED_MPS,
     TRACKING_MARGIN_M,
@@ -40,7 +43,13 @@ from groundctl.flight.returning import (
 from groundctl.plan.plan import Plan
 from groundctl.plan.scp_quad import plan_among
 from groundctl.plan.trajectory import Trajectories
-from groundctl.plan.verify import DIST_TOL, PAIR_BLOCK, closest_on_segment, hermite_power
+from groundctl.plan.verify import (
+    DIST_TOL,
+    PAIR_BLOCK,
+    bounding_spheres,
+    closest_on_segment,
+    hermite_power,
+)
 from groundctl.show.model import PlannerSettings
 
 FloatArray = NDArray[np.float64]
@@ -92,6 +101,9 @@ class Moving:
     offset: float
     start: float
     end: float
+    spacing: float = 0.0
+    """Non-zero: it is one of a column's points this far apart, standing for the column's
+    stretch around it (a descending drone is somewhere on the column, not at a point)."""
 
     def position(self, show_times: FloatArray) -> FloatArray:
         tau = np.clip(np.asarray(show_times, dtype=float) - self.offset, 0.0,
@@ -99,11 +111,12 @@ class Moving:
         return self.trajectory.evaluate(tau)[0][0]
 
 
-def _still(point: FloatArray, start: float, end: float) -> Moving:
-    """A drone that does not move over show times [start, end]."""
+def _still(point: FloatArray, start: float, end: float, spacing: float = 0.0) -> Moving:
+    """A drone that does not move over show times [start, end] (``spacing``: anywhere on
+    the column stretch around ``point``, see :attr:`Moving.spacing`)."""
     pos = np.repeat(np.asarray(point, dtype=float)[None, None, :], 2, axis=1)
     return Moving(Trajectories(np.array([0.0, 1.0]), pos, np.zeros_like(pos)), start, start,
-                  end)
+                  end, spacing)
 
 
 def _leave_pieces(plan: Plan, track: int, leave: Leave, t0: float, t1: float
@@ -125,7 +138,7 @@ def _leave_pieces(plan: Plan, track: int, leave: Leave, t0: float, t1: float
     down = leave.until + float(top[2]) / DESCENT_SPEED_MPS + DESCENT_MARGIN_S
     if t1 > leave.until:
         for point in column(top):
-            pieces.append(_still(point, max(leave.until, t0), min(down, t1)))
+            pieces.append(_still(point, max(leave.until, t0), min(down, t1), COLUMN_STEP_M))
     if t1 > down:
         pieces.append(_still(column(top)[-1], max(down, t0), t1))
     return pieces
@@ -141,7 +154,9 @@ def closest_approach(path: Moving, plan: Plan, tracks: NDArray[np.intp],
     Every side is piecewise cubic; refined to the union of their knots it is still
     exactly itself (a cubic restricted to part of its segment is a cubic), so each pair
     is a relative cubic per segment, bounded by its Bezier hull and measured by the
-    verifier's branch and bound where the hull reaches under the best found."""
+    verifier's branch and bound where the hull reaches under the best found.  A piece
+    that stands for a column's stretch (:attr:`Moving.spacing`) counts by the nearest
+    the column itself can be: a certified lower bound, not the exact distance."""
     best, what = math.inf, "nothing"
     if t1 <= t0:
         return best, what
@@ -175,43 +190,60 @@ def closest_approach(path: Moving, plan: Plan, tracks: NDArray[np.intp],
         b = hermite_power(op[:, :-1].reshape(-1, 3), op[:, 1:].reshape(-1, 3),
                           (ov[:, :-1] * h[None, :, None]).reshape(-1, 3),
                           (ov[:, 1:] * h[None, :, None]).reshape(-1, 3))
-        segs = len(h)
-        d = np.tile(a, (len(op), 1, 1)) - b  # row i * segs + k
-        ctl = np.stack([d[:, 0], d[:, 0] + d[:, 1] / 3,
-                        d[:, 0] + 2 * d[:, 1] / 3 + d[:, 2] / 3, d.sum(axis=1)], axis=1)
-        centre = ctl.mean(axis=1)
-        lower = np.linalg.norm(centre, axis=1) - np.linalg.norm(
-            ctl - centre[:, None], axis=2).max(axis=1)
-        upper = float(np.linalg.norm(ctl[:, [0, 3]], axis=2).min())
-        rows = np.flatnonzero(lower < min(best, upper))
-        rows = rows[np.argsort(lower[rows], kind="stable")]
-        for c in range(0, len(rows), PAIR_BLOCK):
-            blk = rows[c:c + PAIR_BLOCK]
-            if lower[blk[0]] >= best:
-                break
-            dmin, at = closest_on_segment(d[blk], shared=True, below=best)
-            q = int(np.argmin(dmin))
-            if dmin[q] < best:
-                i, k = divmod(int(blk[q]), segs)
-                best = float(dmin[q])
-                what = f"{labels[i]} at show time {t[k] + at[q] * h[k]:.1f} s"
+        d = np.tile(a, (len(op), 1, 1)) - b  # row i * segments + k
+        near, row, at = _closest_rows(d)
+        if row < 0:
+            continue
+        half = 0.0 if piece is None else piece.spacing / 2
+        # A point standing for a stretch of column: the column is no nearer than this.
+        near = math.sqrt(max(near * near - half * half, 0.0))
+        if near < best:
+            i, k = divmod(row, len(h))
+            best, what = near, f"{labels[i]} at show time {t[k] + at * h[k]:.1f} s"
     if len(static):
         t = np.unique(np.concatenate([[t0, t1], p_knots[(p_knots > t0) & (p_knots < t1)]]))
         h = np.diff(t)
         tau = np.clip(t - path.offset, 0.0, path.trajectory.end)
         pp, pv, _ = path.trajectory.evaluate(tau)
+        pv = np.where(((t - path.offset < 0) | (t - path.offset > path.trajectory.end))
+                      [None, :, None], 0.0, pv)
         a = hermite_power(pp[0, :-1], pp[0, 1:], pv[0, :-1] * h[:, None],
                           pv[0, 1:] * h[:, None])
         for point in np.asarray(static, dtype=float).reshape(-1, 3):
             rel = a.copy()
             rel[:, 0] -= point
-            dmin, at = closest_on_segment(rel, shared=True, below=best)
+            dmin, s_at = closest_on_segment(rel, shared=True, below=best)
             k = int(np.argmin(dmin))
             if dmin[k] < best:
                 best = float(dmin[k])
                 where = ", ".join(f"{c:.1f}" for c in point)
-                what = f"the drone at ({where}) at show time {t[k] + at[k] * h[k]:.1f} s"
+                what = f"the drone at ({where}) at show time {t[k] + s_at[k] * h[k]:.1f} s"
     return best, what
+
+
+def _closest_rows(d: FloatArray) -> tuple[float, int, float]:
+    """(distance, row, s in [0, 1]) of the smallest minimum over relative cubics ``d``
+    (m, 4, 3), exact to the verifier's tolerance; (inf, -1, 0) for none.  The nearer end
+    of the nearest segment bounds it from above, each segment's Bezier hull from below
+    (a segment whose hull only touches the bound -- one at rest -- is measured too)."""
+    if not len(d):
+        return math.inf, -1, 0.0
+    centre, radius = bounding_spheres(d)
+    lower = np.linalg.norm(centre, axis=1) - radius
+    upper = float(min(np.linalg.norm(d[:, 0], axis=1).min(),
+                      np.linalg.norm(d.sum(axis=1), axis=1).min()))
+    rows = np.flatnonzero(lower <= upper)
+    rows = rows[np.argsort(lower[rows], kind="stable")]
+    best, best_row, best_s = math.inf, -1, 0.0
+    for c in range(0, len(rows), PAIR_BLOCK):
+        blk = rows[c:c + PAIR_BLOCK]
+        if lower[blk[0]] >= best:
+            break
+        dmin, at = closest_on_segment(d[blk], shared=True, below=best)
+        q = int(np.argmin(dmin))
+        if dmin[q] < best:
+            best, best_row, best_s = float(dmin[q]), int(blk[q]), float(at[q])
+    return best, best_row, best_s
 
 
 def join_windows(plan: Plan, track: int, start: FloatArray, earliest: float,

@@ -551,6 +551,16 @@ def _check_consistency(c: PlanContents) -> None:
             raise _Bad(f"formation {w.index} '{w.name}' has start {w.start:g}, arrive "
                        f"{w.arrive:g}, end {w.end:g} s: not in order within the plan")
         prev_end = w.end
+    if c.spares is not None:
+        standby, pads, points = c.spares[:3]
+        if not np.array_equal(points[:, :2], pads[:, :2]):
+            raise _Bad("'spare_points' are not straight above their 'spare_pads'")
+        if standby == "ground" and not np.array_equal(points, pads):
+            raise _Bad("spares waiting on the ground wait on their pads, but 'spare_points' "
+                       "differ from 'spare_pads'")
+        if standby == "air" and not np.all(points[:, 2] > pads[:, 2]):
+            raise _Bad("spares waiting in the air wait above their pads, but a "
+                       "'spare_points' height is not above its pad's")
     if c.names and len(c.names) != len(c.pos):
         raise _Bad(f"meta 'names' names {len(c.names)} drones, the plan has {len(c.pos)}")
     start = c.home + np.array([0.0, 0.0, c.takeoff_altitude])

@@ -148,10 +148,10 @@ def plan_show(show: Show, workers: int | None = None,
         trajectories=concatenate(parts), color_times=np.asarray(key_t),
         colors=np.stack(key_c, axis=1), formations=tuple(windows), mpc=show.mpc,
         show_digest=show.digest)
-    verification = verify(plan)
     if show.spares is not None:
         from groundctl.plan.spares import place_spares
 
         plan = replace(plan, spares=place_spares(show.spares, plan))
+    verification = verify(plan)  # the spares too
     return PlanResult(plan=plan, transitions=tuple(results), verification=verification,
                       seconds=time.perf_counter() - t0)

@@ -22,7 +22,7 @@ needs the show it was planned from:
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -118,6 +118,18 @@ def _spares_difference(plan: Plan, show: Show) -> str | None:
             return "spares' positions differ from the show's"
     elif sp.given:
         return "spares' positions differ from the show's (it lets the planner lay them out)"
+    else:
+        from groundctl.errors import SpareError
+        from groundctl.plan.spares import place_spares
+
+        # Laid out by the planner: laid out again, the same way (it is deterministic).
+        try:
+            again = place_spares(asked, replace(plan, spares=None))
+        except SpareError:
+            return "spares' positions differ from where the planner lays them out"
+        if not (np.allclose(again.pads, sp.pads, atol=1e-9)
+                and np.allclose(again.points, sp.points, atol=1e-9)):
+            return "spares' positions differ from where the planner lays them out"
     return None
 
 

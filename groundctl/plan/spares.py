@@ -30,7 +30,13 @@ from scipy.spatial import cKDTree
 from groundctl.errors import SpareError
 from groundctl.plan.plan import Plan, SparePlan
 from groundctl.plan.trajectory import Trajectories
-from groundctl.plan.verify import DIST_TOL, PAIR_BLOCK, closest_on_segment, hermite_power
+from groundctl.plan.verify import (
+    DIST_TOL,
+    PAIR_BLOCK,
+    bounding_spheres,
+    closest_on_segment,
+    hermite_power,
+)
 from groundctl.show.checks import closest_pair, inside_polygon
 from groundctl.show.model import SpareSettings
 from groundctl.show.ranges import MAX_COORD
@@ -43,6 +49,8 @@ LAYOUT_MARGIN_M = 1.0
 MAX_STEPS_OUT = 200
 #: Drones whose every segment is measured against a point at once (bounds temporaries).
 DRONE_CHUNK = 256
+#: Show columns measured against every spare's at once (bounds temporaries).
+COLUMN_CHUNK = 1024
 
 
 @dataclass(frozen=True)
@@ -64,6 +72,21 @@ def _vertical_gaps(a_xy: FloatArray, a_lo: FloatArray, a_hi: FloatArray,
     dz = np.maximum(0.0, np.maximum(b_lo[None, :] - a_hi[:, None],
                                     a_lo[:, None] - b_hi[None, :]))
     return np.hypot(dxy, dz)
+
+
+def _closest_column(a_xy: FloatArray, a_lo: FloatArray, a_hi: FloatArray,
+                    b_xy: FloatArray, b_lo: FloatArray, b_hi: FloatArray
+                    ) -> tuple[float, int, int]:
+    """(distance, a's index, b's index) of the closest pair of vertical segments, b in
+    chunks (a thousand spares against ten thousand columns at once would be 400 MB)."""
+    best, at = math.inf, (-1, -1)
+    for c in range(0, len(b_xy), COLUMN_CHUNK):
+        gaps = _vertical_gaps(a_xy, a_lo, a_hi, b_xy[c:c + COLUMN_CHUNK],
+                              b_lo[c:c + COLUMN_CHUNK], b_hi[c:c + COLUMN_CHUNK])
+        j, i = (int(x) for x in np.unravel_index(int(np.argmin(gaps)), gaps.shape))
+        if gaps[j, i] < best:
+            best, at = float(gaps[j, i]), (j, c + i)
+    return best, at[0], at[1]
 
 
 @dataclass(frozen=True)
@@ -89,12 +112,10 @@ class Hulls:
         radius = np.empty(tr.drones * segs)
         for a in range(0, tr.drones, DRONE_CHUNK):
             p, v = tr.pos[a:a + DRONE_CHUNK], tr.vel[a:a + DRONE_CHUNK]
-            b = np.stack([p[:, :-1], p[:, :-1] + v[:, :-1] * h / 3,
-                          p[:, 1:] - v[:, 1:] * h / 3, p[:, 1:]], axis=2)  # (c, S, 4, 3)
-            c = b.mean(axis=2)
             rows = slice(a * segs, (a + len(p)) * segs)
-            centre[rows] = c.reshape(-1, 3)
-            radius[rows] = np.linalg.norm(b - c[:, :, None], axis=3).max(axis=2).ravel()
+            centre[rows], radius[rows] = bounding_spheres(hermite_power(
+                p[:, :-1].reshape(-1, 3), p[:, 1:].reshape(-1, 3),
+                (v[:, :-1] * h).reshape(-1, 3), (v[:, 1:] * h).reshape(-1, 3)))
         return cls(centre, radius, segs, cKDTree(centre))
 
     def near(self, q: FloatArray) -> tuple[NDArray[np.intp], FloatArray]:
@@ -106,7 +127,7 @@ class Hulls:
         rows = np.asarray(self.tree.query_ball_point(q, upper + float(self.radius.max())),
                           dtype=np.intp)
         lower = np.linalg.norm(self.centre[rows] - q, axis=1) - self.radius[rows]
-        keep = lower < upper
+        keep = lower <= upper  # a hull at rest only touches the bound: measured too
         order = np.argsort(lower[keep], kind="stable")
         return rows[keep][order], lower[keep][order]
 
@@ -156,17 +177,15 @@ def clearance(plan: Plan, pads: FloatArray, points: FloatArray,
     s_xy, s_lo, s_hi = pads[:, :2], pads[:, 2], np.maximum(points[:, 2], pads[:, 2])
     landing = plan.landing
     for kind, ground in (("takeoff", plan.home), ("landing", landing)):
-        gaps = _vertical_gaps(s_xy, s_lo, s_hi, ground[:, :2], ground[:, 2],
-                              ground[:, 2] + plan.takeoff_altitude)
-        a, b = (int(x) for x in np.unravel_index(int(np.argmin(gaps)), gaps.shape))
-        if gaps[a, b] < found.distance:
-            found = Clearance(float(gaps[a, b]), a, f"drone {b + 1}'s {kind} column")
-    if len(pads) > 1:
-        gaps = _vertical_gaps(s_xy, s_lo, s_hi, s_xy, s_lo, s_hi)
-        gaps[np.tril_indices(len(pads))] = np.inf
-        a, b = (int(x) for x in np.unravel_index(int(np.argmin(gaps)), gaps.shape))
-        if gaps[a, b] < found.distance:
-            found = Clearance(float(gaps[a, b]), a, f"spare {b + 1}")
+        gap, a, b = _closest_column(s_xy, s_lo, s_hi, ground[:, :2], ground[:, 2],
+                                    ground[:, 2] + plan.takeoff_altitude)
+        if gap < found.distance:
+            found = Clearance(gap, a, f"drone {b + 1}'s {kind} column")
+    for a in range(len(pads) - 1):  # each spare against the ones after it
+        gap, _, b = _closest_column(s_xy[a:a + 1], s_lo[a:a + 1], s_hi[a:a + 1],
+                                    s_xy[a + 1:], s_lo[a + 1:], s_hi[a + 1:])
+        if gap < found.distance:
+            found = Clearance(gap, a, f"spare {a + b + 2}")
     return found
 
 

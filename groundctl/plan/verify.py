@@ -155,7 +155,7 @@ def hermite_power(p0: FloatArray, p1: FloatArray, m0: FloatArray, m1: FloatArray
     return np.stack([p0, m0, 3 * (p1 - p0) - 2 * m0 - m1, 2 * (p0 - p1) + m0 + m1], axis=1)
 
 
-def _bounding_spheres(coef: FloatArray) -> tuple[FloatArray, FloatArray]:
+def bounding_spheres(coef: FloatArray) -> tuple[FloatArray, FloatArray]:
     """Centre (m, 3) and radius (m,) of a sphere holding each cubic on [0, 1].
 
     The curve lies in the convex hull of its four Bezier control points."""
@@ -195,7 +195,7 @@ def closest_on_segment(d: FloatArray, shared: bool = False, below: float = np.in
         c1 = ww * (c[:, 1] + aa * (2 * c[:, 2] + 3 * aa * c[:, 3]))
         c2 = ww * ww * (c[:, 2] + 3 * aa * c[:, 3])
         c3 = ww * ww * ww * c[:, 3]
-        centre, radius = _bounding_spheres(np.stack([c0, c1, c2, c3], axis=1))
+        centre, radius = bounding_spheres(np.stack([c0, c1, c2, c3], axis=1))
         lower = np.linalg.norm(centre, axis=1) - radius
         mid = c0 + c1 / 2 + c2 / 4 + c3 / 8
         ends = np.stack([np.linalg.norm(c0, axis=1), np.linalg.norm(mid, axis=1),
@@ -220,7 +220,7 @@ def closest_on_segment(d: FloatArray, shared: bool = False, below: float = np.in
 def _pairs_within(coef: FloatArray, reach: float) -> NDArray[np.intp]:
     """(m, 2) the pairs whose segments (power bases ``coef``) can come within ``reach``:
     their Bezier bounding spheres do (a KD-tree on the centres, then each pair's radii)."""
-    centre, radius = _bounding_spheres(coef)
+    centre, radius = bounding_spheres(coef)
     pairs = cKDTree(centre).query_pairs(reach + 2 * float(radius.max()), output_type="ndarray")
     gap = (np.linalg.norm(centre[pairs[:, 0]] - centre[pairs[:, 1]], axis=1)
            - radius[pairs[:, 0]] - radius[pairs[:, 1]])
@@ -254,7 +254,7 @@ def _separation(tr: Trajectories
         # pairs whose lower bound reaches under it can hold the minimum.
         d = coef[pairs[:, 0]] - coef[pairs[:, 1]]
         coarse = np.linalg.norm(np.einsum("mqx,qf->mfx", d, _COARSE_POWERS), axis=2)
-        centre_d, radius_d = _bounding_spheres(d)
+        centre_d, radius_d = bounding_spheres(d)
         lower = np.linalg.norm(centre_d, axis=1) - radius_d
         pairs = pairs[lower <= coarse.min() * (1 + 1e-9)]
         best_d, best_s, best_q = np.inf, 0.0, 0
@@ -438,5 +438,10 @@ def verify(plan: Plan) -> Verification:
                      f"(min_separation {lim.min_separation} m)")
         if fence is not None and not inside_fence(plan.spares.points, fence).all():
             v.append("a spare waits outside the geofence")
+        z = plan.spares.points[:, 2]
+        if plan.spares.standby == "air" and (z.min() < lim.min_alt - DIST_TOL
+                                             or z.max() > lim.max_alt + DIST_TOL):
+            v.append(f"a spare waits at {float(z.min() if z.min() < lim.min_alt else z.max()):.2f}"
+                     f" m, outside min_altitude {lim.min_alt} .. max_altitude {lim.max_alt} m")
     return Verification(overall=overall, windows=windows, pattern_errors=tuple(errors),
                         separation_limit=lim.min_separation, violations=tuple(v))

@@ -112,6 +112,18 @@ class Jitter:
         return delay
 
 
+#: A ``--fail`` battery leaves this fraction of the level at which a drone leaves the show
+#: (``[limits] land_battery_pct``): below it, above the half at which it would land where
+#: it is, so the ground station flies it out on a way out.
+FAILED_BATTERY_SHARE = 0.75
+
+
+def failed_battery(land_battery_pct: float) -> float:
+    """What a ``--fail`` battery leaves in the pack, fraction, for a show that lands a
+    drone at ``land_battery_pct`` percent."""
+    return FAILED_BATTERY_SHARE * land_battery_pct / 100.0
+
+
 class FaultKind(enum.StrEnum):
     """Physical faults the simulator can inject."""
 
