@@ -58,6 +58,9 @@ class TakeoffSlots:
     """The show frame's geodetic anchor and heading."""
     home: NDArray[np.float64]
     """(drones, 3) takeoff slots, show-frame metres (``Plan.home``)."""
+    land_battery_pct: float = 20.0
+    """The show's ``[limits] land_battery_pct`` (what ``--fail ...:battery`` drains to
+    three quarters of)."""
 
     @property
     def drones(self) -> int:
@@ -80,10 +83,11 @@ def takeoff_slots(path: Path, points_dirs: Sequence[Path] = ()) -> TakeoffSlots:
         from groundctl.plan.plan import Plan
         plan = Plan.load(path)
         return TakeoffSlots(plan.show_name, path, plan.origin,
-                            np.asarray(plan.home, dtype=float))
+                            np.asarray(plan.home, dtype=float), plan.limits.land_battery_pct)
     from groundctl.show.loader import load_show
     show = load_show(path, points_dirs)
-    return TakeoffSlots(show.name, path, show.origin, np.asarray(show.home, dtype=float))
+    return TakeoffSlots(show.name, path, show.origin, np.asarray(show.home, dtype=float),
+                        show.limits.land_battery_pct)
 
 
 def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
@@ -323,8 +327,10 @@ def run(args: argparse.Namespace) -> int:
             if kind == "motor":
                 fleet.motor_failure(sysid, at=at)
             elif kind == "battery":
-                # The simulator knows no show: of the default landing level (20 %).
-                fleet.low_battery(failed_battery(Limits().land_battery_pct), sysid, at=at)
+                # The show's landing level with --show, else the default (20 %).
+                level = slots.land_battery_pct if slots is not None \
+                    else Limits().land_battery_pct
+                fleet.low_battery(failed_battery(level), sysid, at=at)
             else:
                 fleet.cut_link(sysid, at=at)
         fleet.start()

@@ -508,8 +508,9 @@ async def _fail(runner: ShowRunner, fleet: SimProcess | SimGroup, failure: Failu
     if failure.kind == "motor":
         fleet.call("motor_failure", failure.sysid)
     elif failure.kind == "battery":
-        fleet.call("low_battery", failed_battery(runner.plan.limits.land_battery_pct),
-                   failure.sysid)
+        level = runner.config.sequence.land_battery_pct  # the level the show is flown with
+        fleet.call("low_battery", failed_battery(runner.plan.limits.land_battery_pct
+                                                 if level is None else level), failure.sysid)
     else:
         fleet.call("cut_link", failure.sysid)
     if runner.events is not None:

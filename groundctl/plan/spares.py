@@ -124,8 +124,10 @@ class Hulls:
         (a curve lies within its sphere), one ball query finds every hull under it."""
         d, i = self.tree.query(q, k=min(8, len(self.radius)))
         upper = float(np.min(np.atleast_1d(d) + self.radius[np.atleast_1d(i)]))
-        rows = np.asarray(self.tree.query_ball_point(q, upper + float(self.radius.max())),
-                          dtype=np.intp)
+        # With slack: at rest (radius 0) the nearest centre is exactly at the radius, and
+        # the ball query may round it out.
+        reach = upper * (1 + 1e-9) + 1e-12 + float(self.radius.max())
+        rows = np.asarray(self.tree.query_ball_point(q, reach), dtype=np.intp)
         lower = np.linalg.norm(self.centre[rows] - q, axis=1) - self.radius[rows]
         keep = lower <= upper  # a hull at rest only touches the bound: measured too
         order = np.argsort(lower[keep], kind="stable")
@@ -242,6 +244,13 @@ def place_spares(settings: SpareSettings, plan: Plan) -> SparePlan:
             points = np.asarray(settings.points, dtype=float)
             pads = np.column_stack([points[:, :2], np.full(len(points), ground)])
             what = "standby point"
+            low = np.flatnonzero(points[:, 2] <= ground)
+            if len(low):
+                raise SpareError(
+                    f"[spares] standby point {int(low[0]) + 1} is at z = "
+                    f"{points[low[0], 2]:g} m, not above the ground ({ground:g} m, where "
+                    "the takeoff grid stands): a spare waiting in the air hovers above its "
+                    "pad", spare=int(low[0]))
         else:
             xy = np.asarray(settings.pads, dtype=float)
             pads = np.column_stack([xy, np.full(len(xy), ground)])
@@ -259,6 +268,9 @@ def place_spares(settings: SpareSettings, plan: Plan) -> SparePlan:
         return SparePlan(settings.standby, pads, points, found.distance, given=True)
     height = 0.0 if settings.standby == "ground" else (
         settings.altitude if settings.altitude is not None else plan.takeoff_altitude)
+    if settings.standby == "air" and not height > 0:
+        raise SpareError(f"[spares] 'altitude' {height:g} m: a spare waiting in the air "
+                         "hovers above its pad; give a height above 0")
     want = limit + LAYOUT_MARGIN_M
     hulls = Hulls.of(plan.trajectories)
     for step in range(1, MAX_STEPS_OUT + 1):

@@ -283,7 +283,7 @@ def _separation(tr: Trajectories
         coarse = np.linalg.norm(np.einsum("mqx,qf->mfx", d, _COARSE_POWERS), axis=2)
         centre_d, radius_d = bounding_spheres(d)
         lower = np.linalg.norm(centre_d, axis=1) - radius_d
-        keep = lower <= coarse.min() * (1 + 1e-9)
+        keep = lower <= coarse.min() * (1 + 1e-9) + 1e-12  # never none: a pair at 0 m
         pairs, d = pairs[keep], d[keep]
         if len(pairs) > PAIR_BLOCK:  # a crowded segment on its own, sharing its bound
             for b in range(0, len(pairs), PAIR_BLOCK):
@@ -473,9 +473,9 @@ def verify(plan: Plan) -> Verification:
         if fence is not None and not inside_fence(plan.spares.points, fence).all():
             v.append("a spare waits outside the geofence")
         z = plan.spares.points[:, 2]
-        if plan.spares.standby == "air" and (z.min() < lim.min_alt - DIST_TOL
-                                             or z.max() > lim.max_alt + DIST_TOL):
-            v.append(f"a spare waits at {float(z.min() if z.min() < lim.min_alt else z.max()):.2f}"
-                     f" m, outside min_altitude {lim.min_alt} .. max_altitude {lim.max_alt} m")
+        low, high = z.min() < lim.min_alt - DIST_TOL, z.max() > lim.max_alt + DIST_TOL
+        if plan.spares.standby == "air" and (low or high):
+            v.append(f"a spare waits at {float(z.min() if low else z.max()):.2f} m, outside "
+                     f"min_altitude {lim.min_alt} .. max_altitude {lim.max_alt} m")
     return Verification(overall=overall, windows=windows, pattern_errors=tuple(errors),
                         separation_limit=lim.min_separation, violations=tuple(v))
