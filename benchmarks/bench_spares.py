@@ -10,9 +10,10 @@ prints:
 - the time to lay the spares out (ground and air) on the plan and the clearance they
   keep, and what they add to ``verify``;
 - for ``--joins`` seeded failures (a track, a show time), the join a spare waiting in
-  the air would fly (:func:`groundctl.flight.joining.plan_join`): how long planning it
-  took, when it leaves and arrives, and the dark time (arrival - failure), the failed
-  drone leaving on its own way out as the executor would send it.
+  the air (``--standby ground``: on its pad, climbing first) would fly
+  (:func:`groundctl.flight.joining.plan_join`): how long planning it took, when it
+  leaves and arrives, and the dark time (arrival - failure), the failed drone leaving
+  on its own way out as the executor would send it.
 
 Issue 29's target: planning a join at 1,000 drones under 2 s.
 """
@@ -46,6 +47,9 @@ def main() -> None:
     ap.add_argument("--spares", type=int, default=20)
     ap.add_argument("--joins", type=int, default=5)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--standby", choices=("air", "ground"), default="air",
+                    help="join from spares hovering at their points, or on their pads "
+                         "(climbing first)")
     args = ap.parse_args()
     show = load_show(args.show)
     settings = SpareSettings(count=args.spares, standby="air")
@@ -61,9 +65,11 @@ def main() -> None:
         if args.save is not None:
             plan.save(args.save)
     bare = replace(plan, spares=None)
+    placed = {}
     for standby in ("ground", "air"):
         t = time.perf_counter()
         sp = place_spares(replace(settings, standby=standby), bare)  # type: ignore[arg-type]
+        placed[standby] = sp
         print(f"lay out {sp.count} spares ({standby}): {time.perf_counter() - t:.2f} s, "
               f"clearance {sp.clearance_m:.2f} m, first pad {np.round(sp.pads[0], 2).tolist()}")
     t = time.perf_counter()
@@ -72,7 +78,9 @@ def main() -> None:
     t = time.perf_counter()
     verify(plan)
     print(f"verify: {base:.2f} s without the spares, {time.perf_counter() - t:.2f} s with them")
-    assert plan.spares is not None
+    spares = placed[args.standby]
+    climb = plan.takeoff_altitude if args.standby == "ground" else 0.0
+    print(f"joins from spares waiting {'on their pads' if climb else 'in the air'}")
     rng = np.random.default_rng(args.seed)
     print(f"{'track':>5} {'fails s':>8} {'leaves s':>8} {'spare':>5} {'join s':>7} "
           f"{'arrives s':>9} {'dark s':>7} {'plan ms':>8}")
@@ -84,12 +92,12 @@ def main() -> None:
         leaves = {}
         if at is not None:
             leaves[track] = plan_leave(plan, track, at, {})
-        spare = int(rng.integers(plan.spares.count))
-        others = np.delete(plan.spares.points, spare, axis=0)
+        spare = int(rng.integers(spares.count))
+        others = np.delete(spares.points, spare, axis=0)
         t = time.perf_counter()
         try:
-            join = plan_join(plan, track, plan.spares.points[spare], failed + 1.0,
-                             leaves=leaves, static=others)
+            join = plan_join(plan, track, spares.points[spare], failed + 1.0,
+                             leaves=leaves, static=others, climb=climb)
         except Exception as exc:  # a benchmark reports and goes on
             print(f"{track + 1:>5} {failed:8.1f} {'-' if at is None else f'{at:.1f}':>8} "
                   f"{spare + 1:>5}  no join: {exc}")

@@ -144,3 +144,23 @@ def test_no_window_left_is_one_line(plan: Plan) -> None:
         plan_join(plan, TRACK, plan.spares.points[0], earliest=plan.duration)
     assert str(exc.value) == (f"transition 0: planner failed: no join (track {TRACK + 1}: "
                               "no formation left to join before the show ends)")
+
+
+def test_a_spare_on_the_ground_climbs_first(plan: Plan) -> None:
+    from groundctl.flight.joining import climb_time
+    from groundctl.plan.spares import place_spares
+
+    ground = place_spares(SpareSettings(count=1), plan)
+    pad = ground.pads[0]
+    join = plan_join(plan, TRACK, pad, earliest=3.0, climb=plan.takeoff_altitude)
+    assert join.climb_s == pytest.approx(climb_time(plan, plan.takeoff_altitude))
+    assert join.at - join.climb_s >= 3.0 - 1e-9
+    top = pad + np.array([0.0, 0.0, plan.takeoff_altitude])
+    assert np.allclose(join.state(join.at)[0], top, atol=1e-6)
+    # Something 0.8 m beside its column: no window is clear while it climbs (the column
+    # counts by the least its points, 1 m apart, stand for: 0.62 m).
+    beside = pad + np.array([0.8, 0.0, 2.0])
+    with pytest.raises(PlanningError, match=r"its climb from the pad would come 0\.6\d m "
+                                            r"from the drone at"):
+        plan_join(plan, TRACK, pad, earliest=3.0, climb=plan.takeoff_altitude,
+                  static=beside[None, :])

@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from groundctl.errors import GroundctlError, PlanningError
-from groundctl.execute.leaving import Leave, return_duration
+from groundctl.execute.leaving import TIME_MARGIN, Leave, return_duration
 from groundctl.flight.returning import (
     COLUMN_STEP_M,
     DESCENT_MARGIN_S,
@@ -57,6 +57,10 @@ FloatArray = NDArray[np.float64]
 #: The least a join is planned to last, s: time for the spare's autopilot to settle
 #: from its hover onto the path.
 MIN_JOIN_S = 4.0
+#: A spare waiting on the ground first arms and climbs straight up: this long to arm
+#: and leave the ground, s, then its climb at the show's climb rate with TIME_MARGIN
+#: (5 m: 7 s, what real ArduCopter SITL's NAV_TAKEOFF to 5 m took).
+ARM_S = 4.0
 
 
 @dataclass(frozen=True)
@@ -73,6 +77,9 @@ class Join:
     """Its path there, one row, from time 0."""
     plan_ms: float = 0.0
     """Wall time the planning took, ms (said in the report)."""
+    climb_s: float = 0.0
+    """A spare waiting on the ground: it takes off this long before :attr:`at`, straight
+    up from its pad to where the path starts."""
 
     @property
     def until(self) -> float:
@@ -273,12 +280,22 @@ def join_windows(plan: Plan, track: int, start: FloatArray, earliest: float,
     return out
 
 
+def climb_time(plan: Plan, height: float) -> float:
+    """How long a spare on the ground is given to arm and climb ``height`` m, s."""
+    return ARM_S + TIME_MARGIN * height / plan.limits.max_speed_up if height > 0 else 0.0
+
+
 def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
               absent: Collection[int] = (), leaves: Mapping[int, Leave] | None = None,
               joins: Mapping[int, Join] | None = None,
-              static: FloatArray | None = None) -> Join:
+              static: FloatArray | None = None, climb: float = 0.0) -> Join:
     """The spare waiting at rest at ``start`` takes over ``track`` at the earliest window
     it can (module docstring), leaving no sooner than show time ``earliest``.
+
+    ``climb`` > 0: it waits on the ground at ``start`` and first climbs that many metres
+    straight up (:func:`climb_time`; its column is checked against everyone while it
+    climbs, each of its points standing for the column around it), its path starting at
+    the top.
 
     ``absent`` tracks fly no plan (their drones left, fell or are down: where they are
     goes in ``static``, (k, 3) points that do not move, like waiting spares); ``leaves``
@@ -291,19 +308,28 @@ def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
     leaves = dict(leaves or {})
     joins = dict(joins or {})
     static = np.zeros((0, 3)) if static is None else np.asarray(static, dtype=float)
-    start = np.asarray(start, dtype=float)
+    pad = np.asarray(start, dtype=float)
+    start = pad + np.array([0.0, 0.0, climb])
+    climb_s = climb_time(plan, climb)
     gone = set(absent) | {track} | set(leaves) | set(joins)
     flown = np.array([j for j in range(plan.drones) if j not in gone], dtype=np.intp)
     limit = plan.limits.min_separation
     reasons: list[str] = []
-    for leave_at, arrive, goal in join_windows(plan, track, start, earliest,
+    for leave_at, arrive, goal in join_windows(plan, track, start, earliest + climb_s,
                                                leaves.get(track)):
         moving: list[Moving] = []
         for j, lv in leaves.items():
-            moving += _leave_pieces(plan, j, lv, leave_at, plan.duration)
+            moving += _leave_pieces(plan, j, lv, leave_at - climb_s, plan.duration)
         for j, jn in joins.items():
-            moving.append(Moving(jn.trajectory, jn.at, leave_at, jn.until))
+            moving.append(Moving(jn.trajectory, jn.at, leave_at - climb_s, jn.until))
             moving.append(_plan_row(plan, j, jn.until, plan.duration))
+        if climb_s > 0:
+            closest, what = _climb_clearance(plan, flown, moving, static, pad, start,
+                                             leave_at - climb_s, leave_at)
+            if closest < limit - DIST_TOL:
+                reasons.append(f"arriving at {arrive:.1f} s its climb from the pad would "
+                               f"come {closest:.2f} m from {what}")
+                continue
 
         def others_at(times: FloatArray, moving: list[Moving] = moving,
                       leave_at: float = leave_at) -> FloatArray:
@@ -339,9 +365,27 @@ def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
                            f"{closest:.2f} m from {what}")
             continue
         return Join(track, leave_at, result.trajectories,
-                    plan_ms=(time.perf_counter() - t_start) * 1000.0)
+                    plan_ms=(time.perf_counter() - t_start) * 1000.0, climb_s=climb_s)
     raise PlanningError(0, "no join", f"track {track + 1}: " + (
         "; ".join(reasons) if reasons else "no formation left to join before the show ends"))
+
+
+def _climb_clearance(plan: Plan, flown: NDArray[np.intp], moving: Sequence[Moving],
+                     static: FloatArray, pad: FloatArray, top: FloatArray, t0: float,
+                     t1: float) -> tuple[float, str]:
+    """The closest anyone comes over [t0, t1] to the column from ``pad`` up to ``top``
+    (the spare somewhere on it while it arms and climbs): each of the column's points,
+    COLUMN_STEP_M apart at most, counts by the nearest the stretch around it can be."""
+    best, what = math.inf, "nothing"
+    count = max(2, int(np.ceil(float(top[2] - pad[2]) / COLUMN_STEP_M)) + 1)
+    step = float(top[2] - pad[2]) / (count - 1)
+    for z in np.linspace(float(pad[2]), float(top[2]), count):
+        point = np.array([pad[0], pad[1], z])
+        d, near = closest_approach(_still(point, t0, t1), plan, flown, moving, static, t0, t1)
+        d = math.sqrt(max(d * d - (step / 2) ** 2, 0.0)) if math.isfinite(d) else d
+        if d < best:
+            best, what = d, near
+    return best, what
 
 
 def _plan_row(plan: Plan, track: int, start: float, end: float) -> Moving:
