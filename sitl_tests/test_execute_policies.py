@@ -41,6 +41,7 @@ from groundctl.execute.sequence.policies.refusals import (
     takeoff_verdict,
 )
 from groundctl.execute.sequence.policies.rejoin import Landing, Rejoin, heard_landing, rejoin
+from groundctl.execute.sequence.policies.spares import SpareView, choose_spares
 from groundctl.execute.sequence.policies.stranded import (
     ArmedAgain,
     GivenUp,
@@ -465,3 +466,53 @@ def test_kill_needs_a_known_vehicle_and_a_confirmation() -> None:
     assert kill_asked(False, True) is KillVerdict.UNKNOWN
     assert kill_asked(True, False) is KillVerdict.NEEDS_CONFIRM
     assert kill_asked(True, True) is KillVerdict.KILL
+
+
+# -- spares: which one takes over a track ------------------------------------------------
+
+def _spare(sysid: int, x: float, *, ready: bool = True, busy: bool = False,
+           on_ground: bool = False) -> SpareView:
+    return SpareView(sysid, (x, 0.0, 5.0), ready, busy, on_ground)
+
+
+def test_the_spare_that_can_be_there_first_goes_first() -> None:
+    spares = [_spare(70, 30.0), _spare(71, 10.0), _spare(72, 20.0)]
+    got = choose_spares([0.0, 0.0, 5.0], spares, enabled=True, max_speed_h=5.0, climb_s=7.0)
+    assert got.order == (71, 72, 70) and got.spare == 71
+    assert got.why == "spare 71 goes, 2 s away from where it hovers at the show's speed " \
+                      "(2 more to try)"
+
+
+def test_a_spare_on_its_pad_counts_its_climb() -> None:
+    # 10 m away on the ground (2 s + 7 s climbing) against 30 m away in the air (6 s).
+    spares = [_spare(70, 10.0, on_ground=True), _spare(71, 30.0)]
+    got = choose_spares((0.0, 0.0, 5.0), spares, enabled=True, max_speed_h=5.0, climb_s=7.0)
+    assert got.order == (71, 70)
+    # Ties go to the lower system id: the choice is repeatable.
+    tie = choose_spares((0.0, 0.0, 5.0), [_spare(9, 10.0), _spare(4, -10.0)], enabled=True,
+                        max_speed_h=5.0, climb_s=7.0)
+    assert tie.order == (4, 9)
+
+
+def test_spares_that_cannot_go_are_left_out_and_said() -> None:
+    spares = [_spare(70, 1.0, ready=False), _spare(71, 2.0, busy=True), _spare(72, 3.0),
+              _spare(73, 4.0)]
+    got = choose_spares((0.0, 0.0, 5.0), spares, enabled=True, max_speed_h=5.0, climb_s=7.0,
+                        tried={72})
+    assert got.order == (73,)
+    none = choose_spares((0.0, 0.0, 5.0), spares, enabled=True, max_speed_h=5.0, climb_s=7.0,
+                         tried={72, 73})
+    assert none.spare is None
+    assert none.why == ("no spare can go (4 in all: 1 already flying a track or into one, "
+                        "1 not ready, 2 failed to join it already)")
+
+
+def test_no_spares_asked_or_none_in_the_show() -> None:
+    off = choose_spares((0.0, 0.0, 5.0), [_spare(70, 1.0)], enabled=False, max_speed_h=5.0,
+                        climb_s=7.0)
+    assert off.spare is None and "--no-spares" in off.why
+    empty = choose_spares((0.0, 0.0, 5.0), [], enabled=True, max_speed_h=5.0, climb_s=7.0)
+    assert empty.spare is None and empty.why == "the show has no spares"
+    with pytest.raises(ValueError, match="max_speed_h"):
+        choose_spares((0.0, 0.0, 5.0), [_spare(70, 1.0)], enabled=True, max_speed_h=0.0,
+                      climb_s=7.0)

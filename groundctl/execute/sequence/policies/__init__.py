@@ -24,9 +24,12 @@ Pure functions of plain data: each is tested without a fleet, a plan or a clock
 * :mod:`.lastresort` -- landing in columns: whether a drone's column is clear, and when
   to say that one still waits;
 * :mod:`.operator` -- what `land SYSID`, `land-here SYSID` and `kill SYSID` do to the
-  vehicle as it is.
+  vehicle as it is;
+* :mod:`.spares` -- which spare takes over a track whose drone left the show, and in
+  what order the others try (not yet asked by the sequence: spares are planned, not
+  flown; ``docs/architecture.md``, "Still to build").
 
 Holds are the guard's (:mod:`groundctl.execute.guard`, a unit of its own).  The layers
 of the sequence carry the decisions out through its own state (see
-``docs/architecture.md``, "Still to reshape"); spares are to come here.
+``docs/architecture.md``, "Still to reshape").
 """
