@@ -121,7 +121,7 @@ def test_the_docstring_table_is_the_table() -> None:
         assert phase is not None
         for event, target in re.findall(r"(\w+)\*? -> (\w+)", line):
             said.add((phase, Event(event), PREVIOUS if target == "PREVIOUS" else P(target)))
-    in_air = (P.READY, P.SHOW, P.LEAVING, P.RETURNING)
+    in_air = (P.READY, P.JOINING, P.SHOW, P.LEAVING, P.RETURNING)
     for p in in_air:
         said |= {(p, Event.LAND, P.LANDING), (p, Event.TAKEN_OVER, P.LANDING),
                  (p, Event.FELL, P.FAILED), (p, Event.GIVE_UP, P.FAILED)}

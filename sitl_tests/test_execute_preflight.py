@@ -7,7 +7,7 @@ import pytest
 from test_execute_support import HOME, make_plan, make_vehicle
 
 from groundctl.errors import PreflightFailed
-from groundctl.execute.mapping import Assignment, auto_assign
+from groundctl.execute.mapping import Assignment, auto_assign, explicit_assign
 from groundctl.execute.preflight import (
     Thresholds,
     check_vehicle,
@@ -98,6 +98,37 @@ def test_report_renders_one_line_per_vehicle_and_honours_exclusions() -> None:
     assert str(exc.value).startswith("pre-flight checks failed: vehicle 2: battery: 45 %")
     report.require_all(excluded={2, 3})
     assert report.render(excluded={2, 3}).splitlines()[1] == "vehicle 2: excluded by the operator"
+
+
+def test_a_failing_spare_is_a_spare_fewer_not_a_show_failure() -> None:
+    pads = np.array([[9.0, 0.0, 0.0], [3.0, 6.0, 0.0]])
+    vehicles = {1: make_vehicle(1, NOW), 2: make_vehicle(2, NOW), 3: make_vehicle(3, NOW),
+                7: make_vehicle(7, NOW, battery=45.0), 8: make_vehicle(8, NOW)}
+    positions = {1: HOME[0], 2: HOME[1], 3: HOME[2], 7: pads[0], 8: pads[1] + [0.2, 0, 0]}
+    assignment = auto_assign(HOME, positions, pads=pads)
+    report = run_preflight(vehicles, assignment, NOW)
+    # Checked, every track having a vehicle (not ignored as extra) ...
+    assert report.spares == {7: 0, 8: 1} and report.extra == {}
+    assert [r.name for r in report.results[7]] == ["heartbeat", "gps", "position", "battery",
+                                                   "slot", "link", "autopilot"]
+    assert str(report.results[8][4]) == "slot: spare 2, 0.2 m from its pad"
+    # ... but never blocking: the show passes, the spare is listed not ready.
+    assert report.failures() == {}
+    report.require_all()
+    assert report.spare_failures() == {7: ["battery: 45 % (minimum 60 %)"]}
+    assert report.ready_spares() == {8: 1}
+    assert report.ready_spares(excluded={8}) == {}
+    assert report.lines()[3:] == [
+        "vehicle 7 (spare 1): NOT READY: battery: 45 % (minimum 60 %)",
+        "vehicle 8 (spare 2): ready"]
+    assert report.summary() == "3/3 ready; spares 1/2 ready"
+    assert report.failing_by_check() == []
+    # A fleet file's spare off its pad fails its slot check, as a show drone off its slot
+    # does: still a spare fewer.
+    marked = explicit_assign({1: 0, 2: 1, 3: 2}, HOME, positions, 0.1, pads, spares={7, 8})
+    far = run_preflight(vehicles, marked, NOW, Thresholds(slot_tolerance_m=0.1))
+    assert far.spare_failures()[8] == ["slot: spare 2, 0.2 m from its pad (tolerance 0.1 m)"]
+    assert far.failures() == {} and far.ready_spares() == {}
 
 
 def test_excluding_a_far_drone_leaves_no_conflict() -> None:

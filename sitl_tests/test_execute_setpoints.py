@@ -122,8 +122,15 @@ def test_stream_rejects_bad_targets() -> None:
     plan = make_plan()
     with pytest.raises(ValueError, match=r"`targets` name tracks \[3\]"):
         SetpointStream(plan, [StreamTarget(1, 3, A)])
-    with pytest.raises(ValueError, match="must not repeat"):
-        SetpointStream(plan, [StreamTarget(1, 0, A), StreamTarget(2, 0, A)])
+    with pytest.raises(ValueError, match="must not repeat a system id"):
+        SetpointStream(plan, [StreamTarget(1, 0, A), StreamTarget(1, 1, A)])
+    # Two vehicles may share a track (one leaving it, a spare joining it), and a spare's
+    # row is given its track when it takes one over.
+    stream = SetpointStream(plan, [StreamTarget(1, 0, A), StreamTarget(2, 0, A)])
+    stream.retrack(2, 1)
+    assert [t.track for t in stream.targets] == [0, 1]
+    with pytest.raises(ValueError, match="outside the plan"):
+        stream.retrack(2, 7)
     with pytest.raises(ValueError, match="`lead_s` must be non-negative"):
         SetpointStream(plan, [], lead_s=-1.0)
 

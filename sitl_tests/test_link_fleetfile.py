@@ -38,6 +38,9 @@ def test_load(tmp_path: Path) -> None:
          "vehicle(s) [4] have no track"),
         ('[[vehicle]]\nsystem_id = 3\nadress = "h:1"\n', "vehicle 1: adress: unknown key"),
         ('[[vehicles]]\nsystem_id = 3\n', "vehicles: unknown table"),
+        ('[[vehicle]]\nsystem_id = 3\nspare = 1\n', "vehicle 1: spare: must be true or false"),
+        ('[[vehicle]]\nsystem_id = 3\nspare = true\ntrack = 0\n',
+         "vehicle 1: track: a spare has no track"),
     ],
 )
 def test_errors(tmp_path: Path, body: str, message: str) -> None:
@@ -60,6 +63,18 @@ def test_tracks_and_addresses_are_both_optional(tmp_path: Path) -> None:
                  '[[vehicle]]\nsystem_id = 4\naddress = "127.0.0.1:14562"\ntrack = 0\n')
     assert load_fleet_file(p) == FleetFile((3, 4), (Endpoint(4, "127.0.0.1", 14562),),
                                            {3: 1, 4: 0})
+
+
+def test_spares_are_marked_and_need_no_track(tmp_path: Path) -> None:
+    p = tmp_path / "fleet.toml"
+    p.write_text('[[vehicle]]\nsystem_id = 3\ntrack = 0\n'
+                 '[[vehicle]]\nsystem_id = 12\nspare = true\n'
+                 '[[vehicle]]\nsystem_id = 13\nspare = false\ntrack = 1\n')
+    fleet = load_fleet_file(p)
+    assert fleet.system_ids == (3, 12, 13)
+    assert fleet.tracks == {3: 0, 13: 1} and fleet.spares == frozenset({12})
+    p.write_text('[[vehicle]]\nsystem_id = 3\n[[vehicle]]\nsystem_id = 12\nspare = true\n')
+    assert load_fleet_file(p).tracks == {} and load_fleet_file(p).spares == {12}
 
 
 _TWO = ('[[network]]\nname = "north"\nconnection = "udp:127.0.0.1:14550"\n'

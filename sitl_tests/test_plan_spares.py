@@ -300,7 +300,7 @@ def test_plan_command_refuses_a_standby_point_in_the_show(
     assert not out.exists()
 
 
-def test_flying_a_plan_with_spares_says_they_are_not_flown(
+def test_flying_a_plan_with_spares_says_where_they_wait(
         plan: Plan, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from groundctl.commands.flying import load_or_plan
 
@@ -308,8 +308,8 @@ def test_flying_a_plan_with_spares_says_they_are_not_flown(
         tmp_path / "p.plan.npz")
     got = load_or_plan(path, quiet=False, accept_plan_limits=True)
     assert got.spares is not None
-    assert "spares: the plan places 2, but this version does not fly spares yet" \
-        in capsys.readouterr().err
+    assert "spares: 2 waiting on their pads; one takes over the track of a drone that " \
+        "leaves the show" in capsys.readouterr().err
 
 
 def test_a_plan_whose_spares_were_edited_is_not_trusted(tmp_path: Path) -> None:

@@ -31,7 +31,7 @@ from ports import reserved_udp_port
 from groundctl.cli import build_parser, main
 from groundctl.commands.flying import load_or_plan
 from groundctl.commands.sim import build_config
-from groundctl.errors import EXIT_OK, EXIT_USAGE
+from groundctl.errors import EXIT_OK, EXIT_USAGE, SimulatorError
 from groundctl.execute.frames import ned_to_show, show_to_enu
 from groundctl.execute.mapping import auto_assign
 from groundctl.link.state import GeoPoint
@@ -100,6 +100,27 @@ def test_a_plan_file_gives_the_same_slots_as_its_show(tmp_path: Path) -> None:
     assert from_plan.count == from_show.count == 9
     assert from_plan.origin == from_show.origin
     np.testing.assert_allclose(from_plan.homes_enu(), from_show.homes_enu(), atol=1e-12)
+
+
+def test_a_plan_with_spares_stands_them_on_their_pads(tmp_path: Path) -> None:
+    """`groundctl sim --show PLAN.npz` of a plan with spares: one more vehicle per spare,
+    standing on its pad, so `fly` against it finds them there (issue 29)."""
+    from dataclasses import replace
+
+    from groundctl.plan.spares import place_spares
+    from groundctl.show.model import SpareSettings
+
+    plan = quick_plan()
+    plan = replace(plan, spares=place_spares(SpareSettings(count=2, standby="ground"), plan))
+    assert plan.spares is not None
+    path = plan.save(tmp_path / "spares.npz")
+    config = _config("--show", str(path))
+    assert config.count == 11
+    np.testing.assert_allclose(config.homes_enu()[9:], show_to_enu(plan.origin,
+                                                                   plan.spares.pads),
+                               atol=1e-9)
+    with pytest.raises(SimulatorError, match="9 drones, one per takeoff slot and 2 spare"):
+        _config("--show", str(path), "--count", "9")
 
 
 def test_a_count_equal_to_the_shows_is_accepted() -> None:

@@ -148,8 +148,10 @@ def run(args: argparse.Namespace) -> int:
             interrupts.uninstall()
         return result.report, result.error, result.flown
 
+    spares = f" and {plan.spares.count} spare(s) on their pads" if plan.spares is not None \
+        else ""
     say(args.quiet)(f"dry-run of {plan.show_name}: {plan.drones} simulated {args.autopilot} "
-                    f"vehicles on 127.0.0.1, speed x{args.speed:g}")
+                    f"vehicles{spares} on 127.0.0.1, speed x{args.speed:g}")
     report, error, flown = run_flight(main(), session, live, say(args.quiet))
     if error is not None and not flown:
         raise error  # nothing flew: one line and the error's exit code

@@ -118,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
     notify = say(args.quiet)
     interrupts = Interrupts(notify)
     config = runner_config(args, fleet.tracks if fleet is not None and fleet.tracks else None)
-    config = replace(config, connect_timeout_s=args.connect_timeout)
+    config = replace(config, connect_timeout_s=args.connect_timeout,
+                     spare_ids=fleet.spares if fleet is not None else frozenset())
     ids = list(fleet.system_ids) if fleet is not None else None
 
     # -- the console (issue 12): the runner's lines, events and go gate to the console --

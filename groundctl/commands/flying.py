@@ -64,6 +64,9 @@ def add_runner_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mpc", action=argparse.BooleanOptionalAction, default=None,
                    help="replan a drone pushed off its path with MPC (default: on, or as the "
                         "show's [mpc] table says)")
+    p.add_argument("--no-spares", action="store_true",
+                   help="fly without the plan's spares: they stay on their pads, and a "
+                        "track whose drone leaves the show stays dark")
     p.add_argument("--min-battery", type=float, default=Thresholds.min_battery_pct,
                    metavar="PCT", help="pre-flight battery minimum (default %(default)s %%)")
     p.add_argument("--max-wind", type=positive, default=None, metavar="M/S",
@@ -103,7 +106,7 @@ def runner_config(args: argparse.Namespace, tracks: dict[int, int] | None = None
 
     return RunnerConfig(rate_hz=args.rate,
                         lead_s=None if args.lead is None else args.lead / 1000.0,
-                        mpc=args.mpc,
+                        mpc=args.mpc, use_spares=not args.no_spares,
                         preflight_timeout_s=args.preflight_timeout,
                         excluded=frozenset(args.exclude), tracks=tracks,
                         thresholds=Thresholds(
@@ -172,10 +175,13 @@ def load_or_plan(path: Path, quiet: bool, *, show_file: Path | None = None,
 
 
 def _say_spares(plan: Plan, quiet: bool) -> None:
-    """Spares are planned (where they wait), not yet flown: said, not silently dropped."""
+    """Where the plan's spares wait, said once (and how this version flies them)."""
     if plan.spares is not None and not quiet:
-        print(f"spares: the plan places {plan.spares.count}, but this version does not fly "
-              "spares yet: the show is flown without them", file=sys.stderr, flush=True)
+        how = "on their pads" if plan.spares.standby == "ground" else \
+            "on their pads (standby = \"air\": this version keeps them on the ground and " \
+            "climbs when one is sent)"
+        print(f"spares: {plan.spares.count} waiting {how}; one takes over the track of a "
+              "drone that leaves the show", file=sys.stderr, flush=True)
 
 
 def plan_for(args: argparse.Namespace) -> Plan:
@@ -298,8 +304,8 @@ class Interrupts:
 
 
 OPERATOR_HELP = ("commands: hold | resume | land (all) | land SYSID (to its landing spot) | "
-                 "land-here SYSID | kill SYSID confirm | status | help (SYSID 2:17: network 2's "
-                 "system id 17)")
+                 "land-here SYSID | replace SYSID (a spare takes its track) | "
+                 "kill SYSID confirm | status | help (SYSID 2:17: network 2's system id 17)")
 
 
 class OperatorTarget(Protocol):
@@ -310,6 +316,7 @@ class OperatorTarget(Protocol):
     def land_all(self) -> None: ...
     def land_one(self, sysid: int) -> None: ...
     def land_here(self, sysid: int) -> None: ...
+    def replace(self, sysid: int) -> None: ...
     def kill(self, sysid: int, confirm: bool = False) -> None: ...
     def status_line(self) -> str: ...
 
@@ -317,7 +324,8 @@ class OperatorTarget(Protocol):
 #: Each verb's usage, for the message when its arguments are wrong.
 _USAGE = {
     "hold": "hold", "resume": "resume", "land": "land | land SYSID",
-    "land-here": "land-here SYSID", "kill": "kill SYSID confirm", "status": "status",
+    "land-here": "land-here SYSID", "replace": "replace SYSID",
+    "kill": "kill SYSID confirm", "status": "status",
     "help": "help",
 }
 
@@ -377,6 +385,10 @@ def operator_line(runner: OperatorTarget, line: str, notify: Callable[[str], Non
             sysid = _needs_sysid(verb, rest)
             _at_most(verb, rest, 1)
             runner.land_here(sysid)
+        elif verb == "replace":
+            sysid = _needs_sysid(verb, rest)
+            _at_most(verb, rest, 1)
+            runner.replace(sysid)
         elif verb == "kill":
             sysid = _needs_sysid(verb, rest)
             _at_most(verb, rest, 2)

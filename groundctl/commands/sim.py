@@ -16,7 +16,7 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -61,15 +61,24 @@ class TakeoffSlots:
     land_battery_pct: float = 20.0
     """The show's ``[limits] land_battery_pct`` (what ``--fail ...:battery`` drains to
     three quarters of)."""
+    pads: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 3)))
+    """(spares, 3) the spares' pads, show frame, m: a plan's, or a show file's given
+    ones (laid-out pads are the planner's: plan the show to stand spares on them)."""
 
     @property
     def drones(self) -> int:
         """One vehicle per slot."""
         return len(self.home)
 
+    @property
+    def vehicles(self) -> int:
+        """One per slot and one per spare pad."""
+        return len(self.home) + len(self.pads)
+
     def homes_enu(self) -> NDArray[np.float64]:
-        """The slots as ENU metres from :attr:`origin`, as :class:`SimConfig` takes homes."""
-        return show_to_enu(self.origin, self.home)
+        """The slots, then the spare pads, as ENU metres from :attr:`origin`, as
+        :class:`SimConfig` takes homes."""
+        return show_to_enu(self.origin, np.concatenate([self.home, self.pads]))
 
 
 def takeoff_slots(path: Path, points_dirs: Sequence[Path] = ()) -> TakeoffSlots:
@@ -82,12 +91,20 @@ def takeoff_slots(path: Path, points_dirs: Sequence[Path] = ()) -> TakeoffSlots:
     if path.suffix == ".npz":  # the same rule as `fly` (commands.flying.load_or_plan)
         from groundctl.plan.plan import Plan
         plan = Plan.load(path)
+        pads = plan.spares.pads if plan.spares is not None else np.zeros((0, 3))
         return TakeoffSlots(plan.show_name, path, plan.origin,
-                            np.asarray(plan.home, dtype=float), plan.limits.land_battery_pct)
+                            np.asarray(plan.home, dtype=float), plan.limits.land_battery_pct,
+                            np.asarray(pads, dtype=float))
     from groundctl.show.loader import load_show
     show = load_show(path, points_dirs)
+    given = np.zeros((0, 3))
+    if show.spares is not None:
+        xy = show.spares.pads if show.spares.pads is not None else (
+            show.spares.points[:, :2] if show.spares.points is not None else None)
+        if xy is not None:
+            given = np.column_stack([np.asarray(xy, dtype=float)[:, :2], np.zeros(len(xy))])
     return TakeoffSlots(show.name, path, show.origin, np.asarray(show.home, dtype=float),
-                        show.limits.land_battery_pct)
+                        show.limits.land_battery_pct, given)
 
 
 def _floats(text: str, n: int, what: str) -> tuple[float, ...]:
@@ -213,9 +230,11 @@ def _placement(args: argparse.Namespace, slots: TakeoffSlots | None
             place["origin"] = args.origin
         return count, place
     shown = f"--show {slots.source}"
-    if args.count is not None and args.count != slots.drones:
+    if args.count is not None and args.count != slots.vehicles:
+        spares = f" and {len(slots.pads)} spare pads" if len(slots.pads) else ""
         raise SimulatorError(f"--count {args.count} conflicts with {shown}: the show has "
-                             f"{slots.drones} drones, one per takeoff slot; leave --count out")
+                             f"{slots.drones} drones, one per takeoff slot{spares}; leave "
+                             "--count out")
     if args.origin is not None:
         raise SimulatorError(f"--origin conflicts with {shown}: the fleet stands at the "
                              f"show's own origin; leave --origin out")
@@ -223,7 +242,7 @@ def _placement(args: argparse.Namespace, slots: TakeoffSlots | None
         raise SimulatorError(f"--layout conflicts with {shown}: the fleet stands on the "
                              f"show's takeoff slots; leave --layout out")
     o = slots.origin
-    return slots.drones, {"origin": (o.lat, o.lon, o.alt), "positions": slots.homes_enu()}
+    return slots.vehicles, {"origin": (o.lat, o.lon, o.alt), "positions": slots.homes_enu()}
 
 
 def build_config(args: argparse.Namespace, slots: TakeoffSlots | None = None) -> SimConfig:

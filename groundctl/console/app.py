@@ -78,7 +78,8 @@ _STATUS_STYLE = {"ready": "green", "waiting": "yellow", "failed": "bold white on
 #: The keys line at the bottom.
 KEYS = Text.assemble(*(x for key, what in (
     ("h", "hold"), ("r", "resume"), ("a", "land all"), ("l", "land sel."),
-    ("d", "land here"), ("k", "kill sel."), ("x", "exclude"), ("g", "go"), ("q", "quit"),
+    ("d", "land here"), ("e", "replace sel."), ("k", "kill sel."), ("x", "exclude"),
+    ("g", "go"), ("q", "quit"),
     ("p", "problems"), ("s", "sort"), ("f", "log sel."), ("v", "view"), (":", "command"),
     ("esc", "cancel")) for x in ((f" {key} ", "bold reverse"), (f" {what} ", ""))))
 
@@ -198,6 +199,7 @@ class ConsoleApp(App[None]):
         Binding("a", "land_all", "land all"),
         Binding("l", "land_one", "land sel."),
         Binding("d", "land_here", "land here"),
+        Binding("e", "replace", "replace sel."),
         Binding("k", "kill", "kill sel."),
         Binding("x", "exclude", "exclude"),
         Binding("g", "go", "go"),
@@ -493,6 +495,10 @@ class ConsoleApp(App[None]):
 
     def action_land_here(self) -> None:
         self.controller.land_here(self.selected())
+        self._after()
+
+    def action_replace(self) -> None:
+        self.controller.replace(self.selected())
         self._after()
 
     def action_kill(self) -> None:

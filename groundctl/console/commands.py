@@ -76,12 +76,14 @@ class Question:
 
 
 HELP = ("keys: h hold, r resume, a land all, l land selected, d land-here selected, "
-        "k kill selected, x exclude selected (pre-flight), g go, q quit, p problems only, "
-        "s sort, f log of selected, v pre-flight/fleet view, : command line.  commands: "
-        "hold | resume | land [SYSID] | land-here SYSID | kill SYSID | exclude SYSID | go | "
-        "no-go | quit | status | log [SYSID|all] | help")
+        "e replace selected (a spare takes its track), k kill selected, x exclude selected "
+        "(pre-flight), g go, q quit, p problems only, s sort, f log of selected, "
+        "v pre-flight/fleet view, : command line.  commands: hold | resume | land [SYSID] | "
+        "land-here SYSID | replace SYSID | kill SYSID | exclude SYSID | go | no-go | quit | "
+        "status | log [SYSID|all] | help")
 
-_ARGS = {"hold": 0, "resume": 0, "land": 1, "land-here": 1, "kill": 1, "exclude": 1, "go": 0,
+_ARGS = {"hold": 0, "resume": 0, "land": 1, "land-here": 1, "replace": 1, "kill": 1,
+         "exclude": 1, "go": 0,
          "no-go": 0, "quit": 0, "status": 0, "help": 0, "log": 1}
 
 
@@ -150,6 +152,11 @@ class Controller:
         if self._need(sysid, "land-here"):
             assert sysid is not None
             self._call(f"land-here {sysid}", lambda t: t.land_here(sysid), sysid)
+
+    def replace(self, sysid: int | None) -> None:
+        if self._need(sysid, "replace"):
+            assert sysid is not None
+            self._call(f"replace {sysid}", lambda t: t.replace(sysid), sysid)
 
     def kill(self, sysid: int | None) -> None:
         if self._need(sysid, "kill"):
@@ -271,7 +278,7 @@ class Controller:
                 self.say(f"{verb}: {rest[0]!r} is not a system id (1-255)", step="bad_input",
                          action=verb)
                 return
-        if verb in ("land-here", "kill", "exclude") and sysid is None:
+        if verb in ("land-here", "replace", "kill", "exclude") and sysid is None:
             self.say(f"{verb} needs a system id: {verb} SYSID", step="bad_input", action=verb)
             return
         self._verb(verb, sysid, rest)
@@ -288,6 +295,8 @@ class Controller:
                 self.land_one(sysid)
         elif verb == "land-here":
             self.land_here(sysid)
+        elif verb == "replace":
+            self.replace(sysid)
         elif verb == "kill":
             self.kill(sysid)
         elif verb == "exclude":

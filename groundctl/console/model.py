@@ -31,7 +31,8 @@ CheckState = Literal["pass", "fail", "wait"]
 """A pre-flight check: passed, failed in a way waiting cannot fix, or not yet."""
 
 #: Phases in which a vehicle is (or may be) in the air.
-AIRBORNE = frozenset({VehiclePhase.TAKEOFF, VehiclePhase.READY, VehiclePhase.SHOW,
+AIRBORNE = frozenset({VehiclePhase.TAKEOFF, VehiclePhase.READY, VehiclePhase.JOINING,
+                      VehiclePhase.SHOW,
                       VehiclePhase.LEAVING, VehiclePhase.RETURNING, VehiclePhase.LANDING,
                       VehiclePhase.LOST})
 #: A drone this far off its path is held for by the guard (GuardConfig), m.

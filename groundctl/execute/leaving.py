@@ -21,6 +21,8 @@ from groundctl.plan.plan import Plan
 from groundctl.plan.trajectory import Trajectories
 from groundctl.show.model import Limits, QuadrotorModel
 
+FloatArray = NDArray[np.float64]
+
 #: A drone leaves at the next instant it rests on a formation at least this far
 #: ahead in show time, s: time to plan its way out.
 LEAVE_LEAD_S = 2.0
@@ -28,6 +30,11 @@ LEAVE_LEAD_S = 2.0
 TIME_MARGIN = 1.5
 #: ... and at least this long, s.
 MIN_DURATION_S = 4.0
+
+#: A spare waiting on the ground first arms and climbs straight up: this long to arm
+#: and leave the ground, s, then its climb at the show's climb rate with TIME_MARGIN
+#: (5 m: 7 s, what real ArduCopter SITL's NAV_TAKEOFF to 5 m took).
+ARM_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -56,6 +63,47 @@ class Leave:
         """(len(show_times), 3) positions along the way out (clamped at both ends)."""
         tau = np.clip(np.asarray(show_times, dtype=float) - self.at, 0.0, self.trajectory.end)
         return self.trajectory.evaluate(tau)[0][0]
+
+
+@dataclass(frozen=True)
+class Join:
+    """A spare's way into ``track``: ``trajectory`` (one row, time 0 at show time ``at``)
+    from where it waits to the track's slot, reached at rest at show time :attr:`until`;
+    the track's plan after that."""
+
+    track: int
+    """The plan track it takes over (0-based)."""
+    at: float
+    """Show time it leaves where it waits, s."""
+    trajectory: Trajectories
+    """Its path there, one row, from time 0."""
+    plan_ms: float = 0.0
+    """Wall time the planning took, ms (said in the report)."""
+    climb_s: float = 0.0
+    """A spare waiting on the ground: it takes off this long before :attr:`at`, straight
+    up from its pad to where the path starts."""
+
+    @property
+    def until(self) -> float:
+        """Show time it is on the track's plan, s."""
+        return self.at + self.trajectory.end
+
+    def state(self, show_time: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Position, velocity, acceleration (3,) on the path at ``show_time`` (clamped)."""
+        tau = min(max(show_time - self.at, 0.0), self.trajectory.end)
+        p, v, a = self.trajectory.evaluate(tau)
+        return p[0], v[0], a[0]
+
+    def position(self, show_times: FloatArray) -> FloatArray:
+        """(len(show_times), 3) positions on the path (clamped at both ends)."""
+        tau = np.clip(np.asarray(show_times, dtype=float) - self.at, 0.0,
+                      self.trajectory.end)
+        return self.trajectory.evaluate(tau)[0][0]
+
+
+def climb_time(plan: Plan, height: float) -> float:
+    """How long a spare on the ground is given to arm and climb ``height`` m, s."""
+    return ARM_S + TIME_MARGIN * height / plan.limits.max_speed_up if height > 0 else 0.0
 
 
 def leave_duration(plan: Plan, track: int, at: float,
@@ -95,12 +143,16 @@ def leave_time(plan: Plan, track: int, show_time: float) -> float | None:
 
 def landing_candidates(plan: Plan) -> NDArray[np.float64]:
     """Points a returning drone may descend from (m, 3): the plan's landing spots, then
-    every takeoff slot that is not one of them, at the landing altitude."""
+    every takeoff slot that is not one of them, then the spares' pads (verified clear of
+    the show; a pad a spare still stands on is taken, like any spot a drone is down on),
+    at the landing altitude."""
     spots = plan.landing_hover
-    homes = plan.home + np.array([0.0, 0.0, float(spots[:, 2].mean())])
+    alt = np.array([0.0, 0.0, float(spots[:, 2].mean())])
+    homes = plan.home + alt
     d = np.linalg.norm(homes[:, None, :2] - spots[None, :, :2], axis=2)
     extra = homes[d.min(axis=1) >= plan.limits.min_separation]
-    return np.concatenate([spots, extra])
+    pads = plan.spares.pads + alt if plan.spares is not None else np.empty((0, 3))
+    return np.concatenate([spots, extra, pads])
 
 
 #: Room for a landing drone's own error, m: a spot next to a drone that is down keeps the

@@ -213,8 +213,8 @@ class LedSchedule:
         if len(bad):
             raise ValueError(f"`tracks` names tracks {bad.tolist()} outside the plan's "
                              f"0..{plan.drones - 1}")
-        if len(np.unique(rows)) != len(rows) or len(np.unique(ids)) != len(ids):
-            raise ValueError("`tracks` and `sysids` must not repeat a track or a system id")
+        if len(np.unique(ids)) != len(ids):
+            raise ValueError("`sysids` must not repeat a system id")
         self.plan = plan
         self.tracks = rows
         self.sysids = ids
@@ -244,6 +244,12 @@ class LedSchedule:
                      min_interval_s: float = DEFAULT_MIN_INTERVAL_S) -> LedSchedule:
         """The schedule for the vehicles a :class:`SetpointStream` streams to, in its order."""
         return cls(plan, [t.track for t in targets], [t.sysid for t in targets], min_interval_s)
+
+    def retrack(self, sysid: int, track: int) -> LedSchedule:
+        """The schedule with ``sysid`` flying ``track`` (a spare taking over a track)."""
+        rows = self.tracks.copy()
+        rows[int(np.flatnonzero(self.sysids == sysid)[0])] = track
+        return LedSchedule(self.plan, rows, self.sysids.tolist(), self.min_interval_s)
 
     def __len__(self) -> int:
         """Changes kept after the rate cap, all vehicles."""

@@ -11,7 +11,9 @@ sequence:
   show time; before that it flies its plan, or holds its point;
 * ``return``: its row of the fleet's land-all return, on the return's clock;
 * ``landing_point``: the point above where it lands (after the show, or a spot
-  re-assigned when its own was blocked).
+  re-assigned when its own was blocked);
+* ``join``: a spare's way into a failed drone's track, on the show clock: over its pad
+  at the way in's start until it begins, then the way in, then the track's plan.
 
 The setpoint stream samples every path at each vehicle's own instant
 (:func:`sample_paths`, vectorised per kind); the MPC takes a path sampled over
@@ -30,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from groundctl.execute.leaving import Leave
+from groundctl.execute.leaving import Join, Leave
 from groundctl.execute.showclock import ShowClock
 from groundctl.plan.plan import Plan
 from groundctl.plan.trajectory import Trajectories
@@ -46,6 +48,7 @@ class PathKind(enum.StrEnum):
     WAY_OUT = "way_out"
     RETURN = "return"
     LANDING_POINT = "landing_point"
+    JOIN = "join"
 
 
 @dataclass(frozen=True)
@@ -65,6 +68,8 @@ class Path:
     """``way_out``: the planned way out, flown from ``leave.at`` on the show clock."""
     row: int | None = None
     """``return``: its row of the return trajectories."""
+    join: Join | None = None
+    """``join``: the spare's way into the track, flown from ``join.at`` on the show clock."""
 
     def __post_init__(self) -> None:
         if self.kind in (PathKind.HOLD, PathKind.LANDING_POINT) and self.point is None:
@@ -73,11 +78,13 @@ class Path:
             raise ValueError("a way_out path needs a `leave`")
         if self.kind is PathKind.RETURN and self.row is None:
             raise ValueError("a return path needs a `row`")
+        if self.kind is PathKind.JOIN and self.join is None:
+            raise ValueError("a join path needs a `join`")
 
     @property
     def on_show_clock(self) -> bool:
-        """Sampled on the show clock (``plan``, ``hold``, ``way_out``)."""
-        return self.kind in (PathKind.PLAN, PathKind.HOLD, PathKind.WAY_OUT)
+        """Sampled on the show clock (``plan``, ``hold``, ``way_out``, ``join``)."""
+        return self.kind in (PathKind.PLAN, PathKind.HOLD, PathKind.WAY_OUT, PathKind.JOIN)
 
     def fixed_at(self, show_time: float) -> tuple[float, float, float] | None:
         """The point it holds at ``show_time`` (show clock), if it is holding one then."""
@@ -100,6 +107,8 @@ def position_on_show_clock(path: Path, plan: Plan, show_time: float) -> FloatArr
     t = min(max(show_time, 0.0), plan.duration)
     if path.kind is PathKind.WAY_OUT and path.leave is not None and t >= path.leave.at:
         return path.leave.state(t)[0]
+    if path.kind is PathKind.JOIN and path.join is not None and t < path.join.until:
+        return path.join.state(t)[0]
     return plan.trajectories.evaluate(t, np.array([path.track]))[0][0]
 
 
@@ -147,7 +156,8 @@ def sample_paths(paths: Sequence[Path], at: FloatArray, clocks: PathClocks
     rate, drate = np.where(over, 0.0, rate), np.where(over, 0.0, drate)
 
     kinds = np.array([p.kind.value for p in paths])
-    on_plan = (kinds == PathKind.PLAN.value) | (kinds == PathKind.WAY_OUT.value)
+    on_plan = (kinds == PathKind.PLAN.value) | (kinds == PathKind.WAY_OUT.value) \
+        | (kinds == PathKind.JOIN.value)
     idx = np.flatnonzero(on_plan)
     if idx.size:
         tracks = np.array([paths[int(i)].track for i in idx], dtype=np.intp)
@@ -172,6 +182,15 @@ def sample_paths(paths: Sequence[Path], at: FloatArray, clocks: PathClocks
             else:
                 r, dr = float(rate[i]), float(drate[i])
                 pos[i], vel[i], acc[i] = lp, r * lv, r * r * la + dr * lv
+        elif path.kind is PathKind.JOIN:
+            join = path.join
+            assert join is not None
+            ti = float(t[i])
+            if ti >= join.until:
+                continue  # on the track's plan (sampled above)
+            jp, jv, ja = join.state(ti)  # before it begins: at rest at its start
+            r, dr = float(rate[i]), float(drate[i])
+            pos[i], vel[i], acc[i] = jp, r * jv, r * r * ja + dr * jv
     ret = np.flatnonzero(kinds == PathKind.RETURN.value)
     if ret.size:
         if clocks.returns is None or clocks.return_clock is None:

@@ -3,12 +3,16 @@
 Every check returns a :class:`CheckResult` whose ``detail`` says the value
 and the rule, so the operator sees why a vehicle is held back.  A
 :class:`PreflightReport` collects them, renders one line per vehicle and
-raises :class:`~groundctl.errors.PreflightFailed` unless every vehicle that
-is not excluded passed.
+raises :class:`~groundctl.errors.PreflightFailed` unless every show vehicle
+that is not excluded passed.
 
 A vehicle the show does not need (every track already has a vehicle, and it
-has none: a stray system id, a spare drone, a spoofed HEARTBEAT) is reported
-and ignored, never checked: it cannot block the others.
+has none: a stray system id, a spoofed HEARTBEAT) is reported and ignored, never
+checked: it cannot block the others.  A spare standing on its pad
+(:attr:`Assignment.spares <groundctl.execute.mapping.Assignment.spares>`) is checked
+like a show vehicle, since it may take over a track in flight, but it never blocks
+either: one that fails is a spare fewer (:meth:`PreflightReport.ready_spares`), not a
+show that cannot start.
 
 Excluding a vehicle keeps the rest of the show valid (the same trajectories
 minus some drones), but the excluded drone still stands on its takeoff slot:
@@ -140,28 +144,31 @@ def check_battery(state: VehicleState, th: Thresholds) -> CheckResult:
 
 
 def check_slot(sysid: int, assignment: Assignment, th: Thresholds) -> CheckResult:
-    """The vehicle has a track and stands on its takeoff slot."""
+    """The vehicle has a track and stands on its takeoff slot (a spare: on its pad)."""
     if sysid in assignment.refused:
         return CheckResult("slot", False, assignment.refused[sysid])
-    if sysid not in assignment.tracks:
+    if sysid in assignment.spares:
+        what, spot = f"spare {assignment.spares[sysid] + 1}", "pad"
+    elif sysid in assignment.tracks:
+        what, spot = f"track {assignment.tracks[sysid]}", "slot"
+    else:
         return CheckResult("slot", False, "no track assigned (extra vehicle)")
-    track = assignment.tracks[sysid]
     d = assignment.distances.get(sysid)
     if d is None:
-        return CheckResult("slot", False, f"track {track}, distance to its slot unknown")
+        return CheckResult("slot", False, f"{what}, distance to its {spot} unknown")
     if d > th.slot_tolerance_m:
-        return CheckResult("slot", False, f"track {track}, {d:.1f} m from its slot "
+        return CheckResult("slot", False, f"{what}, {d:.1f} m from its {spot} "
                                           f"(tolerance {th.slot_tolerance_m:.1f} m)")
     dz = assignment.heights.get(sysid)
     if dz is not None and abs(dz) > th.slot_height_tolerance_m:
         # The show frame's altitude is not the field's: every setpoint would be that far
         # off vertically (a show in the ground, or hundreds of metres up).
         return CheckResult("slot", False, (
-            f"track {track}, {d:.1f} m from its slot but {abs(dz):.0f} m "
+            f"{what}, {d:.1f} m from its {spot} but {abs(dz):.0f} m "
             f"{'above' if dz > 0 else 'below'} it (tolerance "
             f"{th.slot_height_tolerance_m:.0f} m): the show's origin altitude is not the "
             "field's"))
-    return CheckResult("slot", True, f"track {track}, {d:.1f} m from its slot")
+    return CheckResult("slot", True, f"{what}, {d:.1f} m from its {spot}")
 
 
 def check_link(state: VehicleState, th: Thresholds) -> CheckResult:
@@ -235,16 +242,34 @@ class PreflightReport:
     """Every vehicle's check results at one instant."""
 
     results: dict[int, list[CheckResult]]
-    """System id -> its check results (the vehicles that may fly)."""
+    """System id -> its check results (the vehicles that may fly, spares included)."""
     extra: dict[int, str] = field(default_factory=dict)
     """System id -> why it is ignored: heard, but not needed by the show (every track
     has a vehicle and it has none).  Never checked, never blocking."""
+    spares: dict[int, int] = field(default_factory=dict)
+    """System id -> spare pad index (0-based) of the vehicles in :attr:`results`
+    standing by as spares: checked, but never blocking (not in :meth:`failures`)."""
+
+    def _failed(self, sysid: int) -> list[str]:
+        return [str(r) for r in self.results[sysid] if not r.ok]
 
     def failures(self, excluded: Collection[int] = ()) -> dict[int, list[str]]:
-        """System id -> failed checks as text, for the vehicles not ``excluded``."""
-        out = {sysid: [str(r) for r in res if not r.ok]
-               for sysid, res in self.results.items() if sysid not in excluded}
+        """System id -> failed checks as text, for the show's vehicles not ``excluded``
+        (spares: :meth:`spare_failures`)."""
+        out = {sysid: self._failed(sysid) for sysid in self.results
+               if sysid not in excluded and sysid not in self.spares}
         return {sysid: why for sysid, why in out.items() if why}
+
+    def spare_failures(self, excluded: Collection[int] = ()) -> dict[int, list[str]]:
+        """System id -> failed checks as text, for the spares not ``excluded``."""
+        out = {sysid: self._failed(sysid) for sysid in self.spares if sysid not in excluded}
+        return {sysid: why for sysid, why in out.items() if why}
+
+    def ready_spares(self, excluded: Collection[int] = ()) -> dict[int, int]:
+        """System id -> pad index of the spares that passed every check and are not
+        ``excluded``: the ones that may take over a track."""
+        return {sysid: pad for sysid, pad in sorted(self.spares.items())
+                if sysid not in excluded and not self._failed(sysid)}
 
     def lines(self, excluded: Collection[int] = ()) -> list[str]:
         """One line per vehicle, in system id order."""
@@ -253,22 +278,25 @@ class PreflightReport:
             if sysid in self.extra:
                 out.append(f"vehicle {sysid}: ignored: {self.extra[sysid]}")
                 continue
-            failed = [str(r) for r in self.results[sysid] if not r.ok]
+            failed = self._failed(sysid)
             if sysid in excluded:
                 status = "excluded by the operator"
             elif failed:
                 status = "NOT READY: " + "; ".join(failed)
             else:
                 status = "ready"
-            out.append(f"vehicle {sysid}: {status}")
+            name = f"vehicle {sysid}" + (f" (spare {self.spares[sysid] + 1})"
+                                         if sysid in self.spares else "")
+            out.append(f"{name}: {status}")
         return out
 
     def render(self, excluded: Collection[int] = ()) -> str:
         return "\n".join(self.lines(excluded))
 
     def summary(self, excluded: Collection[int] = ()) -> str:
-        """One fleet-wide line: ``61/64 ready, waiting for 3: gps (12, 40), battery (7)``."""
-        flying = [s for s in sorted(self.results) if s not in excluded]
+        """One fleet-wide line: ``61/64 ready, waiting for 3: gps (12, 40), battery (7)``
+        (the show's vehicles; then ``; spares 1/2 ready`` where spares stand by)."""
+        flying = [s for s in sorted(self.results) if s not in excluded and s not in self.spares]
         waiting: dict[str, list[int]] = {}
         for sysid in flying:
             for r in self.results[sysid]:
@@ -281,6 +309,9 @@ class PreflightReport:
         if not_ready:
             line += f", waiting for {len(not_ready)}: " + ", ".join(
                 f"{name} ({spell_many(ids)})" for name, ids in waiting.items())
+        if self.spares:
+            standing = [s for s in self.spares if s not in excluded]
+            line += f"; spares {len(self.ready_spares(excluded))}/{len(standing)} ready"
         if self.extra:
             line += (f"; {len(self.extra)} not in the show, ignored: "
                      + spell_many(self.extra))
@@ -290,10 +321,10 @@ class PreflightReport:
         """One line per failing check, fleet-wide, with the vehicles grouped by what it
         says: ``gps: no GPS_RAW_INT yet (12, 40)``; at most ``most`` different details
         each (then "and N more vehicles").  For a terminal that must not get a line per
-        vehicle."""
+        vehicle.  The show's vehicles only: a spare never holds the show."""
         by_check: dict[str, dict[str, list[int]]] = {}
         for sysid in sorted(self.results):
-            if sysid in excluded:
+            if sysid in excluded or sysid in self.spares:
                 continue
             for r in self.results[sysid]:
                 if not r.ok:
@@ -326,17 +357,22 @@ def run_preflight(vehicles: Mapping[int, VehicleState], assignment: Assignment, 
     Once every track of the plan has a vehicle, one without a track is not needed:
     it goes in :attr:`PreflightReport.extra` (reported, ignored).  While some track
     still has none, every vehicle is checked (it may be the one that will take it).
+    A spare on its pad is always checked, and kept apart (:attr:`PreflightReport.spares`).
     """
     results: dict[int, list[CheckResult]] = {}
     extra: dict[int, str] = {}
     for sysid, state in sorted(vehicles.items()):
+        if sysid in assignment.spares:
+            results[sysid] = check_vehicle(state, assignment, now, thresholds)
+            continue
         if sysid not in assignment.tracks and not assignment.unassigned_tracks:
             why = assignment.refused.get(sysid)
             extra[sysid] = ("not in the show (every track has a vehicle"
                             + (f"; {why}" if why else "") + ")")
             continue
         results[sysid] = check_vehicle(state, assignment, now, thresholds)
-    return PreflightReport(results, extra)
+    spares = {s: k for s, k in assignment.spares.items() if s in results}
+    return PreflightReport(results, extra, spares)
 
 
 @dataclass(frozen=True)

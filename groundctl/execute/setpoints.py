@@ -103,8 +103,8 @@ class SetpointStream:
         bad = [t for t in tracks if not 0 <= t < plan.drones]
         if bad:
             raise ValueError(f"`targets` name tracks {bad} outside the plan's 0..{plan.drones - 1}")
-        if len(set(tracks)) != len(tracks) or len({t.sysid for t in targets}) != len(targets):
-            raise ValueError("`targets` must not repeat a track or a system id")
+        if len({t.sysid for t in targets}) != len(targets):
+            raise ValueError("`targets` must not repeat a system id")
         self.plan = plan
         self.targets = tuple(targets)
         self.lead_s = lead_s
@@ -115,6 +115,15 @@ class SetpointStream:
         self._tracks = np.array(tracks, dtype=int)
         self._origins = [t.ekf_origin for t in targets]
         self._index = {t.sysid: i for i, t in enumerate(targets)}
+
+    def retrack(self, sysid: int, track: int) -> None:
+        """``sysid`` flies ``track`` from now on (a spare taking over a track: two
+        vehicles may share a track while one leaves it and the other joins)."""
+        if not 0 <= track < self.plan.drones:
+            raise ValueError(f"track {track} is outside the plan's 0..{self.plan.drones - 1}")
+        self._tracks[self._index[sysid]] = track
+        self.targets = tuple(StreamTarget(t.sysid, track, t.ekf_origin) if t.sysid == sysid
+                             else t for t in self.targets)
 
     def set_leads(self, leads: Mapping[int, float]) -> None:
         """Per-vehicle leads (system id -> s); vehicles not named keep theirs."""

@@ -14,6 +14,10 @@ pace actually kept (``pacing``).  ``paced=False`` (``--no-pace``) lets it run
 on regardless, as real vehicles do: a rehearsal of the ground station's own
 load, where its overload guard is what keeps the show safe.
 
+A plan with spares (:attr:`Plan.spares <groundctl.plan.plan.Plan.spares>`) has one
+more simulated vehicle per spare, standing on its pad (an ``"air"`` spare too: it
+takes off from there), with the system ids after the show's (:func:`fleet_stands`).
+
 Besides the telemetry-based report the ground station can make for any
 flight, the dry-run knows the truth: where the simulated drones really were
 (true minimum separation), whether one crashed, and when each LED actually
@@ -231,12 +235,24 @@ def sim_processes(drones: int, networks: int, asked: int = 0) -> int:
     return networks if drones > SIM_PROCESS_VEHICLES else 1
 
 
+def fleet_stands(plan: Plan) -> np.ndarray:
+    """(n + k, 3) where the simulated fleet stands, show frame: the plan's takeoff slots
+    in track order, then each spare's pad (whatever its standby: an ``"air"`` spare takes
+    off from its pad too).  Its length is the fleet's size, and the order the system
+    ids': the spares' come after the show's."""
+    if plan.spares is None:
+        return plan.home
+    return np.vstack([plan.home, plan.spares.pads])
+
+
 def sim_config(plan: Plan, options: DryRunOptions,
                gcs: tuple[str, int] | Sequence[tuple[str, int]]) -> SimConfig:
-    """A simulated fleet standing on the plan's takeoff slots, talking to ``gcs`` (one
-    address per network: see :func:`network_layout`)."""
+    """A simulated fleet standing on the plan's takeoff slots and spare pads
+    (:func:`fleet_stands`), talking to ``gcs`` (one address per network: see
+    :func:`network_layout`)."""
     addresses = [gcs] if isinstance(gcs, tuple) else list(gcs)
-    nets, local = network_layout(plan.drones, len(addresses))
+    stands = fleet_stands(plan)
+    nets, local = network_layout(len(stands), len(addresses))
     if 1 <= options.gcs_sysid <= max(local):
         raise SimulatorError(f"--gcs-sysid {options.gcs_sysid} is a simulated vehicle's "
                              f"system id (they are 1..{max(local)})")
@@ -245,8 +261,8 @@ def sim_config(plan: Plan, options: DryRunOptions,
     o = plan.origin
     return SimConfig(
         params=params, rtk_noise=options.rtk is not None,
-        count=plan.drones, flavour=options.flavour, origin=(o.lat, o.lon, o.alt),
-        positions=show_to_enu(o, plan.home), system_ids=local,
+        count=len(stands), flavour=options.flavour, origin=(o.lat, o.lon, o.alt),
+        positions=show_to_enu(o, stands), system_ids=local,
         gcs=addresses[0], networks=nets if len(addresses) > 1 else None,
         gcs_networks=addresses if len(addresses) > 1 else None, bind_host=LOOPBACK,
         ekf_origin_delay_s=options.ekf_origin_delay_s,
@@ -289,11 +305,12 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
     gets the runner before it starts (the CLI hooks Ctrl-C to it), ``on_simulator``
     the simulator's process id (a benchmark counts its CPU).
     """
-    networks = network_count(plan.drones, options.networks)
-    nets, local = network_layout(plan.drones, networks)
+    size = len(fleet_stands(plan))  # the show's vehicles and the spares
+    networks = network_count(size, options.networks)
+    nets, local = network_layout(size, networks)
     _check_named(options, {vehicle_id(n, s) for n, s in zip(nets, local, strict=True)})
-    processes = sim_processes(plan.drones, networks, options.sim_processes)
-    workers = use_workers(options.link_workers, plan.drones)
+    processes = sim_processes(size, networks, options.sim_processes)
+    workers = use_workers(options.link_workers, size)
     # Participants: the ground station's loop, each simulator process, each network's
     # link worker (telemetry on its way to the ground station holds the clock too).
     paced = PacedClock(options.speed, participants=1 + processes
@@ -363,6 +380,7 @@ async def fly_dry_run(plan: Plan, options: DryRunOptions, *,
                 on_simulator(pid)
         if events is not None:
             events.emit("dry_run", show=plan.show_name, vehicles=plan.drones,
+                        spares=0 if plan.spares is None else plan.spares.count,
                         autopilot=str(options.flavour), speed=options.speed,
                         loss=options.loss, latency_ms=options.latency_ms, seed=options.seed,
                         wind=list(options.wind), gcs=f"{link.local_address[0]}:"

@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from groundctl.errors import GroundctlError, PlanningError
-from groundctl.execute.leaving import TIME_MARGIN, Leave, return_duration
+from groundctl.execute.leaving import Join, Leave, climb_time, return_duration
 from groundctl.flight.returning import (
     COLUMN_STEP_M,
     DESCENT_MARGIN_S,
@@ -57,47 +57,6 @@ FloatArray = NDArray[np.float64]
 #: The least a join is planned to last, s: time for the spare's autopilot to settle
 #: from its hover onto the path.
 MIN_JOIN_S = 4.0
-#: A spare waiting on the ground first arms and climbs straight up: this long to arm
-#: and leave the ground, s, then its climb at the show's climb rate with TIME_MARGIN
-#: (5 m: 7 s, what real ArduCopter SITL's NAV_TAKEOFF to 5 m took).
-ARM_S = 4.0
-
-
-@dataclass(frozen=True)
-class Join:
-    """A spare's way into ``track``: ``trajectory`` (one row, time 0 at show time ``at``)
-    from where it waits to the track's slot, reached at rest at show time :attr:`until`;
-    the track's plan after that."""
-
-    track: int
-    """The plan track it takes over (0-based)."""
-    at: float
-    """Show time it leaves where it waits, s."""
-    trajectory: Trajectories
-    """Its path there, one row, from time 0."""
-    plan_ms: float = 0.0
-    """Wall time the planning took, ms (said in the report)."""
-    climb_s: float = 0.0
-    """A spare waiting on the ground: it takes off this long before :attr:`at`, straight
-    up from its pad to where the path starts."""
-
-    @property
-    def until(self) -> float:
-        """Show time it is on the track's plan, s."""
-        return self.at + self.trajectory.end
-
-    def state(self, show_time: float) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Position, velocity, acceleration (3,) on the path at ``show_time`` (clamped)."""
-        tau = min(max(show_time - self.at, 0.0), self.trajectory.end)
-        p, v, a = self.trajectory.evaluate(tau)
-        return p[0], v[0], a[0]
-
-    def position(self, show_times: FloatArray) -> FloatArray:
-        """(len(show_times), 3) positions on the path (clamped at both ends)."""
-        tau = np.clip(np.asarray(show_times, dtype=float) - self.at, 0.0,
-                      self.trajectory.end)
-        return self.trajectory.evaluate(tau)[0][0]
-
 
 @dataclass(frozen=True)
 class Moving:
@@ -280,22 +239,19 @@ def join_windows(plan: Plan, track: int, start: FloatArray, earliest: float,
     return out
 
 
-def climb_time(plan: Plan, height: float) -> float:
-    """How long a spare on the ground is given to arm and climb ``height`` m, s."""
-    return ARM_S + TIME_MARGIN * height / plan.limits.max_speed_up if height > 0 else 0.0
-
-
 def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
               absent: Collection[int] = (), leaves: Mapping[int, Leave] | None = None,
               joins: Mapping[int, Join] | None = None,
-              static: FloatArray | None = None, climb: float = 0.0) -> Join:
+              static: FloatArray | None = None, climb: float = 0.0,
+              climb_s: float | None = None) -> Join:
     """The spare waiting at rest at ``start`` takes over ``track`` at the earliest window
     it can (module docstring), leaving no sooner than show time ``earliest``.
 
     ``climb`` > 0: it waits on the ground at ``start`` and first climbs that many metres
     straight up (:func:`climb_time`; its column is checked against everyone while it
     climbs, each of its points standing for the column around it), its path starting at
-    the top.
+    the top; ``climb_s`` (if longer than :func:`climb_time`): how long it is given to arm
+    and climb (what the fleet's own takeoffs took).
 
     ``absent`` tracks fly no plan (their drones left, fell or are down: where they are
     goes in ``static``, (k, 3) points that do not move, like waiting spares); ``leaves``
@@ -310,7 +266,8 @@ def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
     static = np.zeros((0, 3)) if static is None else np.asarray(static, dtype=float)
     pad = np.asarray(start, dtype=float)
     start = pad + np.array([0.0, 0.0, climb])
-    climb_s = climb_time(plan, climb)
+    climb_s = climb_time(plan, climb) if climb_s is None or climb <= 0 \
+        else max(climb_s, climb_time(plan, climb))
     gone = set(absent) | {track} | set(leaves) | set(joins)
     flown = np.array([j for j in range(plan.drones) if j not in gone], dtype=np.intp)
     limit = plan.limits.min_separation

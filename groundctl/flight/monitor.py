@@ -123,6 +123,9 @@ class FormationError:
     """Sum of per-vehicle distances, m."""
     samples: int = 0
     """Vehicle-ticks measured."""
+    slots: int | None = None
+    """The fewest of its slots held by a drone on its plan at any tick of the hold (the
+    drones flying the show then; a track left dark is a hole in the formation)."""
 
     @property
     def mean_m(self) -> float:
@@ -210,6 +213,11 @@ class FlightMonitor:
         """(time, system ids, show-frame positions) of the last :meth:`observe`."""
         self._led_shown: dict[int, float | None] = {}
 
+    def add(self, sysid: int, track: int) -> None:
+        """``sysid`` (a spare) flies ``track`` from now on; its own figures start now."""
+        self.tracks[sysid] = track
+        self.vehicles.setdefault(sysid, VehicleTrack())
+
     def observe(self, now: float, show_time: float, in_show: Collection[int],
                 states: Mapping[int, VehicleState], rate: float = 1.0) -> None:
         """One tick: ``in_show`` are the vehicles flying the plan (tracking error counts);
@@ -256,6 +264,10 @@ class FlightMonitor:
                 f.max_m = max(f.max_m, float(d.max()))
                 f.sum_m += float(d.sum())
                 f.samples += len(d)
+                # Slots held by a drone flying the show, heard this tick or not (a late
+                # telemetry sample is no hole).
+                held = len({self.tracks[s] for s in in_show if s in self.tracks})
+                f.slots = held if f.slots is None else min(f.slots, held)
 
     def observe_truth(self, now: float, ids: list[int], pos: FloatArray) -> None:
         """Ground truth positions (dry-run only: the simulator knows where drones really are)."""

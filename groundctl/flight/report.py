@@ -40,11 +40,13 @@ def _ms(seconds: float | None) -> float | None:
     return None if seconds is None else _r(seconds * 1000.0, 1)
 
 
-def _formation(f: FormationError) -> dict[str, Any]:
+def _formation(f: FormationError, drones: int) -> dict[str, Any]:
     # No sample means no formation: 0.0 would read as a perfect one.
     flown = f.samples > 0
     return {"formation": f.name, "index": f.index, "flown": flown,
-            "max_m": _r(f.max_m) if flown else None, "mean_m": _r(f.mean_m) if flown else None}
+            "max_m": _r(f.max_m) if flown else None, "mean_m": _r(f.mean_m) if flown else None,
+            # The fewest slots held at once while it was held, and whether every one was.
+            "slots": f.slots, "complete": f.slots == drones}
 
 
 def flight_report(runner: ShowRunner, error: str | None = None,
@@ -172,7 +174,13 @@ def flight_report(runner: ShowRunner, error: str | None = None,
         "recovery": _recovery(mon.recovery()) if mon is not None else None,
         "lead": {"adaptive": runner.leads is not None,
                  "initial_ms": _ms(runner.config.initial_lead_s)},
-        "pattern_error_m": [_formation(f) for f in (mon.formations if mon is not None else [])],
+        "pattern_error_m": [_formation(f, plan.drones)
+                            for f in (mon.formations if mon is not None else [])],
+        # Spares (issue 29): how many stood ready, how many went, each replacement.
+        "spares": ({"asked": plan.spares.count, **(seq.spares_report() if seq is not None
+                                                  else {"ready": 0, "used": 0,
+                                                        "replacements": []})}
+                   if plan.spares is not None else None),
         "led_timing_error_s": {
             "changes": len(led),
             "unmatched": unmatched,

@@ -26,6 +26,7 @@ from scipy.optimize import linear_sum_assignment
 from groundctl.errors import PlanningError
 from groundctl.execute.authority import scaled_limits
 from groundctl.execute.leaving import (
+    Join,
     Leave,
     free_spots,
     landing_candidates,
@@ -88,7 +89,8 @@ def assign_landing(plan: Plan, tracks: list[int], start: NDArray[np.float64],
                    down: NDArray[np.float64], reserved: NDArray[np.float64] | None = None
                    ) -> NDArray[np.float64]:
     """Landing points (n, 3) for returning ``tracks`` from ``start``: each keeps its own
-    spot when every one of them is free; otherwise all of them are re-assigned among the
+    spot when every one of them is free (and no two share a track); otherwise all of them
+    are re-assigned among the
     free spots (the plan's landing spots, then its takeoff slots; least squared
     distance), so nobody lands on a drone that came down early.  ``down`` are drones
     down or descending off their spots, ``reserved`` the points others are landing on.
@@ -97,7 +99,9 @@ def assign_landing(plan: Plan, tracks: list[int], start: NDArray[np.float64],
     fallen = np.asarray(down, dtype=float).reshape(-1, 3)
     blocked = np.zeros((0, 3)) if reserved is None \
         else np.asarray(reserved, dtype=float).reshape(-1, 3)
-    if len(free_spots(plan, own, blocked, fallen)) == len(own):
+    # Two drones of one track (one replaced by a spare) never keep the same spot.
+    if len(set(tracks)) == len(tracks) \
+            and len(free_spots(plan, own, blocked, fallen)) == len(own):
         return own
     candidates = landing_candidates(plan)
     free = free_spots(plan, candidates, blocked, fallen)
@@ -134,7 +138,8 @@ def column(top: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def plan_leave(plan: Plan, track: int, at: float, leaves: Mapping[int, Leave],
                absent: Collection[int] = (), static: NDArray[np.float64] | None = None,
-               start: NDArray[np.float64] | None = None) -> Leave:
+               start: NDArray[np.float64] | None = None,
+               joins: Mapping[int, Join] | None = None) -> Leave:
     """A way for ``track`` from its formation point at show time ``at`` (or from
     ``start``, where it hovers) to its landing point, around every other drone as it
     will fly meanwhile.
@@ -142,8 +147,10 @@ def plan_leave(plan: Plan, track: int, at: float, leaves: Mapping[int, Leave],
     The others are obstacles on their plan, or on their own way out from
     ``leaves`` (track -> Leave) once it has begun.  ``absent`` tracks fly no
     plan (excluded, landed, descending, killed); where they really are goes in
-    ``static`` (k, 3), points that do not move (see :func:`column`).  Raises the
-    planner's InfeasibleTransition / PlanningError.
+    ``static`` (k, 3), points that do not move (see :func:`column`); ``joins`` (track ->
+    Join) are spares on their way into those tracks: over their pads' columns' tops until
+    they set off, on their ways in, then on the track's plan.  Raises the planner's
+    InfeasibleTransition / PlanningError.
     """
     origin = plan.state_at(at).pos[track] if start is None else np.asarray(start, dtype=float)
     goal = plan.landing_hover[track][None, :]
@@ -164,7 +171,10 @@ def plan_leave(plan: Plan, track: int, at: float, leaves: Mapping[int, Leave],
                     else at + times >= leave.at
                 pos[row, left] = leave.position(at + times[left])
         still = np.repeat(fixed[:, None, :], len(times), axis=1)
-        return np.concatenate([pos, still])
+        coming = [np.where((at + times < jn.until)[:, None], jn.position(at + times),
+                           plan.trajectories.evaluate(show_t, np.array([j]))[0][0])[None]
+                  for j, jn in (joins or {}).items()]
+        return np.concatenate([pos, still, *coming])
 
     result = plan_among(0, f"way out of track {track}", origin[None, :], goal, duration,
                         plan.limits,

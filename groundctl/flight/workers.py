@@ -50,7 +50,7 @@ if TYPE_CHECKING:
     import numpy as np
     from numpy.typing import NDArray
 
-    from groundctl.execute.leaving import Leave
+    from groundctl.execute.leaving import Join, Leave
     from groundctl.plan.plan import Plan
     from groundctl.plan.trajectory import Trajectories
 
@@ -216,7 +216,8 @@ class PlannerPool:
     async def plan_leave(self, track: int, at: float, leaves: Mapping[int, Leave],
                          absent: Collection[int], static: NDArray[np.float64] | None,
                          start: NDArray[np.float64] | None, deadline_s: float, *,
-                         what: str | None = None) -> Leave:
+                         what: str | None = None,
+                         joins: Mapping[int, Join] | None = None) -> Leave:
         """:func:`~groundctl.flight.returning.plan_leave` of ``track`` (same arguments),
         in a worker, within ``deadline_s`` wall seconds.
 
@@ -228,7 +229,24 @@ class PlannerPool:
 
         return await self._call(
             what or f"planning track {track}'s way out", deadline_s, returning.plan_leave,
-            track, at, dict(leaves), list(absent), static, start)
+            track, at, dict(leaves), list(absent), static, start, joins=dict(joins or {}))
+
+    async def plan_join(self, track: int, pad: NDArray[np.float64], earliest: float,
+                        deadline_s: float, *, absent: Collection[int],
+                        leaves: Mapping[int, Leave], joins: Mapping[int, Join],
+                        static: NDArray[np.float64] | None, climb: float,
+                        climb_s: float | None = None, what: str | None = None) -> Join:
+        """:func:`~groundctl.flight.joining.plan_join` of a spare on ``pad`` into
+        ``track`` (same arguments), in a worker, within ``deadline_s`` wall seconds.
+        Raises PlanningTimeout past the deadline, FlightError if the worker dies, and
+        PlanningError when no window works."""
+        from groundctl.flight import joining
+
+        return await self._call(
+            what or f"planning a spare's way into track {track + 1}", deadline_s,
+            joining.plan_join, track, pad, earliest, absent=list(absent),
+            leaves=dict(leaves), joins=dict(joins), static=static, climb=climb,
+            climb_s=climb_s)
 
     # -- machinery ---------------------------------------------------------------------
 

@@ -7,12 +7,18 @@
     address = "127.0.0.1:14561"   # optional: where it listens and talks from
     track = 0                      # optional: the plan track it flies (else by position)
 
+    [[vehicle]]
+    system_id = 12
+    spare = true                   # optional: one of the show's spares (no track)
+
 An address pins its vehicle: only packets from that host and port speak for
 that system id (a HEARTBEAT under its id from anywhere else is an address
 conflict, whoever comes first).  ``address = "10.0.0.3:*"`` pins the host only,
 for a vehicle that talks from a port of its own choosing; it is contacted once
 it has spoken.  Either every entry names a track or none does: a half-mapped
-fleet is a mistake, not a request for mixed assignment.
+fleet is a mistake, not a request for mixed assignment.  A spare (``spare = true``)
+names none: it stands on one of the plan's spare pads (the nearest free one) and is
+never given a track before the show, whichever way the others are mapped.
 
 Several MAVLink networks (one link each, with its own system ids 1..254) are listed
 as ``[[network]]`` tables, in order, and every vehicle says which it is on::
@@ -116,6 +122,9 @@ class FleetFile:
     """Vehicle id -> plan track (empty when the file maps none)."""
     networks: tuple[FleetNetwork, ...] = ()
     """The ``[[network]]`` tables in order (empty: one network, given by ``--connect``)."""
+    spares: frozenset[int] = frozenset()
+    """Vehicle ids marked ``spare = true`` (for
+    :attr:`RunnerConfig.spare_ids <groundctl.flight.runner.config.RunnerConfig.spare_ids>`)."""
 
 
 def parse_fleet_file(data: dict[str, object], path: str | Path = "<fleet>") -> FleetFile:
@@ -132,6 +141,7 @@ def parse_fleet_file(data: dict[str, object], path: str | Path = "<fleet>") -> F
     endpoints: list[Endpoint] = []
     ids: list[int] = []
     tracks: dict[int, int] = {}
+    spares: set[int] = set()
     seen: set[int] = set()
     for i, entry in enumerate(vehicles, start=1):
         where = f"vehicle {i}"
@@ -157,10 +167,19 @@ def parse_fleet_file(data: dict[str, object], path: str | Path = "<fleet>") -> F
                                                              if networks else ""))
         seen.add(sysid)
         ids.append(sysid)
-        extra = sorted(set(entry) - {"system_id", "address", "track", "network"})
+        extra = sorted(set(entry) - {"system_id", "address", "track", "network", "spare"})
         if extra:
-            raise FleetFileError(path, f"{where}: {extra[0]}",
-                                 "unknown key (expected system_id, address, track, network)")
+            raise FleetFileError(path, f"{where}: {extra[0]}", "unknown key (expected "
+                                 "system_id, address, track, network, spare)")
+        spare = entry.get("spare", False)
+        if not isinstance(spare, bool):
+            raise FleetFileError(path, f"{where}: spare", f"must be true or false, got "
+                                                          f"{spare!r}")
+        if spare:
+            if "track" in entry:
+                raise FleetFileError(path, f"{where}: track", "a spare has no track (it "
+                                     "takes one over in flight): give it one or the other")
+            spares.add(sysid)
         track = entry.get("track")
         if track is not None:
             if not isinstance(track, int) or isinstance(track, bool) or track < 0:
@@ -180,11 +199,12 @@ def parse_fleet_file(data: dict[str, object], path: str | Path = "<fleet>") -> F
         except ValueError as exc:
             raise FleetFileError(path, f"{where}: address", str(exc)) from exc
         endpoints.append(Endpoint(sysid, host, port))
-    if tracks and len(tracks) != len(ids):
-        missing = [s for s in ids if s not in tracks]
+    if tracks and len(tracks) + len(spares) != len(ids):
+        missing = [s for s in ids if s not in tracks and s not in spares]
         raise FleetFileError(path, "track", f"vehicle(s) {missing} have no track: give every "
-                                            "vehicle a track, or none (assign by position)")
-    return FleetFile(tuple(ids), tuple(endpoints), tracks, networks)
+                                            "vehicle a track (or spare = true), or none "
+                                            "(assign by position)")
+    return FleetFile(tuple(ids), tuple(endpoints), tracks, networks, frozenset(spares))
 
 
 def _networks(tables: object, path: str | Path) -> tuple[FleetNetwork, ...]:

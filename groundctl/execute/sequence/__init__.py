@@ -82,6 +82,7 @@ The sequence is one class, :class:`ShowSequence`, built in layers, one module ea
     commands   the operator's commands
     lost       lost, heard again, off its plan (stranded), given up
     failsafes  refused commands, autopilot failsafes (retaken or respected), batteries
+    spares     a spare sent into a vacated track: asked for, armed, joining, joined
     core       ShowSequence: start, and each update drives every vehicle's lifecycle
 
 Beside the layers, :mod:`.policies` holds judgements as pure functions of a vehicle's

@@ -10,10 +10,10 @@ from collections.abc import Mapping
 import numpy as np
 
 from groundctl.execute.frames import show_positions
-from groundctl.execute.sequence.failsafes import Failsafes
 from groundctl.execute.sequence.lifecycle import Event
 from groundctl.execute.sequence.policies.battery import BatteryView, battery_due
 from groundctl.execute.sequence.policies.modes import ModeLeft, mode_left
+from groundctl.execute.sequence.spares import Spares
 from groundctl.execute.sequence.types import (
     _FLIGHT_MODE,
     _IDLE,
@@ -34,7 +34,7 @@ from groundctl.link.flavours import Flavour
 from groundctl.link.state import VehicleState
 
 
-class ShowSequence(Failsafes):
+class ShowSequence(Spares):
     """The whole show's flight sequence; see the :mod:`groundctl.execute.sequence`
     docstring for the protocol."""
 
@@ -47,6 +47,7 @@ class ShowSequence(Failsafes):
         actions: list[Action] = []
         for v in self.vehicles.values():
             self._to(v, Event.START)
+            v.started_at = now
             first: Command = SetMode(v.sysid, "GUIDED") if v.flavour is Flavour.ARDUPILOT \
                 else Arm(v.sysid)
             actions.append(self._send(v, first, now))
@@ -75,20 +76,23 @@ class ShowSequence(Failsafes):
             state = states.get(v.sysid)
             if v.fell and v.phase is VehiclePhase.FAILED and state is not None:
                 actions += self._armed_again(v, state, now)
+        self._spares_heard = {s for s in self.standby
+                              if (st := states.get(s)) is not None and not st.lost}
         actions += self._land_all_if_stranded(now)
         actions += self._descend_columns(now)
         actions += self._maybe_start_show(now, states)
         actions += self._begin_leaves(now)
+        actions += self._advance_spares(now)
         if self.started_at is not None and not self._ended \
                 and self.clock.show_time(now) >= self.plan.duration:
             self._ended = True
             for v in self.vehicles.values():
-                if v.phase is VehiclePhase.SHOW or (v.phase is VehiclePhase.LEAVING
-                                                    and v.leave is None):
+                if v.phase in (VehiclePhase.SHOW, VehiclePhase.JOINING) or (
+                        v.phase is VehiclePhase.LEAVING and v.leave is None):
                     self._to(v, Event.SHOW_ENDS)
                     v.returning_since = now
-                if v.lost_from is VehiclePhase.SHOW or (v.lost_from is VehiclePhase.LEAVING
-                                                         and v.leave is None):
+                if v.lost_from in (VehiclePhase.SHOW, VehiclePhase.JOINING) or (
+                        v.lost_from is VehiclePhase.LEAVING and v.leave is None):
                     self._lost_to(v, Event.SHOW_ENDS)
             actions.append(Notice(None, "show finished: returning to the landing slots"))
         return actions
@@ -159,6 +163,7 @@ class ShowSequence(Failsafes):
                 if v.flavour is Flavour.ARDUPILOT:
                     self._to(v, Event.UP)  # already in GUIDED since before arming
                     v.ready_at = now
+                    self._took_off(v, now)
                 return notices
             if now - v.sent_at >= cfg.takeoff_timeout_s:
                 return self._give_up(v, f"takeoff did not reach {cmd.alt_m:.1f} m within "
@@ -173,6 +178,7 @@ class ShowSequence(Failsafes):
             if state.mode == "OFFBOARD":
                 self._to(v, Event.UP)
                 v.pending, v.ready_at = None, now
+                self._took_off(v, now)
                 return []
         elif v.phase is VehiclePhase.RETURNING:
             return self._returning(v, state, now)

@@ -19,6 +19,7 @@ from groundctl.execute.sequence.policies.waysout import (
     without_way_out,
 )
 from groundctl.execute.sequence.types import (
+    LATE_LEAVE_S,
     MAX_LATE_LEAVES,
     Action,
     Land,
@@ -55,8 +56,14 @@ class WaysOut(Columns):
 
     @property
     def leaves(self) -> dict[int, Leave]:
-        """Planned ways out by *track* (obstacles for the next one, starts for a return)."""
-        return {v.track: v.leave for v in self.vehicles.values() if v.leave is not None}
+        """Planned ways out by *track* (obstacles for the next one, starts for a return).
+        Two runs of one track (a drone replaced by a spare that leaves in turn): the
+        spare's (the drone replaced left at least a formation earlier)."""
+        out: dict[int, Leave] = {}
+        for v in self.vehicles.values():
+            if v.leave is not None and (v.track not in out or v.replaced_by is None):
+                out[v.track] = v.leave
+        return out
 
     def set_leave(self, sysid: int, leave: Leave, now: float) -> list[Action]:
         """Fly ``leave`` from its show time on, then land."""
@@ -84,8 +91,11 @@ class WaysOut(Columns):
             return []
         v.leave_late += 1
         held = v.hold_point is not None
+        # Each time it was planned too late, its next instant twice as far ahead (at x8 on
+        # a busy machine the next rest 2 s of show ahead is a quarter second of planning).
+        ahead = LATE_LEAVE_S * 2 ** (v.leave_late - 1)
         next_instant = cache(lambda: self._hold_leave_time(v, now) if held
-                             else leave_time(self.plan, v.track, self.show_time(now)))
+                             else leave_time(self.plan, v.track, self.show_time(now) + ahead))
         verdict = late(v.leave_late, MAX_LATE_LEAVES, next_instant)
         if verdict is Late.TOO_MANY:
             return self.leave_failed(sysid, f"{reason}; {v.leave_late} times", now)

@@ -20,19 +20,24 @@ The table, by phase (``*`` marks the ways down that are not landing on a spot)::
     arming     armed -> takeoff           stand_down -> landed      give_up -> failed
     takeoff    up -> ready                land* -> landing          give_up -> failed
     ready      show_starts -> show        show_ends -> returning    return -> returning
-               not_at_start -> returning
+               not_at_start -> returning  joins -> joining
+    joining    joined -> show             show_ends -> returning    return -> returning
     show       leaves -> leaving          stranded -> leaving       show_ends -> returning
                return -> returning
     leaving    show_ends -> returning     return -> returning       arrived -> landing
     returning  arrived -> landing         last_resort -> leaving
-               return_failed -> PREVIOUS (ready, show or leaving)
+               return_failed -> PREVIOUS (ready, joining, show or leaving)
     landing    disarmed -> landed         give_up -> failed
     lost       heard_again -> PREVIOUS (the phase it was lost in)    stranded -> leaving
                land* -> landing
     failed     alive -> show              stranded -> leaving       land* -> landing
     landed, killed: none
 
-and from every phase in the air (ready, show, leaving, returning): ``land*``
+A spare that takes over a track runs through the same table from preflight: it arms,
+takes off over its pad, is ready, and joins (``joins``: it flies its way in, dark) until
+it is on the track's plan (``joined``).
+
+and from every phase in the air (ready, joining, show, leaving, returning): ``land*``
 (straight down where it is), ``taken_over`` (its autopilot left the flight mode) ->
 landing, ``fell`` (disarmed in the air) and ``give_up`` -> failed; from arming,
 takeoff, landing and every phase in the air: ``lost`` -> lost; from every phase:
@@ -61,6 +66,10 @@ class Event(enum.StrEnum):
     """At its takeoff altitude in the flight mode: ready for the show."""
     SHOW_STARTS = "show_starts"
     """The show clock starts (or, for a vehicle ready but silent then, is running)."""
+    JOINS = "joins"
+    """A spare ready over its pad flies its way into a track (:attr:`VehicleRun.join`)."""
+    JOINED = "joined"
+    """A joining spare is on the track's plan (the way in's end): it flies the show."""
     NOT_AT_START = "not_at_start"
     """Could not reach its first plan point in time: back down its own column."""
     SHOW_ENDS = "show_ends"
@@ -109,7 +118,7 @@ class _Previous:
 #: A target that is where the vehicle was before (given to :func:`step`).
 PREVIOUS: Final = _Previous()
 
-_IN_AIR = (P.READY, P.SHOW, P.LEAVING, P.RETURNING)
+_IN_AIR = (P.READY, P.JOINING, P.SHOW, P.LEAVING, P.RETURNING)
 _CAN_BE_LOST = (P.ARMING, P.TAKEOFF, *_IN_AIR, P.LANDING)
 
 #: The lifecycle: for each phase, the events that move a vehicle out of it and where to.
@@ -119,7 +128,10 @@ TRANSITIONS: Final[dict[VehiclePhase, dict[Event, VehiclePhase | _Previous]]] = 
                Event.GIVE_UP: P.FAILED},
     P.TAKEOFF: {Event.UP: P.READY, Event.LAND: P.LANDING, Event.GIVE_UP: P.FAILED},
     P.READY: {Event.SHOW_STARTS: P.SHOW, Event.SHOW_ENDS: P.RETURNING,
-              Event.RETURN: P.RETURNING, Event.NOT_AT_START: P.RETURNING},
+              Event.RETURN: P.RETURNING, Event.NOT_AT_START: P.RETURNING,
+              Event.JOINS: P.JOINING},
+    P.JOINING: {Event.JOINED: P.SHOW, Event.SHOW_ENDS: P.RETURNING,
+                Event.RETURN: P.RETURNING},
     P.SHOW: {Event.LEAVES: P.LEAVING, Event.STRANDED: P.LEAVING,
              Event.SHOW_ENDS: P.RETURNING, Event.RETURN: P.RETURNING},
     P.LEAVING: {Event.SHOW_ENDS: P.RETURNING, Event.RETURN: P.RETURNING,
@@ -143,7 +155,7 @@ for _exits in TRANSITIONS.values():
 #: The phases a PREVIOUS target may go back to, by event.
 RESUMABLE: Final[dict[Event, frozenset[VehiclePhase]]] = {
     Event.HEARD_AGAIN: frozenset(_CAN_BE_LOST),
-    Event.RETURN_FAILED: frozenset((P.READY, P.SHOW, P.LEAVING)),
+    Event.RETURN_FAILED: frozenset((P.READY, P.JOINING, P.SHOW, P.LEAVING)),
 }
 
 

@@ -68,7 +68,7 @@ class OffPlan(OperatorCommands):
             return self._strand(v, off, now, "heard again")
         self._to(v, Event.HEARD_AGAIN, v.lost_from)
         v.lost_from, v.reason = None, None
-        if v.phase is VehiclePhase.READY and self.started_at is not None:
+        if v.phase is VehiclePhase.READY and self.started_at is not None and v.join is None:
             # Ready but silent when the show started (or ended): it catches up.
             self._to(v, Event.SHOW_STARTS if not self._ended else Event.SHOW_ENDS)
         if v.phase is VehiclePhase.LANDING:
@@ -155,6 +155,20 @@ class OffPlan(OperatorCommands):
             self._to(v, Event.LAND)
             return [Notice(v.sysid, f"vehicle {v.sysid} is armed in the air after all: "
                                     "landing it where it is"), self._send(v, Land(v.sysid), now)]
+        if verdict is ArmedAgain.BACK and v.replaced_by is not None:
+            # A spare has its track now: it holds where it is and leaves on a way out.
+            pos = self._positions.get(v.sysid)
+            if pos is None:
+                self._to(v, Event.LAND)
+                return [Notice(v.sysid, f"vehicle {v.sysid} is armed in the air after all: "
+                                        "landing it where it is"),
+                        self._send(v, Land(v.sysid), now)]
+            here = (float(pos[0]), float(pos[1]), float(pos[2]))
+            planned = self.plan.trajectories.evaluate(self.show_time(now),
+                                                      np.array([v.track]))[0][0]
+            away = float(np.linalg.norm(np.asarray(here) - planned))
+            return self._strand(v, (away, here), now, f"armed in the air after all (spare "
+                                                     f"{v.replaced_by} has its track),")
         if verdict is ArmedAgain.BACK:
             self._to(v, Event.ALIVE)
             return [Notice(v.sysid, f"vehicle {v.sysid} is armed in the air after all, on its "
@@ -208,6 +222,8 @@ class OffPlan(OperatorCommands):
     def _left_on_slot(self, v: VehicleRun, now: float) -> list[Action]:
         # A drone that never took off stands on its slot: an obstacle for its
         # neighbours' takeoff and landing.  If it is in their way, stop the show.
+        if v.pad is not None:
+            return []  # a spare on its pad, verified clear of the show (down_positions)
         self.grounded_tracks.add(v.track)
         flying = {u.track for u in self.vehicles.values() if u.phase not in _DONE}
         conflicts = [c for c in remaining_plan_conflicts(self.plan, self.grounded_tracks)

@@ -125,14 +125,21 @@ class Returns(PathsAndSpots):
         if v.phase in (VehiclePhase.ARMING, VehiclePhase.TAKEOFF):
             self._to(v, Event.LAND)
             return [self._send(v, Land(v.sysid), now)]
+        if v.join is not None and v.phase is VehiclePhase.READY:
+            # A spare over its pad, not on its way yet: straight back down onto it.
+            self._to(v, Event.LAND)
+            v.pending = None
+            return [self._send(v, Land(v.sysid), now)]
         if v.leave is None:
             v.leave_at = None  # a way out not planned yet: the landing replaces it
-        if v.phase in (VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING):
+        if v.phase in (VehiclePhase.READY, VehiclePhase.JOINING, VehiclePhase.SHOW,
+                       VehiclePhase.LEAVING):
             v.before_return = v.phase
             self._to(v, Event.RETURN)
             v.pending = None
         if v.phase is VehiclePhase.LOST and v.lost_from in (
-                VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING):
+                VehiclePhase.READY, VehiclePhase.JOINING, VehiclePhase.SHOW,
+                VehiclePhase.LEAVING):
             v.before_return = v.lost_from
             self._lost_to(v, Event.RETURN)
         return []

@@ -25,6 +25,9 @@ from groundctl.execute.sequence.types import (
 )
 from groundctl.link.state import VehicleState
 
+#: A spare follows its way in (holding at its start before it begins) in these phases.
+_JOIN_PATH = frozenset({VehiclePhase.TAKEOFF, VehiclePhase.READY, VehiclePhase.JOINING})
+
 
 class PathsAndSpots(SequenceState):
     """Streaming, paths and landing spots (a layer of :class:`ShowSequence`)."""
@@ -40,6 +43,7 @@ class PathsAndSpots(SequenceState):
         # one ``asking``: a drone sent back to its own slot does not block itself).
         out: list[np.ndarray] = [self.plan.home[t] for t in sorted(self.grounded_tracks)
                                  if asking is None or t != asking.track]
+        out += self.pads_taken(None if asking is None else asking.sysid)
         for v in self.vehicles.values():
             if v is asking:
                 continue
@@ -52,10 +56,30 @@ class PathsAndSpots(SequenceState):
                     continue
                 spot = self._landing_point(v)
                 if v.phase is not VehiclePhase.FAILED and v.phase is not VehiclePhase.KILLED \
+                        and v.replaced_by is None \
                         and float(np.hypot(*(pos[:2] - spot[:2]))) \
                         <= self.config.arrive_tolerance_m:
-                    continue  # down on its own landing point, as planned
+                    continue  # down on its own landing point, as planned (a drone whose
+                    # track a spare took over is not: the spare lands there)
                 out.append(np.asarray(pos, dtype=float))
+        return out
+
+    def pads_taken(self, but: int | None = None) -> list[np.ndarray]:
+        """The spare pads a spare stands on (or may: a pad without a ready spare may hold
+        one that failed pre-flight, was excluded or was never located), but ``but``'s:
+        obstacles like any drone on the ground (a pad is a landing candidate too)."""
+        spares = self.plan.spares
+        if spares is None:
+            return []
+        ready = {s.pad: s for s in self.standby.values()}
+        out = []
+        for k in range(spares.count):
+            s = ready.get(k)
+            run = None if s is None else self.vehicles.get(s.sysid)
+            on_pad = s is None or not s.sent or run is None \
+                or run.phase is VehiclePhase.PREFLIGHT
+            if on_pad and (s is None or s.sysid != but):
+                out.append(spares.pads[k])
         return out
 
     def landing_positions(self) -> list[np.ndarray]:
@@ -152,6 +176,9 @@ class PathsAndSpots(SequenceState):
                 point = tuple(float(x) for x in self._landing_point(v))
                 return Path(PathKind.LANDING_POINT, "over its landing spot", v.track,
                             point=point)  # type: ignore[arg-type]
+        if v.join is not None and phase in _JOIN_PATH:
+            return Path(PathKind.JOIN, "its way into the track it takes over", v.track,
+                        join=v.join)
         if v.leave is not None:
             return Path(PathKind.WAY_OUT, "its way out of the show", v.track,
                         point=v.hold_point, leave=v.leave)

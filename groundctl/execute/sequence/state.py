@@ -10,6 +10,7 @@ import numpy as np
 
 from groundctl.execute.paths import sample_paths
 from groundctl.execute.sequence.lifecycle import Event, step
+from groundctl.execute.sequence.standby import Replacement, Standby
 from groundctl.execute.sequence.types import (
     _DONE,
     Action,
@@ -26,6 +27,10 @@ from groundctl.link.state import VehicleState
 from groundctl.plan.plan import Plan
 from groundctl.plan.trajectory import Trajectories
 
+#: A spare in these phases is still getting ready to join (on its pad or over it).
+_BEFORE_JOINING = frozenset({VehiclePhase.PREFLIGHT, VehiclePhase.ARMING,
+                             VehiclePhase.TAKEOFF, VehiclePhase.READY})
+
 
 class SequenceState:
     """The sequence's state and clock, shared by every layer of
@@ -33,10 +38,14 @@ class SequenceState:
 
     def __init__(self, plan: Plan, tracks: Mapping[int, int], flavours: Mapping[int, Flavour],
                  config: SequenceConfig | None = None,
-                 grounded_tracks: Collection[int] = ()) -> None:
+                 grounded_tracks: Collection[int] = (), *,
+                 spares: Mapping[int, int] | None = None, use_spares: bool = True) -> None:
         """``tracks`` maps system id -> plan track for every vehicle that flies;
-        ``grounded_tracks`` are tracks whose (excluded) drone stays on its slot."""
-        missing = sorted(set(tracks) - set(flavours))
+        ``grounded_tracks`` are tracks whose (excluded) drone stays on its slot;
+        ``spares`` maps system id -> spare pad for every spare ready on its pad
+        (``use_spares`` False: they stay there, ``--no-spares``)."""
+        spares = dict(spares or {})
+        missing = sorted((set(tracks) | set(spares)) - set(flavours))
         if missing:
             raise ValueError(f"`flavours` has no autopilot for vehicle(s) {missing}")
         if len(set(tracks.values())) != len(tracks):
@@ -47,6 +56,23 @@ class SequenceState:
             sysid: VehicleRun(sysid, track, flavours[sysid])
             for sysid, track in sorted(tracks.items())}
         self.grounded_tracks: set[int] = set(grounded_tracks)
+        if spares and plan.spares is None:
+            raise ValueError("`spares` given for a plan without spares")
+        if set(spares) & set(tracks):
+            raise ValueError("a vehicle is both a spare and a show vehicle")
+        self.standby: dict[int, Standby] = {
+            sysid: Standby(sysid, flavours[sysid], pad) for sysid, pad in sorted(spares.items())}
+        """The spares ready on their pads (:mod:`~groundctl.execute.sequence.spares`)."""
+        self.use_spares = use_spares
+        self.replacements: list[Replacement] = []
+        """Every track a spare was sent into, and how it went."""
+        self._join_tries: dict[tuple[int, int], int] = {}
+        self._join_queue: list[tuple[int, int, tuple[float, float, float]]] = []
+        self._said_no_spare: set[int] = set()
+        self._spares_heard: set[int] = set()
+        self.takeoffs_s: list[float] = []
+        """How long each vehicle took from being told to arm to hovering ready, s: a
+        spare sent into a track is given the slowest of them (and more) to get up."""
         self.aborted: str | None = None
         """Why the show was called off before it could be flown (None: it was not)."""
         self._slots = plan.landing_hover  # where each track's descent starts
@@ -176,7 +202,9 @@ class SequenceState:
     def phase(self) -> ShowPhase:
         """LANDED only once every vehicle is down or given up; a lost vehicle may still be
         airborne, so the show is not over while one is lost."""
-        phases = {v.phase for v in self.vehicles.values()}
+        # A spare on its way into a track does not set the show's phase (it arms mid-show).
+        phases = {v.phase for v in self.vehicles.values()
+                  if v.join is None or v.phase not in _BEFORE_JOINING}
         lost = bool(self.lost)
         if not self._started:
             return ShowPhase.PREFLIGHT
@@ -184,10 +212,14 @@ class SequenceState:
             return ShowPhase.ARMING
         if phases & {VehiclePhase.TAKEOFF, VehiclePhase.READY}:
             return ShowPhase.TAKEOFF
-        if VehiclePhase.SHOW in phases:
+        if phases & {VehiclePhase.SHOW, VehiclePhase.JOINING}:
             return ShowPhase.SHOW
-        if lost or phases & {VehiclePhase.LEAVING, VehiclePhase.RETURNING,
-                             VehiclePhase.LANDING}:
+        # ... but the flight is not over while a spare is up or getting up.
+        getting_up = any(v.join is not None and v.phase in _BEFORE_JOINING
+                         and v.phase is not VehiclePhase.PREFLIGHT
+                         for v in self.vehicles.values())
+        if lost or getting_up or phases & {VehiclePhase.LEAVING, VehiclePhase.RETURNING,
+                                           VehiclePhase.LANDING}:
             return ShowPhase.LANDING
         return ShowPhase.LANDED
 
@@ -210,6 +242,10 @@ class SequenceState:
         return self._ended
 
     # -- internals -------------------------------------------------------------------
+    def _took_off(self, v: VehicleRun, now: float) -> None:
+        if v.started_at is not None:
+            self.takeoffs_s.append(now - v.started_at)
+
     def _send(self, v: VehicleRun, command: Command, now: float) -> Command:
         if command != v.pending:
             v.attempts = 0

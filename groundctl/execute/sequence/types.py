@@ -9,7 +9,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, field
 
-from groundctl.execute.leaving import Leave
+from groundctl.execute.leaving import Join, Leave
 from groundctl.execute.paths import Path, PathClocks, PathKind
 from groundctl.execute.showclock import ShowClock
 from groundctl.link.flavours import Flavour
@@ -98,6 +98,7 @@ class VehiclePhase(enum.StrEnum):
     ARMING = "arming"
     TAKEOFF = "takeoff"
     READY = "ready"
+    JOINING = "joining"
     SHOW = "show"
     LEAVING = "leaving"
     RETURNING = "returning"
@@ -134,8 +135,8 @@ CLIMB_SEEN_M = 0.2
 _DONE = {VehiclePhase.LANDED, VehiclePhase.FAILED, VehiclePhase.KILLED}
 #: Phases the per-vehicle update does not advance (LOST waits to be heard again).
 _IDLE = _DONE | {VehiclePhase.LOST, VehiclePhase.PREFLIGHT}
-_STREAMED = {VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
-             VehiclePhase.RETURNING}
+_STREAMED = {VehiclePhase.READY, VehiclePhase.JOINING, VehiclePhase.SHOW,
+             VehiclePhase.LEAVING, VehiclePhase.RETURNING}
 _LAND_MODES = {"LAND", "AUTO.LAND"}  # ArduCopter's and PX4's, as decoded by the link
 #: A vehicle counts as off its plan only if it is farther than the rejoin tolerance
 #: from every point its plan passed in this last stretch of show time, s.
@@ -188,6 +189,9 @@ FENCE_NOTICE_S = 10.0
 LOW_BATTERY_FLEET = 0.1
 #: A way out planned too late this many times is given up (no retry storm).
 MAX_LATE_LEAVES = 3
+#: ... and each time it leaves at least this much show time later than it could, doubled
+#: each time, s (more time to plan it).
+LATE_LEAVE_S = 4.0
 #: The mode each autopilot flies our setpoints in.
 _FLIGHT_MODE = {Flavour.ARDUPILOT: "GUIDED", Flavour.PX4: "OFFBOARD"}
 #: Where a vehicle that lost our setpoints waits (PX4's offboard-loss failsafe: Hold).
@@ -300,6 +304,8 @@ class VehicleRun:
     """Heard again off its plan: where it hovers (show frame) until its way out begins."""
     gap_seen: int = 0
     """Its telemetry's own silences (gaps on the vehicle's clock) already looked at."""
+    started_at: float | None = None
+    """Our time it was told to arm (its takeoff's start: mode, arm, spool-up, climb)."""
     ready_at: float | None = None
     """Our time it became READY (hovering at its first point's column, before the show)."""
     returning_since: float | None = None
@@ -325,6 +331,14 @@ class VehicleRun:
     """Our time its own telemetry last came back from a silence."""
     streamed_at: float | None = None
     """Our time setpoints were last sent to it (:meth:`ShowSequence.streamed`)."""
+    join: Join | None = None
+    """A spare taking over ``track``: its way in, flown on the show clock (it arms and
+    climbs from its pad before, and is on the track's plan from ``join.until``)."""
+    pad: int | None = None
+    """A spare: the index of the pad it stood on (:attr:`~groundctl.plan.plan.SparePlan.pads`)."""
+    replaced_by: int | None = None
+    """The spare that took over its track (its system id): from then on it is not the
+    track's drone, and where it lands is an obstacle like any drone down elsewhere."""
     starved_at: float | None = None
     """Our time its setpoints resumed after we had sent it none for LINK_FAILSAFE_GAP_S
     or more (our own loop starved: a PX4 vehicle then drops into its offboard-loss

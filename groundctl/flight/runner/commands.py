@@ -27,6 +27,9 @@ from groundctl.execute.sequence import (
 from groundctl.flight.runner.config import FOLD_AFTER, _ids
 from groundctl.flight.runner.preflight import Preflight
 
+#: Notices that are also events of their own name (issue 29's contract).
+_SPARE_EVENTS = frozenset({"spare_planned", "spare_joined", "spare_failed"})
+
 
 class Commands(Preflight):
     """Actions carried out, the operator's commands, the status line (a layer of
@@ -37,6 +40,8 @@ class Commands(Preflight):
             if isinstance(a, Notice):
                 if a.kind in ("heard_again", "retaken") and a.sysid is not None:
                     self._leds.forget(a.sysid)  # back from a silence: its colour afresh
+                if a.kind in _SPARE_EVENTS and self.events is not None:
+                    self.events.emit(a.kind, system_id=a.sysid, text=a.text)
                 if a.kind and a.sysid is not None:
                     self._pending_notices.append(a)  # folded per kind at the tick's end
                 else:
@@ -138,6 +143,11 @@ class Commands(Preflight):
         """Vehicle ``sysid`` back to its landing slot and down."""
         self._operator(f"land {sysid}",
                        lambda now: self.sequence.land_one(sysid, now))  # type: ignore[union-attr]
+
+    def replace(self, sysid: int) -> None:
+        """Vehicle ``sysid`` out of the show on a way out, and a spare into its track."""
+        self._operator(f"replace {sysid}",
+                       lambda now: self.sequence.replace(sysid, now))  # type: ignore[union-attr]
 
     def land_here(self, sysid: int) -> None:
         """Vehicle ``sysid`` straight down where it is."""

@@ -28,8 +28,8 @@ PERMANENT_CHECKS = frozenset({"battery", "slot"})
 #: More notices than this of one kind in one tick are folded into one line.
 FOLD_AFTER = 3
 #: Phases in which a vehicle is (or may be) in the air, for the guard's closest pair.
-_AIRBORNE = frozenset({VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
-                       VehiclePhase.RETURNING})
+_AIRBORNE = frozenset({VehiclePhase.READY, VehiclePhase.JOINING, VehiclePhase.SHOW,
+                       VehiclePhase.LEAVING, VehiclePhase.RETURNING})
 #: Phases whose wind estimate is the air's now (in the air, or coming down through it).
 _WIND_PHASES = _AIRBORNE | {VehiclePhase.TAKEOFF, VehiclePhase.LANDING}
 
@@ -76,10 +76,17 @@ class RunnerConfig:
     """Every vehicle must pass its pre-flight checks within this."""
     settle_s: float = 3.0
     """A check that waiting cannot fix must fail this long before the pre-flight gives up."""
+    spare_settle_s: float = 10.0
+    """Once the show's own vehicles pass pre-flight, spares not ready yet (their streams,
+    battery or EKF origin still to come) are waited for this much longer, s; then the
+    show starts without them, said."""
     excluded: frozenset[int] = frozenset()
     """System ids the operator keeps on the ground."""
     tracks: Mapping[int, int] | None = None
     """System id -> plan track from a fleet file; None maps vehicles by position."""
+    spare_ids: frozenset[int] = frozenset()
+    """System ids a fleet file marks as spares (``spare = true``): matched to the plan's
+    spare pads only, never to a track, and not waited for when connecting."""
     thresholds: Thresholds = field(default_factory=Thresholds)
     """Pre-flight limits."""
     sequence: SequenceConfig = field(
@@ -96,6 +103,11 @@ class RunnerConfig:
     """A return (or a way out planned while the show holds) must be planned within this
     many *wall* seconds: the fleet hovers meanwhile, so planning time costs battery, not
     safety, whatever the dry-run's speed."""
+    join_lead_s: float = 8.0
+    """A spare's way into a vacated track leaves no sooner than this much show time after
+    it is asked for, s; its planning gets that much wall time (less half a second)."""
+    use_spares: bool = True
+    """Send the plan's spares into tracks their drones left (False: ``--no-spares``)."""
     planning_attempts: int = 2
     """Attempts at a return before flying straight to the landing points."""
     progress_every_s: float = 15.0

@@ -8,7 +8,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -52,12 +52,16 @@ class LedSends:
         self._window_end = -math.inf
 
     def tick(self, now: float, show_time: float | None, streamed: Sequence[int],
-             rgb: ArrayLike) -> None:
+             rgb: ArrayLike, dark: Collection[int] = ()) -> None:
         """One tick at clock time ``now``: ``streamed`` are the vehicles streamed this
         tick, ``rgb`` their colours of the tick (n, 3, 0..255); ``show_time`` is the show
         clock's time when it runs at full rate (None: held, braking, before the show or
-        after it, when the tick's own colours are sent as they change)."""
+        after it, when the tick's own colours are sent as they change); ``dark``: vehicles
+        whose LEDs stay off whatever their track shows (spares on their way in)."""
         schedule = self.schedule
+        if dark:
+            rgb = np.array(rgb, dtype=np.uint8, copy=True)
+            rgb[[i for i, s in enumerate(streamed) if s in dark]] = 0
         if show_time is None or schedule is None:
             self.cancel()
             for sysid, (r, g, b) in self.tracker.due(streamed, rgb, now):
@@ -66,7 +70,7 @@ class LedSends:
         delays = self._delays([int(x) for x in schedule.sysids])
         t = show_time
         # Changes whose send instant falls in the next period, sent at that instant.
-        wanted = set(streamed)
+        wanted = set(streamed) - set(dark)
         start = self._window_end if math.isfinite(self._window_end) else t
         batch = schedule.window(min(start, t + self._period), t + self._period, delays)
         self._window_end = t + self._period
@@ -95,8 +99,9 @@ class LedSends:
         rows_of = {int(s): i for i, s in enumerate(schedule.sysids)}
         for sysid in streamed:
             last = self.tracker.last(sysid)
-            if last is None or now - last[1] >= self.tracker.refresh_s:
-                c = colours[rows_of[sysid]]
+            if last is None or now - last[1] >= self.tracker.refresh_s \
+                    or (sysid in dark and last[0] != (0, 0, 0)):
+                c = (0, 0, 0) if sysid in dark else colours[rows_of[sysid]]
                 self._send(sysid, (int(c[0]), int(c[1]), int(c[2])), now)
 
     def _send_group(self, items: list[tuple[int, Colour]]) -> None:

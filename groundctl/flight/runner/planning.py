@@ -64,10 +64,18 @@ class Planning(Commands):
         # where they are (a link cut stranded all nine of a PX4 fleet at once under
         # load, and their nine ways out, planned side by side, crossed at 0.58 m).
         needed = seq.leave_needed
-        if needed and not self._leave_tasks:
+        if needed and not self._leave_tasks and not self._join_tasks:
             sysid, track, at, start = needed[0]
             self._leave_tasks[sysid] = task = asyncio.create_task(
                 self._plan_leave(seq, sysid, track, at, start))
+            self._own(task)
+        # A spare's way into a vacated track: one at a time too, and not beside a way out
+        # (each is planned around the other once it is set).
+        joining = seq.join_needed
+        if joining and not self._join_tasks and not self._leave_tasks:
+            track, spare, pad = joining[0]
+            self._join_tasks[track] = task = asyncio.create_task(
+                self._plan_join(seq, track, spare, pad))
             self._own(task)
 
     def _own(self, task: asyncio.Task[None]) -> None:
@@ -151,7 +159,7 @@ class Planning(Commands):
                     track, at, seq.leaves, absent, static,
                     None if start is None else np.asarray(start, dtype=float),
                     wall,
-                    what=f"planning vehicle {sysid}'s way out")
+                    what=f"planning vehicle {sysid}'s way out", joins=seq.joins)
             except PlanningTimeout as exc:
                 self._perform(seq.leave_late(sysid, str(exc), self.clock.now()))
                 return
@@ -162,11 +170,72 @@ class Planning(Commands):
         finally:
             self._leave_tasks.pop(sysid, None)
 
-    def _not_on_plan(self, seq: ShowSequence, leaving: int
+    async def _plan_join(self, seq: ShowSequence, track: int, spare: int,
+                         pad: tuple[float, float, float]) -> None:
+        """Plan ``spare``'s way from its pad into ``track`` around everyone else, in a
+        worker, leaving no sooner than the planning can be done (JOIN_LEAD_S of show time
+        ahead; the worker's deadline is that much wall time)."""
+        try:
+            absent, static = self._not_on_plan(seq, None)
+            # The other spares stand on their pads: obstacles like any drone on the ground.
+            others = seq.pads_taken(spare)
+            static = np.concatenate([static, *(column(p) for p in others)]) if others \
+                else static
+            now = self.clock.now()
+            picture = seq.picture()
+            # Each time planning ran out of time, twice the lead (and the deadline): on a
+            # busy machine the join goes to a later formation rather than to none.
+            lead = self.config.join_lead_s * 2 ** seq.join_tries(track, spare)
+            wall = self.config.return_deadline_s if seq.paused \
+                else max(self.clock.wall_interval(lead - 0.5), 0.05)
+            earliest = seq.show_time(now) + lead
+            self._say(f"planning spare {spare}'s way into track {track + 1} (leaving no "
+                      f"sooner than show time {earliest:.1f} s)", "spare_planning",
+                      system_id=spare, track=track + 1)
+            try:
+                join = await self._planner().plan_join(
+                    track, np.asarray(pad, dtype=float), earliest, wall, absent=absent,
+                    leaves=seq.leaves, joins=seq.joins, static=static,
+                    climb=self.plan.takeoff_altitude, climb_s=seq.spare_climb_s(),
+                    what=f"planning spare {spare}'s way into track {track + 1}")
+            except PlanningTimeout as exc:
+                self._perform(seq.join_failed(track, spare, str(exc), self.clock.now(),
+                                              retry=True))
+                return
+            except GroundctlError as exc:
+                self._perform(seq.join_failed(track, spare, str(exc), self.clock.now()))
+                return
+            if seq.picture() != picture:
+                self._perform(seq.join_failed(
+                    track, spare, "the fleet changed while it was planned (a drone left, "
+                                  "fell or holds): planning it again", self.clock.now(),
+                    retry=True))
+                return
+            actions = seq.set_join(track, spare, join, self.clock.now())
+            if spare in seq.vehicles and seq.vehicles[spare].join is join:
+                self._spare_sent(spare, track)
+            self._perform(actions)
+        finally:
+            self._join_tasks.pop(track, None)
+
+    def _spare_sent(self, spare: int, track: int) -> None:
+        """``spare`` flies ``track`` from now on: its setpoints, LEDs and tracking are the
+        track's."""
+        if self._stream is not None:
+            self._stream.retrack(spare, track)
+        if self._leds.schedule is not None:
+            self._leds.schedule = self._leds.schedule.retrack(spare, track)
+        if self.monitor is not None:
+            self.monitor.add(spare, track)
+
+    def _not_on_plan(self, seq: ShowSequence, leaving: int | None
                      ) -> tuple[list[int], NDArray[np.float64]]:
         """Tracks nobody flies (excluded, down, descending, killed) and the columns where
-        those drones really are, from telemetry (or their slot, for one never airborne)."""
+        those drones really are, from telemetry (or their slot, for one never airborne).
+        A spare on its way in is neither (it goes to the planners as a join), and a track
+        a spare flies is flown whoever flew it before."""
         absent: list[int] = []
+        flown: set[int] = set()
         columns: list[NDArray[np.float64]] = []
         for track in self._excluded_tracks():
             absent.append(track)
@@ -178,6 +247,9 @@ class Planning(Commands):
             if sysid == leaving:
                 continue
             path = seq.path(sysid, now)
+            if v.join is not None and ((path is not None and path.kind is PathKind.JOIN)
+                                       or phase is VehiclePhase.PREFLIGHT):
+                continue  # on its way in (seq.joins), or still on its pad
             if path is not None and path.kind is PathKind.HOLD:
                 assert path.point is not None
                 absent.append(v.track)  # hovering where it was heard again, not on its plan
@@ -186,6 +258,10 @@ class Planning(Commands):
                                VehiclePhase.RETURNING):
                 absent.append(v.track)  # down, descending, killed, or never airborne
                 pos = positions.get(sysid)
-                columns.append(column(self.plan.home[v.track] if pos is None else pos))
+                home = self.plan.home[v.track] if v.pad is None or self.plan.spares is None \
+                    else self.plan.spares.pads[v.pad]
+                columns.append(column(home if pos is None else pos))
+            else:
+                flown.add(v.track)
         static = np.concatenate(columns) if columns else np.empty((0, 3))
-        return absent, static
+        return [t for t in absent if t not in flown], static

@@ -1,7 +1,12 @@
 """The ground part, before anything flies: the link up, the pre-flight checks
 until every vehicle passes, the operator's go gate and exclusions, the
 vehicles' settings and parameters, and the sequence built from the
-assignment."""
+assignment.
+
+A plan's spares (:attr:`Plan.spares <groundctl.plan.plan.Plan.spares>`) are checked
+with the rest but never waited for: when the show's vehicles pass, the spares that
+passed too are :attr:`~groundctl.flight.runner.state.RunnerState.spares`, and each
+one not ready is said in one line (the show starts with fewer spares, not later)."""
 
 from __future__ import annotations
 
@@ -34,8 +39,11 @@ class Preflight(RunnerState):
 
     # -- phase 1: connect -----------------------------------------------------------
     async def connect(self) -> None:
-        """Wait until every expected vehicle (or as many as the plan has) sent a HEARTBEAT."""
-        want: list[int] | int = self.expected_ids if self.expected_ids is not None \
+        """Wait until every expected vehicle (or as many as the plan has) sent a HEARTBEAT;
+        not the fleet file's spares (``spare_ids``): one that stays silent is a spare
+        fewer, not a show that cannot start."""
+        want: list[int] | int = [s for s in self.expected_ids if s not in
+                                 self.config.spare_ids] if self.expected_ids is not None \
             else self.plan.drones
         self._say(f"waiting for {want if isinstance(want, int) else len(want)} vehicle(s)",
                   "connecting")
@@ -51,9 +59,12 @@ class Preflight(RunnerState):
     def _assign(self) -> Assignment:
         positions = show_positions(self.plan.origin, self._fleet())
         tol = self.config.thresholds.slot_tolerance_m
+        pads = self.plan.spares.pads if self.plan.spares is not None else None
+        marked = self.config.spare_ids
         if self.config.tracks is not None:
-            return explicit_assign(self.config.tracks, self.plan.home, positions, tol)
-        return auto_assign(self.plan.home, positions, tol)
+            return explicit_assign(self.config.tracks, self.plan.home, positions, tol,
+                                   pads, marked)
+        return auto_assign(self.plan.home, positions, tol, pads, marked)
 
     async def _ask(self, sysid: int, what: str, call: Any) -> None:
         try:
@@ -69,6 +80,7 @@ class Preflight(RunnerState):
         asked: dict[tuple[int, str], float] = {}
         failing_since: dict[tuple[int, str], float] = {}
         last_lines: list[str] = []
+        show_ready: float | None = None  # since when the show's own vehicles all pass
         next_progress = start + cfg.progress_every_s
         while True:
             cfg = self.config  # the operator may exclude a vehicle meanwhile (the console)
@@ -102,11 +114,19 @@ class Preflight(RunnerState):
             missing = [t for t in self.assignment.unassigned_tracks
                        if t not in self._excluded_tracks()]
             if not failures and not missing:
-                break
+                # The show could start: spares still settling (streams, battery, EKF
+                # origin come a few seconds after the show's vehicles' on a busy link)
+                # are given a little longer, then left on their pads, said.
+                show_ready = show_ready if show_ready is not None else now
+                if not report.spare_failures(cfg.excluded) \
+                        or now - show_ready >= cfg.spare_settle_s:
+                    break
+            else:
+                show_ready = None
             # Give up early on what waiting cannot fix.
             permanent: dict[int, list[str]] = {}
             for sysid, results in report.results.items():
-                if sysid in cfg.excluded:
+                if sysid in cfg.excluded or sysid in report.spares:
                     continue
                 for r in results:
                     key = (sysid, r.name)
@@ -141,7 +161,41 @@ class Preflight(RunnerState):
         self._say("pre-flight passed: " + report.summary(cfg.excluded), "preflight_passed",
                   tracks={str(k): v for k, v in self._tracks().items()},
                   lines=report.lines(cfg.excluded))
+        self._spares_ready(report)
         return report
+
+    def _spares_ready(self, report: PreflightReport) -> None:
+        """:attr:`spares` from the report the show passed with, one line for each spare
+        not ready (why), and the count ready against the plan's."""
+        plan = self.plan.spares
+        if plan is None:
+            self.spares = {}
+            return
+        excluded = self.config.excluded
+        self.spares = report.ready_spares(excluded)
+        failed = report.spare_failures(excluded)
+        standing = {pad: sysid for sysid, pad in report.spares.items()}
+        for pad in range(plan.count):
+            if pad in self.spares.values():
+                continue
+            sysid = standing.get(pad)
+            name = f"spare {pad + 1}"
+            if sysid is None:
+                x, y = plan.pads[pad, :2]
+                text = (f"{name}: no vehicle located on its pad at ({x:.1f}, {y:.1f}) "
+                        "(not heard, or no position yet); the show starts without this "
+                        "spare")
+            elif sysid in excluded:
+                text = (f"vehicle {spell(sysid)} ({name}) excluded by the operator: it "
+                        "stays on its pad")
+            else:
+                text = (f"vehicle {spell(sysid)} ({name}) not ready: "
+                        + "; ".join(failed.get(sysid, []))
+                        + "; the show starts without this spare")
+            self._say(text, "spare_not_ready", spare=pad, system_id=sysid)
+        self._say(f"spares: {len(self.spares)} of {plan.count} ready", "spares_ready",
+                  ready=sorted(self.spares), asked=plan.count,
+                  pads={str(s): k for s, k in self.spares.items()})
 
     def _known(self, sysid: int, check: str) -> bool:
         state = self.link.vehicles.get(sysid)
@@ -184,13 +238,25 @@ class Preflight(RunnerState):
             flavours[sysid] = state.flavour
             targets.append(StreamTarget(sysid, track, state.ekf_origin))
             self._record(sysid)
+        spares = {s: pad for s, pad in self.spares.items()
+                  if states.get(s) is not None and states[s].flavour is not None
+                  and states[s].ekf_origin is not None}
+        for sysid in sorted(spares):
+            state = states[sysid]
+            assert state.flavour is not None and state.ekf_origin is not None
+            flavours[sysid] = state.flavour
+            # Streamed (and lit) only once it takes over a track, which it is then given
+            # (_spare_sent); until then its row stands for track 0 and is never sent.
+            targets.append(StreamTarget(sysid, 0, state.ekf_origin))
+            self._record(sysid)
         self._stream = SetpointStream(self.plan, targets, self.config.initial_lead_s)
         self.leads = LeadEstimator([t.sysid for t in targets], self.config.lead) \
             if self.config.lead_s is None else None
         self._leds.schedule = LedSchedule.from_targets(self.plan, targets)
         self.monitor = FlightMonitor(self.plan, tracks)
         self.sequence = ShowSequence(self.plan, tracks, flavours, self.config.sequence,
-                                     grounded_tracks=self._excluded_tracks())
+                                     grounded_tracks=self._excluded_tracks(),
+                                     spares=spares, use_spares=self.config.use_spares)
         return self.sequence
 
     async def _vehicle_settings(self) -> None:
@@ -290,6 +356,15 @@ class Preflight(RunnerState):
         pass too close to it on its slot (:func:`remaining_plan_conflicts`)."""
         if self.sequence is not None:
             raise FlightError(f"exclude {sysid}: the show is already armed; land it instead")
+        if self.assignment is not None and sysid in self.assignment.spares:
+            if sysid in self.config.excluded:
+                raise FlightError(f"exclude {sysid}: already excluded")
+            # A spare's pad is verified clear of the show: keeping it there needs no check.
+            self.config = replace(self.config, excluded=self.config.excluded | {sysid})
+            self._say(f"vehicle {sysid} (spare {self.assignment.spares[sysid] + 1}) excluded "
+                      "by the operator: it stays on its pad", "operator",
+                      command=f"exclude {sysid}", system_id=sysid)
+            return
         if self.assignment is None or sysid not in self.assignment.tracks:
             heard = sysid in self.link.vehicles
             raise FlightError(f"exclude {sysid}: " + (

@@ -53,6 +53,9 @@ class RunnerState:
         self.expected_ids = None if expected_ids is None else sorted(expected_ids)
         self.assignment: Assignment | None = None
         self.preflight_report: PreflightReport | None = None
+        self.spares: dict[int, int] = {}
+        """System id -> spare pad index of the spares ready when the pre-flight passed
+        (every check passed, not excluded): the ones that may take over a track."""
         self.sequence: ShowSequence | None = None
         self.monitor: FlightMonitor | None = None
         self.records: dict[int, VehicleRecord] = {}
@@ -81,6 +84,7 @@ class RunnerState:
         self._tasks: set[asyncio.Task[None]] = set()
         self._return_task: asyncio.Task[None] | None = None
         self._leave_tasks: dict[int, asyncio.Task[None]] = {}
+        self._join_tasks: dict[int, asyncio.Task[None]] = {}  # by track
         self._clock_state: tuple[int, ...] = ()
         """The clocks' revisions the MPC trajectories were last kept for."""
         self._pool: PlannerPool | None = None

@@ -5,7 +5,7 @@ A spare may go if it is ready (it passed pre-flight and is heard), not already f
 into or flying a track, and has not failed to join this track already.  The one that
 can be there first goes first: its straight-line distance to the track's next slot at
 the show's horizontal speed, plus, for one waiting on its pad, the time to arm and
-climb (:func:`groundctl.flight.joining.climb_time` is the planner's own figure; here
+climb (:func:`groundctl.execute.leaving.climb_time` is the planner's own figure; here
 the caller passes it in).  Ties go to the lower system id, so the choice is
 repeatable.  Pure: the caller has the fleet's view; the join itself is planned
 elsewhere (:func:`groundctl.flight.joining.plan_join`) and may still find no window.

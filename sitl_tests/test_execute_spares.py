@@ -1,0 +1,246 @@
+"""The sequence's spares layer (issue 29), driven with hand-made vehicle states and a
+float clock: which track is vacated and which spare goes, a join handed over and flown
+through the lifecycle, a spare late or given up, land-all with spares in every phase,
+and spare pads as obstacles.  Joins are planned for real (:func:`plan_join`)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from functools import cache
+
+import numpy as np
+import pytest
+from test_execute_support import geo_offset, make_vehicle, set_altitude
+from test_flight_spares import spares_plan
+
+from groundctl.execute.frames import show_to_enu
+from groundctl.execute.leaving import Join
+from groundctl.execute.sequence import (
+    Arm,
+    Disarm,
+    Land,
+    Notice,
+    SetMode,
+    ShowPhase,
+    ShowSequence,
+    Takeoff,
+    VehiclePhase,
+)
+from groundctl.flight.joining import plan_join
+from groundctl.flight.returning import assign_landing
+from groundctl.link.flavours import Flavour
+from groundctl.link.state import VehicleState
+from groundctl.plan.plan import Plan
+
+ARDU = Flavour.ARDUPILOT
+SPARES = {10: 0, 11: 1}
+
+
+def _state(plan: Plan, sysid: int, where: np.ndarray) -> VehicleState:
+    """A vehicle on the ground at show-frame ``where`` (its EKF origin there)."""
+    e, n, u = show_to_enu(plan.origin, np.asarray(where, dtype=float)[None, :])[0]
+    return make_vehicle(sysid, ekf_origin=geo_offset(plan.origin, float(e), float(n), float(u)))
+
+
+def _fleet(plan: Plan) -> dict[int, VehicleState]:
+    assert plan.spares is not None
+    states = {t + 1: _state(plan, t + 1, plan.home[t]) for t in range(plan.drones)}
+    for sysid, pad in SPARES.items():
+        states[sysid] = _state(plan, sysid, plan.spares.pads[pad])
+    return states
+
+
+def _sequence(plan: Plan, **kwargs: object) -> ShowSequence:
+    tracks = {t + 1: t for t in range(plan.drones)}
+    flavours = {s: ARDU for s in [*tracks, *SPARES]}
+    return ShowSequence(plan, tracks, flavours, spares=SPARES, **kwargs)  # type: ignore[arg-type]
+
+
+def _showing(plan: Plan, **kwargs: object) -> tuple[ShowSequence, dict[int, VehicleState], float]:
+    """The show clock running at our time 1.0, every show vehicle on its first point."""
+    seq, states = _sequence(plan, **kwargs), _fleet(plan)
+    seq.start(0.0)
+    show = [s for s in states if s not in SPARES]
+    for s in show:
+        states[s].mode = "GUIDED"
+    seq.update(0.1, states)
+    for s in show:
+        states[s].armed = True
+    seq.update(0.2, states)
+    for s in show:
+        set_altitude(states[s], plan.takeoff_altitude)
+    actions = seq.update(1.0, states)
+    assert Notice(None, f"show started with {plan.drones} vehicle(s)") in actions
+    return seq, states, 1.0
+
+
+def _fall(seq: ShowSequence, states: dict[int, VehicleState], sysid: int, now: float) -> None:
+    states[sysid].armed = False
+    set_altitude(states[sysid], 0.0)
+    seq.update(now, states)
+    assert seq.vehicles[sysid].phase is VehiclePhase.FAILED
+
+
+@cache
+def _join() -> Join:
+    """Spare 10's way from its pad into track 4 (vehicle 5's), leaving after show time 3."""
+    plan = spares_plan()
+    assert plan.spares is not None
+    return plan_join(plan, 4, plan.spares.pads[0], 3.0, static=plan.home[4][None, :],
+                     climb=plan.takeoff_altitude)
+
+
+def test_a_fallen_drone_vacates_its_track_and_the_nearest_spare_is_asked_for() -> None:
+    plan = spares_plan()
+    seq, states, now = _showing(plan)
+    assert seq.join_needed == []  # nobody left
+    _fall(seq, states, 5, now + 1.0)
+    (track, spare, pad), = seq.join_needed
+    assert track == 4 and spare in SPARES
+    assert plan.spares is not None
+    assert np.allclose(pad, plan.spares.pads[SPARES[spare]])
+    # No spare for a track that is flown: handing one over changes nothing.
+    assert seq.set_join(3, spare, replace(_join(), track=3), now + 1.0) == []
+    assert spare not in seq.vehicles
+
+
+def test_a_join_is_flown_through_the_lifecycle_dark_until_it_is_on_the_track() -> None:
+    plan = spares_plan()
+    seq, states, now = _showing(plan)
+    _fall(seq, states, 5, now + 1.0)
+    join = _join()
+    actions = seq.set_join(4, 10, join, now + 1.0)
+    assert [a.kind for a in actions if isinstance(a, Notice)] == ["spare_planned"]
+    run = seq.vehicles[10]
+    assert run.phase is VehiclePhase.PREFLIGHT and run.track == 4
+    assert seq.vehicles[5].replaced_by == 10
+    assert seq.join_needed == []  # the track has its spare
+    assert seq.phase is ShowPhase.SHOW  # a spare arming mid-show is not the show arming
+    # It arms at the way in's show time less its climb (the show clock started at 1.0).
+    arm_at = 1.0 + join.at - join.climb_s
+    assert SetMode(10, "GUIDED") not in seq.update(arm_at - 0.2, states)
+    assert SetMode(10, "GUIDED") in seq.update(arm_at + 0.01, states)
+    states[10].mode = "GUIDED"
+    assert Arm(10) in seq.update(arm_at + 0.1, states)
+    states[10].armed = True
+    assert Takeoff(10, plan.takeoff_altitude) in seq.update(arm_at + 0.2, states)
+    set_altitude(states[10], plan.takeoff_altitude)
+    seq.update(arm_at + 3.0, states)
+    assert run.phase is VehiclePhase.JOINING
+    req = seq.stream_request(arm_at + 3.0)
+    assert 10 in req.sysids and req.paths[10].kind == "join"
+    assert seq.dark(arm_at + 3.0) == {10}
+    joined = seq.update(1.0 + join.until + 0.01, states)
+    assert [a.kind for a in joined if isinstance(a, Notice)] == ["spare_joined"]
+    assert run.phase is VehiclePhase.SHOW and seq.dark(1.0 + join.until) == set()
+    assert seq.stream_request(1.0 + join.until + 0.1).paths[10].kind == "plan"
+    (r,) = seq.spares_report()["replacements"]  # type: ignore[misc]
+    assert r["outcome"] == "joined" and r["spare"] == 10 and r["failed"] == 5
+
+
+def test_a_spare_not_up_in_time_lands_back_on_its_pad_and_the_next_one_is_asked_for() -> None:
+    plan = spares_plan()
+    seq, states, now = _showing(plan)
+    _fall(seq, states, 5, now + 1.0)
+    join = _join()
+    seq.set_join(4, 10, join, now + 1.0)
+    arm_at = 1.0 + join.at - join.climb_s
+    seq.update(arm_at + 0.01, states)  # told to go GUIDED; it never does
+    late = seq.update(1.0 + join.at + 1.5, states)
+    assert Disarm(10) in late  # an Arm already sent may still be carried out
+    run = seq.vehicles[10]
+    assert run.phase is VehiclePhase.FAILED and run.never_flew
+    assert 4 not in seq.grounded_tracks and seq.aborted is None  # no abort for a spare
+    assert [a.kind for a in late if isinstance(a, Notice)] == ["spare_failed"]
+    seq.update(1.0 + join.at + 1.6, states)
+    (track, spare, _), = seq.join_needed
+    assert (track, spare) == (4, 11)
+
+
+def test_a_spare_up_but_past_its_instant_does_not_set_off() -> None:
+    plan = spares_plan()
+    seq, states, now = _showing(plan)
+    _fall(seq, states, 5, now + 1.0)
+    join = _join()
+    seq.set_join(4, 10, join, now + 1.0)
+    arm_at = 1.0 + join.at - join.climb_s
+    seq.update(arm_at + 0.01, states)
+    states[10].mode = "GUIDED"
+    seq.update(arm_at + 0.1, states)
+    states[10].armed = True
+    seq.update(arm_at + 0.2, states)
+    # Up only after its way in should have begun (and the late check was not reached).
+    set_altitude(states[10], plan.takeoff_altitude)
+    seq.update(1.0 + join.at + 0.9, states)
+    assert seq.vehicles[10].phase is VehiclePhase.JOINING  # up within a second: it goes
+    # ... but one up later than that lands back on its pad instead.
+    seq2, states2, now2 = _showing(plan)
+    _fall(seq2, states2, 5, now2 + 1.0)
+    seq2.set_join(4, 10, join, now2 + 1.0)
+    seq2.update(arm_at + 0.01, states2)
+    states2[10].mode = "GUIDED"
+    seq2.update(arm_at + 0.1, states2)
+    states2[10].armed = True
+    seq2.update(arm_at + 0.2, states2)
+    seq2.vehicles[10].phase = VehiclePhase.READY  # up, its takeoff done, too late
+    seq2.vehicles[10].pending = None
+    actions = seq2.update(1.0 + join.at + 2.0, states2)  # ... one up later does not
+    assert Land(10) in actions and seq2.vehicles[10].phase is VehiclePhase.LANDING
+
+
+@pytest.mark.parametrize("phase", ["preflight", "ready", "joining"])
+def test_land_all_with_a_spare_on_its_way(phase: str) -> None:
+    plan = spares_plan()
+    seq, states, now = _showing(plan)
+    _fall(seq, states, 5, now + 1.0)
+    join = _join()
+    seq.set_join(4, 10, join, now + 1.0)
+    arm_at = 1.0 + join.at - join.climb_s
+    t = now + 1.5
+    if phase != "preflight":
+        seq.update(arm_at + 0.01, states)
+        states[10].mode = "GUIDED"
+        seq.update(arm_at + 0.1, states)
+        states[10].armed = True
+        seq.update(arm_at + 0.2, states)
+        set_altitude(states[10], plan.takeoff_altitude)
+        t = arm_at + 0.3 if phase == "ready" else 1.0 + join.at + 0.5
+        seq.vehicles[10].pending = None if phase == "ready" else seq.vehicles[10].pending
+        if phase == "ready":
+            # Up and hovering over its pad before its way in begins.
+            seq.vehicles[10].phase = VehiclePhase.READY
+        else:
+            seq.update(t, states)
+            assert seq.vehicles[10].phase is VehiclePhase.JOINING
+    actions = seq.land_all(t)
+    run = seq.vehicles[10]
+    if phase == "preflight":
+        assert run.phase is VehiclePhase.LANDED  # stood down on its pad
+        seq.update(t + 0.1, states)
+        (r,) = seq.spares_report()["replacements"]  # type: ignore[misc]
+        assert r["outcome"].startswith("failed")
+    elif phase == "ready":
+        assert run.phase is VehiclePhase.LANDING and Land(10) in actions  # straight down
+    else:
+        # In the air on its way in: it is flown home with everyone, on the planned return.
+        assert run.phase is VehiclePhase.RETURNING
+        needed = seq.return_needed
+        assert needed is not None and (10, 4) in needed
+
+
+def test_spare_pads_are_obstacles_for_every_landing() -> None:
+    plan = spares_plan()
+    assert plan.spares is not None
+    # Spare 11 failed pre-flight: only 10 is ready, but both pads hold a vehicle.
+    seq = ShowSequence(plan, {t + 1: t for t in range(plan.drones)},
+                       {s: ARDU for s in range(1, plan.drones + 2)}, spares={10: 0})
+    down = np.array(seq.down_positions())
+    for pad in plan.spares.pads:
+        assert np.min(np.linalg.norm(down - pad, axis=1)) < 1e-9
+
+
+def test_two_drones_of_one_track_never_get_the_same_landing_spot() -> None:
+    plan = spares_plan()
+    start = plan.landing_hover[[4, 4]] + np.array([[0.0, 0.0, 2.0], [3.0, 0.0, 2.0]])
+    goals = assign_landing(plan, [4, 4], start, np.zeros((0, 3)))
+    assert not np.allclose(goals[0], goals[1])
