@@ -53,6 +53,9 @@ class Target:
     def land_here(self, sysid: int) -> None:
         self.calls.append(("land_here", sysid))
 
+    def replace(self, sysid: int) -> None:
+        self.calls.append(("replace", sysid))
+
     def kill(self, sysid: int, confirm: bool = False) -> None:
         self.calls.append(("kill", sysid, confirm))
 
@@ -208,6 +211,22 @@ def test_the_header_has_one_link_summary_per_network() -> None:
         "net 1: 3/3 heard" + rest, "net 2: 3/3 heard" + rest]
     # One network: no per-network lines.
     assert fabricated_runner(grid_plan(3)) and ConsoleModel().view(NOW).header.networks == ()
+
+
+def test_replace_from_the_key_and_the_command_line() -> None:
+    """Issue 29: `e` replaces the selected vehicle, `replace SYSID` the one named; without
+    a vehicle it says how, and a bad id is one line."""
+    c, target, feed, _, _ = controller()
+    c.replace(7)  # the key, vehicle 7 selected
+    c.line("replace 2:4")
+    assert target.calls == [("replace", 7), ("replace", 1004)]
+    c.replace(None)
+    assert said(feed)[-1].startswith("replace: select a vehicle")
+    c.line("replace")
+    assert said(feed)[-1].startswith("replace needs a system id")
+    c.line("replace x")
+    assert said(feed)[-1].startswith("replace: 'x' is not a system id")
+    assert len(target.calls) == 2
 
 
 def test_controller_confirms_land_all_and_kill_and_reports_bad_input() -> None:

@@ -244,3 +244,55 @@ def test_two_drones_of_one_track_never_get_the_same_landing_spot() -> None:
     start = plan.landing_hover[[4, 4]] + np.array([[0.0, 0.0, 2.0], [3.0, 0.0, 2.0]])
     goals = assign_landing(plan, [4, 4], start, np.zeros((0, 3)))
     assert not np.allclose(goals[0], goals[1])
+
+
+@cache
+def _air_plan() -> Plan:
+    from groundctl.plan.spares import place_spares
+    from groundctl.show.model import SpareSettings
+
+    plan = spares_plan()
+    return replace(plan, spares=place_spares(SpareSettings(count=2, standby="air"), plan))
+
+
+def test_spares_in_the_air_take_off_with_the_fleet_wait_dark_and_land_at_the_end() -> None:
+    plan = _air_plan()
+    assert plan.spares is not None
+    seq, states = _sequence(plan), _fleet(plan)
+    # Armed with everyone (ArduPilot: GUIDED first).
+    assert {SetMode(s, "GUIDED") for s in SPARES} <= set(seq.start(0.0))
+    for s in states:
+        states[s].mode = "GUIDED"
+    seq.update(0.1, states)
+    for s in states:
+        states[s].armed = True
+    seq.update(0.2, states)
+    for s in states:
+        set_altitude(states[s], plan.takeoff_altitude)
+    actions = seq.update(1.0, states)
+    # The show starts with its nine; the spares hover at their points, dark, not in it.
+    assert Notice(None, f"show started with {plan.drones} vehicle(s)") in actions
+    for s, k in SPARES.items():
+        run = seq.vehicles[s]
+        assert run.phase is VehiclePhase.READY and run.standing_by
+        path = seq.path(s, 2.0)
+        assert path is not None and path.kind == "hold"
+        assert np.allclose(path.point, plan.spares.points[k])  # type: ignore[arg-type]
+    assert seq.dark(2.0) == set(SPARES)
+    assert seq.phase is ShowPhase.SHOW
+    # Sent in from where it hovers: the same run takes the track, no arming.
+    _fall(seq, states, 5, 2.0)
+    (track, spare, start), = seq.join_needed
+    assert np.allclose(start, plan.spares.points[SPARES[spare]])
+    join = plan_join(plan, track, np.asarray(start), 3.0, static=plan.home[4][None, :])
+    assert join.climb_s == 0.0
+    seq.set_join(track, spare, join, 2.0)
+    seq.update(2.1, states)
+    assert seq.vehicles[spare].phase is VehiclePhase.JOINING
+    assert seq.vehicles[spare].track == track
+    other = next(s for s in SPARES if s != spare)
+    # At the end the one never sent comes straight down onto its pad.
+    seq.update(1.0 + plan.duration + 0.1, states)  # the show ends ...
+    actions = seq.update(1.0 + plan.duration + 0.2, states)  # ... and it is told to land
+    assert Land(other) in actions
+    assert seq.vehicles[other].phase is VehiclePhase.LANDING

@@ -39,6 +39,9 @@ class RecordingRunner:
     def land_here(self, sysid: int) -> None:
         self._got("land_here", sysid)
 
+    def replace(self, sysid: int) -> None:
+        self._got("replace", sysid)
+
     def kill(self, sysid: int, confirm: bool = False) -> None:
         self._got("kill", sysid, confirm)
 
@@ -61,6 +64,7 @@ def run(line: str, runner: RecordingRunner | None = None
     ("land", ("land_all",)),
     ("LAND 4", ("land_one", 4)),
     ("  land-here   7 ", ("land_here", 7)),
+    ("replace 4", ("replace", 4)),
     ("kill 3 confirm", ("kill", 3, True)),
     ("kill 3", ("kill", 3, False)),  # the runner itself says it needs confirming
 ])
@@ -94,6 +98,8 @@ def test_an_unknown_verb_is_named_with_the_commands() -> None:
     ("land 256", "land: '256' is not a system id (1-255): land | land SYSID"),
     ("land 3 4", "land takes at most 1 argument, got '4': land | land SYSID"),
     ("land-here 3 now", "land-here takes at most 1 argument, got 'now': land-here SYSID"),
+    ("replace", "replace needs a system id: replace SYSID"),
+    ("replace 3 now", "replace takes at most 1 argument, got 'now': replace SYSID"),
     ("hold 5", "hold takes no arguments, got '5': hold"),
     ("resume now please", "resume takes no arguments, got 'now please': resume"),
     ("status x", "status takes no arguments, got 'x': status"),

@@ -10,7 +10,6 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from flight_fixtures import dry_run, vehicle
 
 from groundctl.commands.flying import operator_line
@@ -79,6 +78,43 @@ def test_a_spare_takes_over_the_track_of_a_drone_that_fell(tmp_path: Path) -> No
     assert [e["system_id"] for e in joined] == [r["spare"]]
 
 
+@cache
+def air_spares_plan() -> Plan:
+    """The same show, its two spares waiting in the air over their pads."""
+    from dataclasses import replace
+
+    from groundctl.plan.spares import place_spares
+    from groundctl.show.model import SpareSettings
+
+    plan = spares_plan()
+    return replace(plan, spares=place_spares(SpareSettings(count=2, standby="air"), plan))
+
+
+def test_a_spare_waiting_in_the_air_takes_over_and_the_other_lands_with_the_fleet(
+        tmp_path: Path) -> None:
+    plan = air_spares_plan()
+    assert plan.spares is not None
+    result = dry_run(tmp_path, plan=plan, failures=(Failure(5, 2.0, "motor"),))
+    report = result.report
+    assert result.error is None, result.error
+    (r,) = report["spares"]["replacements"]
+    assert r["track"] == 4 and r["failed"] == 5 and r["outcome"] == "joined", r
+    assert report["unsafe_reasons"] == ["vehicle(s) [5] did not land under control",
+                                        "vehicle(s) [5] crashed"], report["unsafe_reasons"]
+    assert report["true_min_separation_m"] >= plan.limits.min_separation
+    other = SPARES[1] if r["spare"] == SPARES[0] else SPARES[0]
+    # Both flew: one took the track over, the other hovered at its point and came down
+    # on its pad with the fleet.
+    assert vehicle(report, r["spare"])["phase"] == "landed"
+    assert vehicle(report, r["spare"])["track"] == 4
+    assert vehicle(report, other)["phase"] == "landed"
+    assert vehicle(report, other)["track"] is None
+    assert report["simulator"]["down_and_disarmed"] == 11
+    _after_join_complete(report, plan, r["joined_at"])
+    # From the air a spare is there sooner than from its pad (no arming, no climb).
+    assert [e["system_id"] for e in _events(tmp_path, "spare_joined")] == [r["spare"]]
+
+
 def test_replace_from_the_command_line_sends_a_spare_in(tmp_path: Path) -> None:
     plan = spares_plan()
     said: list[str] = []
@@ -138,21 +174,9 @@ def test_a_spare_that_fails_on_its_way_in_is_followed_by_the_next(tmp_path: Path
     assert _events(tmp_path, "spare_failed")
 
 
-def test_no_spares_leaves_the_track_dark(tmp_path: Path) -> None:
-    plan = spares_plan()
-    result = dry_run(tmp_path, plan=plan, failures=(Failure(6, 1.0, "motor"),),
-                     runner=RunnerConfig(use_spares=False))
-    report = result.report
-    assert report["unsafe_reasons"] == ["vehicle(s) [6] did not land under control",
-                                        "vehicle(s) [6] crashed"], report["unsafe_reasons"]
-    assert report["spares"] == {"asked": 2, "ready": 2, "used": 0, "replacements": []}
-    assert [vehicle(report, s)["phase"] for s in SPARES] == ["not flown"] * 2
-    assert not any(f["complete"] for f in report["pattern_error_m"][1:])
-    texts = [e.get("text", "") for e in _events(tmp_path, "sequence")]
-    assert any("stays dark" in t and "--no-spares" in t for t in texts), texts
-
-
-def test_replace_without_a_spare_ready_is_refused_and_nothing_changes(tmp_path: Path) -> None:
+def test_no_spares_leaves_the_track_dark_and_refuses_replace(tmp_path: Path) -> None:
+    """`--no-spares`: a drone that falls leaves its track dark (said once), and the
+    operator's `replace` is refused with nothing changed (the drone flies on)."""
     plan = spares_plan()
     said: list[str] = []
 
@@ -161,12 +185,15 @@ def test_replace_without_a_spare_ready_is_refused_and_nothing_changes(tmp_path: 
             await asyncio.sleep(0.05)
         operator_line(runner, "replace 2", said.append)
 
-    result = dry_run(tmp_path, plan=plan, during=replace_two,
-                     runner=RunnerConfig(use_spares=False))
+    result = dry_run(tmp_path, plan=plan, failures=(Failure(6, 1.0, "motor"),),
+                     during=replace_two, runner=RunnerConfig(use_spares=False))
     report = result.report
-    assert report["safe"] and report["landed"], report["unsafe_reasons"]
-    assert report["spares"]["replacements"] == []
-    assert vehicle(report, 2)["reason"] is None  # it flew the whole show
+    assert report["unsafe_reasons"] == ["vehicle(s) [6] did not land under control",
+                                        "vehicle(s) [6] crashed"], report["unsafe_reasons"]
+    assert report["spares"] == {"asked": 2, "ready": 2, "used": 0, "replacements": []}
+    assert [vehicle(report, s)["phase"] for s in SPARES] == ["not flown"] * 2
+    assert not any(f["complete"] for f in report["pattern_error_m"][1:])
+    assert vehicle(report, 2)["phase"] == "landed" and vehicle(report, 2)["reason"] is None
     texts = [e.get("text", "") for e in _events(tmp_path, "sequence")]
+    assert any("stays dark" in t and "--no-spares" in t for t in texts), texts
     assert any("replace 2: spares are off for this flight" in t for t in texts), texts
-    assert np.all([f["complete"] for f in report["pattern_error_m"]])

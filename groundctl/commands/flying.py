@@ -178,8 +178,7 @@ def _say_spares(plan: Plan, quiet: bool) -> None:
     """Where the plan's spares wait, said once (and how this version flies them)."""
     if plan.spares is not None and not quiet:
         how = "on their pads" if plan.spares.standby == "ground" else \
-            "on their pads (standby = \"air\": this version keeps them on the ground and " \
-            "climbs when one is sent)"
+            "in the air over their pads (they take off and land with the fleet)"
         print(f"spares: {plan.spares.count} waiting {how}; one takes over the track of a "
               "drone that leaves the show", file=sys.stderr, flush=True)
 

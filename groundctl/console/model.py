@@ -365,7 +365,7 @@ class ConsoleModel:
         seq = runner.sequence
         run = seq.vehicles.get(sysid) if seq is not None else None
         excluded = sysid in runner.config.excluded
-        track = run.track if run is not None else (
+        track = (run.track if run.track >= 0 else None) if run is not None else (
             runner.assignment.tracks.get(sysid) if runner.assignment is not None else None)
         if run is not None:
             phase = str(run.phase)
@@ -481,7 +481,8 @@ class ConsoleModel:
         run = seq.vehicles.get(sysid) if seq is not None else None
         lines = [f"vehicle {sysid}"]
         if run is not None:
-            lines.append(f"track {run.track}, {run.phase}"
+            lines.append((f"track {run.track}" if run.track >= 0 else "spare")
+                         + f", {run.phase}"
                          + (f" ({run.reason})" if run.reason else ""))
             path = seq.path(sysid, now) if seq is not None else None
             if path is not None:

@@ -71,9 +71,9 @@ def flight_report(runner: ShowRunner, error: str | None = None,
             "system_id": sysid,  # the vehicle id: its system id on network 1, 1017 for 2:17
             "vehicle": spell(sysid),
             "network": network_of(sysid),
-            "track": run.track if run is not None else None,
+            "track": run.track if run is not None and run.track >= 0 else None,
             # The track's drone name in the show it was imported from (Skybrush), or None.
-            "name": plan.name_of(run.track) if run is not None else None,
+            "name": plan.name_of(run.track) if run is not None and run.track >= 0 else None,
             "phase": str(run.phase) if run is not None else
             ("excluded" if sysid in runner.config.excluded else "not flown"),
             "landed": run is not None and run.phase is VehiclePhase.LANDED,

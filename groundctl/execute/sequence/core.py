@@ -204,7 +204,9 @@ class ShowSequence(Spares):
         phases = [v.phase for v in self.vehicles.values()]
         if any(p in (VehiclePhase.ARMING, VehiclePhase.TAKEOFF) for p in phases):
             return []
-        ready = [v for v in self.vehicles.values() if v.phase is VehiclePhase.READY]
+        # Spares waiting in the air are up with the fleet, but not in the show.
+        ready = [v for v in self.vehicles.values() if v.phase is VehiclePhase.READY
+                 and v.pad is None]
         if not ready:
             return []
         # Takeoff ends within takeoff_tolerance_m of the altitude; starting the

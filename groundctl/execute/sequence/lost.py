@@ -68,7 +68,7 @@ class OffPlan(OperatorCommands):
             return self._strand(v, off, now, "heard again")
         self._to(v, Event.HEARD_AGAIN, v.lost_from)
         v.lost_from, v.reason = None, None
-        if v.phase is VehiclePhase.READY and self.started_at is not None and v.join is None:
+        if v.phase is VehiclePhase.READY and self.started_at is not None and v.pad is None:
             # Ready but silent when the show started (or ended): it catches up.
             self._to(v, Event.SHOW_STARTS if not self._ended else Event.SHOW_ENDS)
         if v.phase is VehiclePhase.LANDING:

@@ -125,8 +125,9 @@ class Returns(PathsAndSpots):
         if v.phase in (VehiclePhase.ARMING, VehiclePhase.TAKEOFF):
             self._to(v, Event.LAND)
             return [self._send(v, Land(v.sysid), now)]
-        if v.join is not None and v.phase is VehiclePhase.READY:
-            # A spare over its pad, not on its way yet: straight back down onto it.
+        if v.pad is not None and v.phase is VehiclePhase.READY:
+            # A spare over its pad (at its standby point, or up and not on its way yet):
+            # straight back down onto it.
             self._to(v, Event.LAND)
             v.pending = None
             return [self._send(v, Land(v.sysid), now)]

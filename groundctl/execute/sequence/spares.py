@@ -63,9 +63,11 @@ class Spares(Failsafes):
     # -- what the driver asks -----------------------------------------------------------
     @property
     def join_needed(self) -> list[tuple[int, int, tuple[float, float, float]]]:
-        """(track, spare system id, its pad) of the first vacated track a spare can go to,
-        as of the last update; empty when none (the driver plans one join at a time, each
-        around the joins already set, leaving no sooner than it can be planned)."""
+        """(track, spare system id, where it waits) of the first vacated track a spare can
+        go to, as of the last update (its pad, from which it climbs :meth:`spare_climb`,
+        or its standby point in the air); empty when none (the driver plans one join at
+        a time, each around the joins already set, leaving no sooner than it can be
+        planned)."""
         return list(self._join_queue[:1])
 
     @property
@@ -87,7 +89,7 @@ class Spares(Failsafes):
     def dark(self, now: float) -> set[int]:
         """Spares on their way in: their LEDs stay off until they are on the plan."""
         return {v.sysid for v in self.vehicles.values()
-                if v.join is not None and v.phase in _ON_ITS_WAY}
+                if v.pad is not None and (v.standing_by or v.phase in _ON_ITS_WAY)}
 
     def set_join(self, track: int, spare: int, join: Join, now: float) -> list[Action]:
         """Send ``spare`` into ``track`` on ``join``: it arms ``join.climb_s`` before
@@ -103,14 +105,24 @@ class Spares(Failsafes):
                                                   f"to arm at show time "
                                                   f"{join.at - join.climb_s:.1f} s)", now,
                                     retry=True)
+        waiting = self.vehicles.get(spare)
+        if self.air_spares and (waiting is None or waiting.phase is not VehiclePhase.READY):
+            what = "gone" if waiting is None else str(waiting.phase)
+            return self.join_failed(track, spare, "it is not hovering at its standby point "
+                                                  f"({what})", now)
         s.sent = True
         self._join_queue = [q for q in self._join_queue if q[0] != track and q[1] != spare]
-        run = VehicleRun(spare, track, s.flavour, join=join, pad=s.pad)
-        pads = self.plan.spares.pads if self.plan.spares is not None else None
-        assert pads is not None
-        over = pads[s.pad] + np.array([0.0, 0.0, self.plan.takeoff_altitude])
-        run.landing_point = (float(over[0]), float(over[1]), float(over[2]))
-        self.vehicles[spare] = run
+        if waiting is not None:
+            # In the air at its standby point: the same run, now of the track.
+            run = waiting
+            run.track, run.join, run.hold_point = track, join, None
+        else:
+            run = VehicleRun(spare, track, s.flavour, join=join, pad=s.pad)
+            pads = self.plan.spares.pads if self.plan.spares is not None else None
+            assert pads is not None
+            over = pads[s.pad] + np.array([0.0, 0.0, self.plan.takeoff_altitude])
+            run.landing_point = (float(over[0]), float(over[1]), float(over[2]))
+            self.vehicles[spare] = run
         owner.replaced_by = spare
         self.replacements.append(Replacement(track, owner.sysid, spare, self._left_at(owner, t),
                                              plan_ms=join.plan_ms))
@@ -140,6 +152,12 @@ class Spares(Failsafes):
         return [Notice(spare, f"spare {spare} cannot take over track {track + 1}: {reason}",
                        "spare_failed", "spare could not join")]
 
+    @property
+    def spare_climb(self) -> float:
+        """How far a spare climbs from where it waits before its way in begins, m: the
+        takeoff altitude from its pad, nothing from its standby point in the air."""
+        return 0.0 if self.air_spares else self.plan.takeoff_altitude
+
     def spare_climb_s(self) -> float:
         """How long a spare sent in is given from being told to arm to hovering over its
         pad, s: the planner's figure for the climb, or, once the fleet has taken off,
@@ -160,11 +178,12 @@ class Spares(Failsafes):
         v = self.vehicles.get(sysid)
         if v is None:
             return [Notice(None, f"no vehicle {sysid} in this show")]
-        if v.join is not None and v.phase in _ON_ITS_WAY:
-            return [Notice(sysid, f"replace {sysid}: it is a spare on its way into track "
-                                  f"{v.track + 1}; land-here {sysid} brings it down")]
+        if v.pad is not None and (v.standing_by or v.phase in _ON_ITS_WAY):
+            return [Notice(sysid, f"replace {sysid}: it is a spare, not in the show yet; "
+                                  f"land-here {sysid} brings it down")]
         free = [s for s in self.standby.values()
-                if not s.sent and s.sysid in self._spares_heard and v.track not in s.tried]
+                if not s.sent and s.sysid in self._spares_heard and v.track not in s.tried
+                and self._up_if_air(s.sysid)]
         if not self.use_spares or not free:
             why = "spares are off for this flight (--no-spares)" if not self.use_spares \
                 else "no spare is ready" if self.standby else "this show has no spares"
@@ -199,12 +218,22 @@ class Spares(Failsafes):
                     continue
                 choice = self._choose(track, owner, t, actions)
                 if choice is not None and self.plan.spares is not None:
-                    pad = self.plan.spares.pads[self.standby[choice].pad]
+                    k = self.standby[choice].pad
+                    at = (self.plan.spares.points if self.air_spares
+                          else self.plan.spares.pads)[k]
                     self._join_queue.append(
-                        (track, choice, (float(pad[0]), float(pad[1]), float(pad[2]))))
+                        (track, choice, (float(at[0]), float(at[1]), float(at[2]))))
         for v in list(self.vehicles.values()):
             join = v.join
             if join is None:
+                if v.standing_by and self._ended and v.phase is VehiclePhase.READY:
+                    # An air spare never sent in: straight down onto its pad (its column
+                    # is verified clear of every takeoff and landing column).
+                    self._to(v, Event.LAND)
+                    v.pending = None
+                    actions += [Notice(v.sysid, f"spare {v.sysid} lands on its pad",
+                                       "spare_lands", "spare landing on its pad"),
+                                self._send(v, Land(v.sysid), now)]
                 continue
             if v.phase is VehiclePhase.PREFLIGHT:
                 if self._ended:
@@ -279,6 +308,13 @@ class Spares(Failsafes):
         return []
 
     # -- which tracks, which spare ---------------------------------------------------------
+    def _up_if_air(self, sysid: int) -> bool:
+        """An air spare can go only from where it waits: hovering at its point."""
+        if not self.air_spares:
+            return True
+        run = self.vehicles.get(sysid)
+        return run is not None and run.phase is VehiclePhase.READY and run.standing_by
+
     def _owner(self, track: int) -> VehicleRun | None:
         """The run flying ``track`` (or last flying it): the one not replaced."""
         owner = None
@@ -290,7 +326,7 @@ class Spares(Failsafes):
     def _vacated(self) -> list[tuple[int, VehicleRun]]:
         out = []
         for v in self.vehicles.values():
-            if v.replaced_by is not None or v.track in self.grounded_tracks:
+            if v.replaced_by is not None or v.track in self.grounded_tracks or v.standing_by:
                 continue
             if v.join is not None and v.phase in _ON_ITS_WAY:
                 continue
@@ -304,10 +340,11 @@ class Spares(Failsafes):
     def _choose(self, track: int, owner: VehicleRun, t: float,
                 notices: list[Action]) -> int | None:
         assert self.plan.spares is not None
-        pads = self.plan.spares.pads
-        views = [SpareView(s.sysid, (float(pads[s.pad][0]), float(pads[s.pad][1]),
-                                     float(pads[s.pad][2])),
-                           ready=s.sysid in self._spares_heard, busy=s.sent, on_ground=True)
+        where = self.plan.spares.points if self.air_spares else self.plan.spares.pads
+        views = [SpareView(s.sysid, (float(where[s.pad][0]), float(where[s.pad][1]),
+                                     float(where[s.pad][2])),
+                           ready=s.sysid in self._spares_heard and self._up_if_air(s.sysid),
+                           busy=s.sent, on_ground=not self.air_spares)
                  for s in self.standby.values()]
         tried = {s.sysid for s in self.standby.values() if track in s.tried}
         w = next((w for w in self.plan.formations if w.end > t), None)

@@ -176,6 +176,8 @@ class PathsAndSpots(SequenceState):
                 point = tuple(float(x) for x in self._landing_point(v))
                 return Path(PathKind.LANDING_POINT, "over its landing spot", v.track,
                             point=point)  # type: ignore[arg-type]
+        if v.standing_by and v.hold_point is not None:
+            return Path(PathKind.HOLD, "standing by at its point", v.track, point=v.hold_point)
         if v.join is not None and phase in _JOIN_PATH:
             return Path(PathKind.JOIN, "its way into the track it takes over", v.track,
                         join=v.join)

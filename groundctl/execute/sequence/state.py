@@ -13,6 +13,7 @@ from groundctl.execute.sequence.lifecycle import Event, step
 from groundctl.execute.sequence.standby import Replacement, Standby
 from groundctl.execute.sequence.types import (
     _DONE,
+    NO_TRACK,
     Action,
     Command,
     SequenceConfig,
@@ -63,6 +64,16 @@ class SequenceState:
         self.standby: dict[int, Standby] = {
             sysid: Standby(sysid, flavours[sysid], pad) for sysid, pad in sorted(spares.items())}
         """The spares ready on their pads (:mod:`~groundctl.execute.sequence.spares`)."""
+        self.air_spares = plan.spares is not None and plan.spares.standby == "air"
+        """``standby = "air"``: the spares take off with the fleet and hover at their
+        points (each a run from the start, of no track until it takes one over)."""
+        if self.air_spares and plan.spares is not None:
+            for sysid, pad in sorted(spares.items()):
+                point = plan.spares.points[pad]
+                self.vehicles[sysid] = VehicleRun(
+                    sysid, NO_TRACK, flavours[sysid], pad=pad,
+                    hold_point=(float(point[0]), float(point[1]), float(point[2])),
+                    landing_point=(float(point[0]), float(point[1]), float(point[2])))
         self.use_spares = use_spares
         self.replacements: list[Replacement] = []
         """Every track a spare was sent into, and how it went."""
@@ -204,7 +215,8 @@ class SequenceState:
         airborne, so the show is not over while one is lost."""
         # A spare on its way into a track does not set the show's phase (it arms mid-show).
         phases = {v.phase for v in self.vehicles.values()
-                  if v.join is None or v.phase not in _BEFORE_JOINING}
+                  if v.pad is None or v.phase not in _BEFORE_JOINING
+                  or (v.standing_by and not self._started_show)}
         lost = bool(self.lost)
         if not self._started:
             return ShowPhase.PREFLIGHT
@@ -215,13 +227,17 @@ class SequenceState:
         if phases & {VehiclePhase.SHOW, VehiclePhase.JOINING}:
             return ShowPhase.SHOW
         # ... but the flight is not over while a spare is up or getting up.
-        getting_up = any(v.join is not None and v.phase in _BEFORE_JOINING
+        getting_up = any(v.pad is not None and v.phase in _BEFORE_JOINING
                          and v.phase is not VehiclePhase.PREFLIGHT
                          for v in self.vehicles.values())
         if lost or getting_up or phases & {VehiclePhase.LEAVING, VehiclePhase.RETURNING,
                                            VehiclePhase.LANDING}:
             return ShowPhase.LANDING
         return ShowPhase.LANDED
+
+    @property
+    def _started_show(self) -> bool:
+        return self.clock.started_at is not None
 
     @property
     def lost(self) -> list[int]:

@@ -187,6 +187,9 @@ FENCE_NOTICE_S = 10.0
 
 #: This share of the fleet (at least two) below the battery threshold lands everyone.
 LOW_BATTERY_FLEET = 0.1
+#: The track of a spare waiting in the air before it takes one over (its run exists from
+#: the start: it takes off with the fleet and hovers at its standby point).
+NO_TRACK = -1
 #: A way out planned too late this many times is given up (no retry storm).
 MAX_LATE_LEAVES = 3
 #: ... and each time it leaves at least this much show time later than it could, doubled
@@ -343,6 +346,11 @@ class VehicleRun:
     """Our time its setpoints resumed after we had sent it none for LINK_FAILSAFE_GAP_S
     or more (our own loop starved: a PX4 vehicle then drops into its offboard-loss
     failsafe without any silence of the link)."""
+
+    @property
+    def standing_by(self) -> bool:
+        """A spare (in the air or on its pad) not sent into any track."""
+        return self.pad is not None and self.join is None
 
 
 @dataclass(frozen=True)

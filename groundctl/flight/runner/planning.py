@@ -176,7 +176,7 @@ class Planning(Commands):
         worker, leaving no sooner than the planning can be done (JOIN_LEAD_S of show time
         ahead; the worker's deadline is that much wall time)."""
         try:
-            absent, static = self._not_on_plan(seq, None)
+            absent, static = self._not_on_plan(seq, spare)  # not itself (in the air)
             # The other spares stand on their pads: obstacles like any drone on the ground.
             others = seq.pads_taken(spare)
             static = np.concatenate([static, *(column(p) for p in others)]) if others \
@@ -196,7 +196,7 @@ class Planning(Commands):
                 join = await self._planner().plan_join(
                     track, np.asarray(pad, dtype=float), earliest, wall, absent=absent,
                     leaves=seq.leaves, joins=seq.joins, static=static,
-                    climb=self.plan.takeoff_altitude, climb_s=seq.spare_climb_s(),
+                    climb=seq.spare_climb, climb_s=seq.spare_climb_s(),
                     what=f"planning spare {spare}'s way into track {track + 1}")
             except PlanningTimeout as exc:
                 self._perform(seq.join_failed(track, spare, str(exc), self.clock.now(),
@@ -252,16 +252,18 @@ class Planning(Commands):
                 continue  # on its way in (seq.joins), or still on its pad
             if path is not None and path.kind is PathKind.HOLD:
                 assert path.point is not None
-                absent.append(v.track)  # hovering where it was heard again, not on its plan
+                if v.track >= 0:  # a spare at its standby point has no track
+                    absent.append(v.track)  # hovering where it was heard again, off its plan
                 columns.append(np.array([path.point]))
             elif phase not in (VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
                                VehiclePhase.RETURNING):
-                absent.append(v.track)  # down, descending, killed, or never airborne
+                if v.track >= 0:
+                    absent.append(v.track)  # down, descending, killed, or never airborne
                 pos = positions.get(sysid)
                 home = self.plan.home[v.track] if v.pad is None or self.plan.spares is None \
                     else self.plan.spares.pads[v.pad]
                 columns.append(column(home if pos is None else pos))
-            else:
+            elif v.track >= 0:
                 flown.add(v.track)
         static = np.concatenate(columns) if columns else np.empty((0, 3))
         return [t for t in absent if t not in flown], static
