@@ -11,11 +11,12 @@ from functools import cache
 import numpy as np
 import pytest
 from test_execute_support import geo_offset, make_vehicle, set_altitude
-from test_flight_spares import spares_plan
+from test_flight_spares import air_spares_plan, spares_plan
 
 from groundctl.execute.frames import show_to_enu
 from groundctl.execute.leaving import Join
 from groundctl.execute.sequence import (
+    Action,
     Arm,
     Disarm,
     Land,
@@ -56,19 +57,31 @@ def _sequence(plan: Plan, **kwargs: object) -> ShowSequence:
     return ShowSequence(plan, tracks, flavours, spares=SPARES, **kwargs)  # type: ignore[arg-type]
 
 
+def _up(seq: ShowSequence, states: dict[int, VehicleState], sysids: list[int],
+        t: float, *, climb: bool = True) -> list[list[Action]]:
+    """``sysids`` go GUIDED at ``t``, arm at ``t + 0.1`` and (``climb``) are at the takeoff
+    altitude at ``t + 0.2``: each step seen by one update.  The updates' actions."""
+    out = []
+    for k, step in enumerate(("mode", "armed", "up")):
+        for s in sysids:
+            if step == "mode":
+                states[s].mode = "GUIDED"
+            elif step == "armed":
+                states[s].armed = True
+            elif climb:
+                set_altitude(states[s], seq.plan.takeoff_altitude)
+        out.append(seq.update(t + 0.1 * (k + 1), states))
+    return out
+
+
 def _showing(plan: Plan, **kwargs: object) -> tuple[ShowSequence, dict[int, VehicleState], float]:
     """The show clock running at our time 1.0, every show vehicle on its first point."""
     seq, states = _sequence(plan, **kwargs), _fleet(plan)
     seq.start(0.0)
-    show = [s for s in states if s not in SPARES]
-    for s in show:
-        states[s].mode = "GUIDED"
-    seq.update(0.1, states)
-    for s in show:
-        states[s].armed = True
-    seq.update(0.2, states)
-    for s in show:
-        set_altitude(states[s], plan.takeoff_altitude)
+    _up(seq, states, [s for s in states if s not in SPARES], 0.0, climb=False)
+    for s in states:
+        if s not in SPARES:
+            set_altitude(states[s], plan.takeoff_altitude)
     actions = seq.update(1.0, states)
     assert Notice(None, f"show started with {plan.drones} vehicle(s)") in actions
     return seq, states, 1.0
@@ -79,6 +92,16 @@ def _fall(seq: ShowSequence, states: dict[int, VehicleState], sysid: int, now: f
     set_altitude(states[sysid], 0.0)
     seq.update(now, states)
     assert seq.vehicles[sysid].phase is VehiclePhase.FAILED
+
+
+def _sent() -> tuple[ShowSequence, dict[int, VehicleState], Join, float]:
+    """The show running, vehicle 5 fallen, spare 10 sent into its track: the sequence,
+    the states, the join and our time the spare is due to arm."""
+    seq, states, now = _showing(spares_plan())
+    _fall(seq, states, 5, now + 1.0)
+    join = _join()
+    seq.set_join(4, 10, join, now + 1.0)
+    return seq, states, join, 1.0 + join.at - join.climb_s
 
 
 @cache
@@ -120,10 +143,8 @@ def test_a_join_is_flown_through_the_lifecycle_dark_until_it_is_on_the_track() -
     arm_at = 1.0 + join.at - join.climb_s
     assert SetMode(10, "GUIDED") not in seq.update(arm_at - 0.2, states)
     assert SetMode(10, "GUIDED") in seq.update(arm_at + 0.01, states)
-    states[10].mode = "GUIDED"
-    assert Arm(10) in seq.update(arm_at + 0.1, states)
-    states[10].armed = True
-    assert Takeoff(10, plan.takeoff_altitude) in seq.update(arm_at + 0.2, states)
+    mode, armed, _ = _up(seq, states, [10], arm_at, climb=False)
+    assert Arm(10) in mode and Takeoff(10, plan.takeoff_altitude) in armed
     set_altitude(states[10], plan.takeoff_altitude)
     seq.update(arm_at + 3.0, states)
     assert run.phase is VehiclePhase.JOINING
@@ -139,12 +160,7 @@ def test_a_join_is_flown_through_the_lifecycle_dark_until_it_is_on_the_track() -
 
 
 def test_a_spare_not_up_in_time_lands_back_on_its_pad_and_the_next_one_is_asked_for() -> None:
-    plan = spares_plan()
-    seq, states, now = _showing(plan)
-    _fall(seq, states, 5, now + 1.0)
-    join = _join()
-    seq.set_join(4, 10, join, now + 1.0)
-    arm_at = 1.0 + join.at - join.climb_s
+    seq, states, join, arm_at = _sent()
     seq.update(arm_at + 0.01, states)  # told to go GUIDED; it never does
     late = seq.update(1.0 + join.at + 1.5, states)
     assert Disarm(10) in late  # an Arm already sent may still be carried out
@@ -159,29 +175,17 @@ def test_a_spare_not_up_in_time_lands_back_on_its_pad_and_the_next_one_is_asked_
 
 def test_a_spare_up_but_past_its_instant_does_not_set_off() -> None:
     plan = spares_plan()
-    seq, states, now = _showing(plan)
-    _fall(seq, states, 5, now + 1.0)
-    join = _join()
-    seq.set_join(4, 10, join, now + 1.0)
-    arm_at = 1.0 + join.at - join.climb_s
+    seq, states, join, arm_at = _sent()
     seq.update(arm_at + 0.01, states)
-    states[10].mode = "GUIDED"
-    seq.update(arm_at + 0.1, states)
-    states[10].armed = True
-    seq.update(arm_at + 0.2, states)
+    _up(seq, states, [10], arm_at, climb=False)
     # Up only after its way in should have begun (and the late check was not reached).
     set_altitude(states[10], plan.takeoff_altitude)
     seq.update(1.0 + join.at + 0.9, states)
     assert seq.vehicles[10].phase is VehiclePhase.JOINING  # up within a second: it goes
     # ... but one up later than that lands back on its pad instead.
-    seq2, states2, now2 = _showing(plan)
-    _fall(seq2, states2, 5, now2 + 1.0)
-    seq2.set_join(4, 10, join, now2 + 1.0)
+    seq2, states2, _, _ = _sent()
     seq2.update(arm_at + 0.01, states2)
-    states2[10].mode = "GUIDED"
-    seq2.update(arm_at + 0.1, states2)
-    states2[10].armed = True
-    seq2.update(arm_at + 0.2, states2)
+    _up(seq2, states2, [10], arm_at, climb=False)
     seq2.vehicles[10].phase = VehiclePhase.READY  # up, its takeoff done, too late
     seq2.vehicles[10].pending = None
     actions = seq2.update(1.0 + join.at + 2.0, states2)  # ... one up later does not
@@ -191,18 +195,11 @@ def test_a_spare_up_but_past_its_instant_does_not_set_off() -> None:
 @pytest.mark.parametrize("phase", ["preflight", "ready", "joining"])
 def test_land_all_with_a_spare_on_its_way(phase: str) -> None:
     plan = spares_plan()
-    seq, states, now = _showing(plan)
-    _fall(seq, states, 5, now + 1.0)
-    join = _join()
-    seq.set_join(4, 10, join, now + 1.0)
-    arm_at = 1.0 + join.at - join.climb_s
-    t = now + 1.5
+    seq, states, join, arm_at = _sent()
+    t = 2.5
     if phase != "preflight":
         seq.update(arm_at + 0.01, states)
-        states[10].mode = "GUIDED"
-        seq.update(arm_at + 0.1, states)
-        states[10].armed = True
-        seq.update(arm_at + 0.2, states)
+        _up(seq, states, [10], arm_at, climb=False)
         set_altitude(states[10], plan.takeoff_altitude)
         t = arm_at + 0.3 if phase == "ready" else 1.0 + join.at + 0.5
         seq.vehicles[10].pending = None if phase == "ready" else seq.vehicles[10].pending
@@ -246,30 +243,13 @@ def test_two_drones_of_one_track_never_get_the_same_landing_spot() -> None:
     assert not np.allclose(goals[0], goals[1])
 
 
-@cache
-def _air_plan() -> Plan:
-    from groundctl.plan.spares import place_spares
-    from groundctl.show.model import SpareSettings
-
-    plan = spares_plan()
-    return replace(plan, spares=place_spares(SpareSettings(count=2, standby="air"), plan))
-
-
 def test_spares_in_the_air_take_off_with_the_fleet_wait_dark_and_land_at_the_end() -> None:
-    plan = _air_plan()
+    plan = air_spares_plan()
     assert plan.spares is not None
     seq, states = _sequence(plan), _fleet(plan)
     # Armed with everyone (ArduPilot: GUIDED first).
     assert {SetMode(s, "GUIDED") for s in SPARES} <= set(seq.start(0.0))
-    for s in states:
-        states[s].mode = "GUIDED"
-    seq.update(0.1, states)
-    for s in states:
-        states[s].armed = True
-    seq.update(0.2, states)
-    for s in states:
-        set_altitude(states[s], plan.takeoff_altitude)
-    actions = seq.update(1.0, states)
+    actions = _up(seq, states, list(states), 0.0)[-1]
     # The show starts with its nine; the spares hover at their points, dark, not in it.
     assert Notice(None, f"show started with {plan.drones} vehicle(s)") in actions
     for s, k in SPARES.items():
@@ -296,3 +276,51 @@ def test_spares_in_the_air_take_off_with_the_fleet_wait_dark_and_land_at_the_end
     actions = seq.update(1.0 + plan.duration + 0.2, states)  # ... and it is told to land
     assert Land(other) in actions
     assert seq.vehicles[other].phase is VehiclePhase.LANDING
+
+
+def _air_showing() -> tuple[ShowSequence, dict[int, VehicleState]]:
+    """Air spares hovering at their points, the show running from our time 0.3."""
+    plan = air_spares_plan()
+    seq, states = _sequence(plan), _fleet(plan)
+    seq.start(0.0)
+    _up(seq, states, list(states), 0.0)
+    assert seq.started_at is not None
+    return seq, states
+
+
+def test_no_spares_keeps_air_spares_on_their_pads() -> None:
+    plan = air_spares_plan()
+    seq = _sequence(plan, use_spares=False)
+    assert not set(SPARES) & set(seq.vehicles)
+    assert not {a.sysid for a in seq.start(0.0) if not isinstance(a, Notice)} & set(SPARES)
+
+
+def test_air_spares_lost_or_low_come_down_on_their_pads_never_on_a_return() -> None:
+    seq, states = _air_showing()
+    states[10].lost = True
+    seq.update(1.0, states)
+    assert seq.vehicles[10].phase is VehiclePhase.LOST
+    actions = seq.land_all(1.1)
+    assert Land(10) in actions and seq.vehicles[10].lost_from is VehiclePhase.LANDING
+    needed = seq.return_needed
+    assert needed is not None and all(s not in SPARES for s, _ in needed)
+    assert Land(11) in actions and seq.vehicles[11].phase is VehiclePhase.LANDING
+    # Below the show's battery minimum a spare standing by goes down, and is not chosen.
+    seq, states = _air_showing()
+    states[11].battery_remaining_pct = 15.0  # the show's minimum is 20 %
+    actions = seq.update(1.0, states)
+    assert Land(11) in actions and seq.vehicles[11].phase is VehiclePhase.LANDING
+    _fall(seq, states, 5, 1.1)
+    assert [spare for _, spare, _ in seq.join_needed] == [10]
+
+
+def test_a_show_that_cannot_start_lands_the_air_spares() -> None:
+    plan = air_spares_plan()
+    seq, states = _sequence(plan), _fleet(plan)
+    seq.start(0.0)
+    _up(seq, states, list(SPARES), 0.0)  # only the spares get up; the show's drones ...
+    for s in states:
+        if s not in SPARES:
+            seq.vehicles[s].phase = VehiclePhase.FAILED  # ... are all given up
+    actions = seq.update(1.0, states)
+    assert {Land(s) for s in SPARES} <= set(actions)

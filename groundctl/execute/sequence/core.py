@@ -78,6 +78,10 @@ class ShowSequence(Spares):
                 actions += self._armed_again(v, state, now)
         self._spares_heard = {s for s in self.standby
                               if (st := states.get(s)) is not None and not st.lost}
+        self._spares_low = {s for s in self._spares_heard
+                            if self._battery is not None
+                            and (pct := states[s].battery_remaining_pct) is not None
+                            and pct < self._battery}
         actions += self._land_all_if_stranded(now)
         actions += self._descend_columns(now)
         actions += self._maybe_start_show(now, states)

@@ -111,8 +111,12 @@ class Failsafes(OffPlan):
         """Carry out what a due low battery asks for (:mod:`.policies.battery`)."""
         v.battery_low = True
         pct, minimum = view.pct, view.minimum
-        low = [u for u in self.vehicles.values() if u.battery_low and u.phase in _STREAMED]
-        move = battery_move(view, low_in_flight=len(low), fleet=len(self.vehicles),
+        # Spares standing by are not in the show: they neither count towards land-all nor
+        # make the fleet larger.
+        low = [u for u in self.vehicles.values() if u.battery_low and u.phase in _STREAMED
+               and not u.standing_by]
+        fleet = sum(not u.standing_by for u in self.vehicles.values())
+        move = battery_move(view, low_in_flight=len(low), fleet=fleet,
                             show_over=self._ended,
                             column_clear=view.below_half and self._column_clear(v))
         if move is BatteryMove.LAND_ALL:

@@ -155,6 +155,12 @@ class OffPlan(OperatorCommands):
             self._to(v, Event.LAND)
             return [Notice(v.sysid, f"vehicle {v.sysid} is armed in the air after all: "
                                     "landing it where it is"), self._send(v, Land(v.sysid), now)]
+        if verdict in (ArmedAgain.BACK, ArmedAgain.STRANDED) and v.track < 0:
+            # A spare given up while it stood by: there is no plan to go back to.
+            self._to(v, Event.LAND)
+            return [Notice(v.sysid, f"spare {v.sysid} is armed in the air after all: landing "
+                                    "it where it is, over its pad"),
+                    self._send(v, Land(v.sysid), now)]
         if verdict is ArmedAgain.BACK and v.replaced_by is not None:
             # A spare has its track now: it holds where it is and leaves on a way out.
             pos = self._positions.get(v.sysid)

@@ -38,7 +38,7 @@ class Returns(PathsAndSpots):
         if not self._return_wanted or self._return is not None:
             return None
         return [(v.sysid, v.track) for v in self.vehicles.values()
-                if self.streamed_as(v) is VehiclePhase.RETURNING]
+                if self.streamed_as(v) is VehiclePhase.RETURNING and v.track >= 0]
 
     def return_start(self, sysid: int, now: float) -> np.ndarray:
         """Where vehicle ``sysid`` starts its return from (show frame): where its path is
@@ -130,6 +130,11 @@ class Returns(PathsAndSpots):
             # straight back down onto it.
             self._to(v, Event.LAND)
             v.pending = None
+            return [self._send(v, Land(v.sysid), now)]
+        if v.pad is not None and v.phase is VehiclePhase.LOST \
+                and v.lost_from is VehiclePhase.READY:
+            # Silent over its pad: told to land there (if it hears us); never on a return.
+            self._lost_to(v, Event.LAND)
             return [self._send(v, Land(v.sysid), now)]
         if v.leave is None:
             v.leave_at = None  # a way out not planned yet: the landing replaces it

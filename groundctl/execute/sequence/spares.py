@@ -52,6 +52,9 @@ MAX_TAKEOFF_S = 60.0
 #: Phases of a vehicle that is out of its track for good (the track is vacated).
 _OUT = frozenset({VehiclePhase.LANDING, VehiclePhase.LANDED, VehiclePhase.FAILED,
                   VehiclePhase.KILLED})
+#: Phases of a show drone that will not fly the show any more.
+_GONE = frozenset({VehiclePhase.LANDED, VehiclePhase.FAILED, VehiclePhase.KILLED,
+                   VehiclePhase.LANDING, VehiclePhase.RETURNING})
 #: Phases of a spare still on its way in (before it flies the track's plan).
 _ON_ITS_WAY = frozenset({VehiclePhase.PREFLIGHT, VehiclePhase.ARMING, VehiclePhase.TAKEOFF,
                          VehiclePhase.READY, VehiclePhase.JOINING})
@@ -210,6 +213,10 @@ class Spares(Failsafes):
             return []
         actions: list[Action] = []
         t = self.show_time(now)
+        # Before the start, no show drone left that could still start it: nothing to wait
+        # for in the air.
+        no_show = self.started_at is None and self._started and all(
+            u.phase in _GONE for u in self.vehicles.values() if u.pad is None)
         self._join_queue = []
         if self.started_at is not None and not self._ended:
             for track, owner in self._vacated():
@@ -226,12 +233,15 @@ class Spares(Failsafes):
         for v in list(self.vehicles.values()):
             join = v.join
             if join is None:
-                if v.standing_by and self._ended and v.phase is VehiclePhase.READY:
-                    # An air spare never sent in: straight down onto its pad (its column
-                    # is verified clear of every takeoff and landing column).
+                why = "the show is over" if self._ended or no_show else \
+                    "its battery is below the show's minimum" if v.sysid in self._spares_low \
+                    else None
+                if v.standing_by and why is not None and v.phase is VehiclePhase.READY:
+                    # An air spare not sent in: straight down onto its pad (its column is
+                    # verified clear of every takeoff and landing column).
                     self._to(v, Event.LAND)
                     v.pending = None
-                    actions += [Notice(v.sysid, f"spare {v.sysid} lands on its pad",
+                    actions += [Notice(v.sysid, f"spare {v.sysid} lands on its pad: {why}",
                                        "spare_lands", "spare landing on its pad"),
                                 self._send(v, Land(v.sysid), now)]
                 continue
@@ -313,7 +323,8 @@ class Spares(Failsafes):
         if not self.air_spares:
             return True
         run = self.vehicles.get(sysid)
-        return run is not None and run.phase is VehiclePhase.READY and run.standing_by
+        return run is not None and run.phase is VehiclePhase.READY and run.standing_by \
+            and sysid not in self._spares_low
 
     def _owner(self, track: int) -> VehicleRun | None:
         """The run flying ``track`` (or last flying it): the one not replaced."""
@@ -343,7 +354,8 @@ class Spares(Failsafes):
         where = self.plan.spares.points if self.air_spares else self.plan.spares.pads
         views = [SpareView(s.sysid, (float(where[s.pad][0]), float(where[s.pad][1]),
                                      float(where[s.pad][2])),
-                           ready=s.sysid in self._spares_heard and self._up_if_air(s.sysid),
+                           ready=s.sysid in self._spares_heard and self._up_if_air(s.sysid)
+                           and s.sysid not in self._spares_low,
                            busy=s.sent, on_ground=not self.air_spares)
                  for s in self.standby.values()]
         tried = {s.sysid for s in self.standby.values() if track in s.tried}

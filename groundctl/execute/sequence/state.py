@@ -67,7 +67,7 @@ class SequenceState:
         self.air_spares = plan.spares is not None and plan.spares.standby == "air"
         """``standby = "air"``: the spares take off with the fleet and hover at their
         points (each a run from the start, of no track until it takes one over)."""
-        if self.air_spares and plan.spares is not None:
+        if self.air_spares and plan.spares is not None and use_spares:
             for sysid, pad in sorted(spares.items()):
                 point = plan.spares.points[pad]
                 self.vehicles[sysid] = VehicleRun(
@@ -81,6 +81,7 @@ class SequenceState:
         self._join_queue: list[tuple[int, int, tuple[float, float, float]]] = []
         self._said_no_spare: set[int] = set()
         self._spares_heard: set[int] = set()
+        self._spares_low: set[int] = set()  # spares below the show's battery minimum
         self.takeoffs_s: list[float] = []
         """How long each vehicle took from being told to arm to hovering ready, s: a
         spare sent into a track is given the slowest of them (and more) to get up."""

@@ -254,7 +254,9 @@ class Planning(Commands):
                 assert path.point is not None
                 if v.track >= 0:  # a spare at its standby point has no track
                     absent.append(v.track)  # hovering where it was heard again, off its plan
-                columns.append(np.array([path.point]))
+                    columns.append(np.array([path.point]))
+                else:  # it may go straight down onto its pad at any moment
+                    columns.append(column(np.asarray(path.point)))
             elif phase not in (VehiclePhase.READY, VehiclePhase.SHOW, VehiclePhase.LEAVING,
                                VehiclePhase.RETURNING):
                 if v.track >= 0:

@@ -266,7 +266,8 @@ class Preflight(RunnerState):
             return
         from groundctl.execute.vehset import enforce
         flavours: dict[int, Flavour] = {}
-        for sysid in self._tracks():
+        # The spares too: one sent in flies the show, and one in the air waits in it.
+        for sysid in [*self._tracks(), *sorted(self.spares)]:
             flavour = self.link.vehicles[sysid].flavour
             assert flavour is not None  # the pre-flight's autopilot check
             flavours[sysid] = flavour
@@ -290,7 +291,15 @@ class Preflight(RunnerState):
                     [*(["fence uploaded"] if out.fence else []), *out.changed]),
                     "vehicle_settings_set", system_id=sysid, changed=out.changed,
                     fence=out.fence)
-        failures = {s: o.problems for s, o in outcomes.items() if o.problems}
+        refused = {s: o.problems for s, o in outcomes.items() if o.problems and s in self.spares}
+        for sysid, why in sorted(refused.items()):
+            # A spare whose own settings cannot be made the show's stays on its pad.
+            del self.spares[sysid]
+            self._say(f"vehicle {spell(sysid)} (spare): its settings were refused ("
+                      + "; ".join(why) + "): it stays on its pad", "spare_not_ready",
+                      system_id=sysid)
+        failures = {s: o.problems for s, o in outcomes.items()
+                    if o.problems and s not in refused}
         if failures:
             self._say("pre-flight refused: vehicle settings\n" + "\n".join(
                 f"vehicle {spell(s)}: " + "; ".join(why) for s, why in sorted(failures.items())),
