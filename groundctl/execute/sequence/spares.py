@@ -248,7 +248,7 @@ class Spares(Failsafes):
             if v.phase is VehiclePhase.PREFLIGHT:
                 if self._ended:
                     self._to(v, Event.STAND_DOWN)
-                    actions += self._spare_out(v, "the show ended before it armed", now)
+                    actions += self._spare_out(v, "the show ended before it armed")
                 elif t >= join.at - join.climb_s and self.started_at is not None:
                     self._to(v, Event.START)
                     v.started_at = now
@@ -269,9 +269,8 @@ class Spares(Failsafes):
             elif v.phase is VehiclePhase.JOINING and t >= join.until:
                 self._to(v, Event.JOINED)
                 v.landing_point = None  # it lands where its track lands
-                for r in self.replacements:
-                    if r.spare == v.sysid and r.outcome == "planned":
-                        r.joined_at, r.outcome = t, "joined"
+                if (r := self._planned(v.sysid)) is not None:
+                    r.joined_at, r.outcome = t, "joined"
                 actions.append(Notice(v.sysid, f"spare {v.sysid} joined track {v.track + 1} "
                                                f"at show time {t:.1f} s",
                                       "spare_joined", "spare joined its track"))
@@ -289,12 +288,8 @@ class Spares(Failsafes):
             if (run.phase not in _ON_ITS_WAY and run.phase is not VehiclePhase.LOST) \
                     or grounded_lost:
                 what = "lost on its pad" if grounded_lost else str(run.phase)
-                r.outcome = f"failed ({what})"
-                self.standby[r.spare].tried.add(r.track)
                 then = "the show is over" if self._ended else "the next spare tries"
-                actions.append(Notice(r.spare, f"spare {r.spare} failed on its way into track "
-                                               f"{r.track + 1} ({what}): {then}",
-                                      "spare_failed", "spare could not join"))
+                actions.append(self._replacement_failed(r, what, then))
         return actions
 
     def _late_spare(self, v: VehicleRun, now: float) -> list[Action]:
@@ -304,18 +299,25 @@ class Spares(Failsafes):
             self._to(v, Event.GIVE_UP)
             v.pending, v.never_flew = None, True  # still on its pad
             # An Arm already sent may still be carried out: disarmed on the ground.
-            return [*self._spare_out(v, v.reason, now), Disarm(v.sysid)]
+            return [*self._spare_out(v, v.reason), Disarm(v.sysid)]
         self._to(v, Event.LAND)
-        return [*self._spare_out(v, v.reason, now), self._send(v, Land(v.sysid), now)]
+        return [*self._spare_out(v, v.reason), self._send(v, Land(v.sysid), now)]
 
-    def _spare_out(self, v: VehicleRun, why: str, now: float) -> list[Action]:
-        for r in self.replacements:
-            if r.spare == v.sysid and r.outcome == "planned":
-                r.outcome = f"failed ({why})"
-                self.standby[v.sysid].tried.add(r.track)
-                return [Notice(v.sysid, f"spare {v.sysid} did not join track {r.track + 1}: "
-                                        f"{why}", "spare_failed", "spare could not join")]
-        return []
+    def _spare_out(self, v: VehicleRun, why: str) -> list[Action]:
+        r = self._planned(v.sysid)
+        return [] if r is None else [self._replacement_failed(r, why, "the next spare tries")]
+
+    def _planned(self, spare: int) -> Replacement | None:
+        """The replacement ``spare`` is on its way into, if any."""
+        return next((r for r in self.replacements
+                     if r.spare == spare and r.outcome == "planned"), None)
+
+    def _replacement_failed(self, r: Replacement, why: str, then: str) -> Notice:
+        """``r``'s spare will not join: said, and never tried on that track again."""
+        r.outcome = f"failed ({why})"
+        self.standby[r.spare].tried.add(r.track)
+        return Notice(r.spare, f"spare {r.spare} did not join track {r.track + 1} ({why}): "
+                               f"{then}", "spare_failed", "spare could not join")
 
     # -- which tracks, which spare ---------------------------------------------------------
     def _up_if_air(self, sysid: int) -> bool:
