@@ -6,11 +6,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from test_execute_support import make_plan, make_vehicle, set_altitude
+from test_execute_support import HOME, make_plan, make_vehicle, set_altitude
 
-from groundctl.execute.leaving import Leave
+from groundctl.execute.leaving import LANDING_MARGIN_M, Leave, clear_spot_near
 from groundctl.execute.sequence import (
     HOVER_BEFORE_SHOW_S,
+    MAX_REPLANS,
     Arm,
     Disarm,
     Kill,
@@ -432,18 +433,18 @@ def test_land_one_mid_show_without_a_formation_ahead_flies_on() -> None:
     assert seq.vehicles[2].phase is VehiclePhase.SHOW and req.fixed == {} and req.leaves == {}
 
 
-def _formation_plan() -> Plan:
+def _formation_plan(home: np.ndarray = HOME) -> Plan:
     """make_plan() with a formation reached at t=5 (every drone at rest there)."""
-    plan = make_plan()
+    plan = make_plan(home)
     up = FormationWindow(1, "up", 0.0, 5.0, 5.0, plan.trajectories.pos[:, 1])
     down = FormationWindow(2, "landing", 5.0, 10.0, 10.0, plan.trajectories.pos[:, 2])
     return replace(plan, formations=(up, down))
 
 
-def _in_formation_show(flavour: Flavour = ARDU
+def _in_formation_show(flavour: Flavour = ARDU, home: np.ndarray = HOME
                        ) -> tuple[Plan, dict[int, VehicleState], ShowSequence, float]:
     """Two vehicles flying :func:`_formation_plan`; returns the show's start time."""
-    plan = _formation_plan()
+    plan = _formation_plan(home)
     states = _fleet(flavour, n=2)
     seq = ShowSequence(plan, {1: 0, 2: 1}, {1: flavour, 2: flavour},
                        SequenceConfig(offboard_lead_s=1.0))
@@ -1057,6 +1058,59 @@ def test_a_landing_spot_taken_by_a_drone_down_elsewhere_calls_for_a_new_return()
     actions = seq.update(start + plan.duration + 2.0, states)
     assert Land(2) not in actions
     assert seq.return_needed == [(2, 1)]
+
+
+def test_with_no_landing_spot_free_a_drone_lands_on_the_nearest_clear_ground() -> None:
+    """The last resort once new returns are used up and no spot of the plan is free:
+    not "landing where it is" (over the drone that is down), but the nearest ground
+    clear of every drone down and every spot someone lands on."""
+    plan, states, seq, start = _in_formation_show(home=HOME[:2])
+    seq.land_here(1, start + 1.0)
+    states[1].armed = False
+    # Vehicle 1 came down between the two landing spots, too close to either.
+    mid = (plan.landing_hover[0] + plan.landing_hover[1]) / 2.0
+    _at_plan_point(states[1], seq, 0, start + 1.0)
+    states[1].position_ned = (float(mid[1]), float(mid[0]), 0.0)
+    seq.update(start + 2.0, states)
+    assert seq.vehicles[1].phase is VehiclePhase.LANDED
+    seq.update(start + plan.duration + 1.0, states)  # the show ends
+    seq._replans = MAX_REPLANS  # the new returns for a blocked spot are used up
+    slot2 = plan.landing_hover[1]
+    states[2].position_ned = (float(slot2[1]), float(slot2[0]), -float(slot2[2]))
+    actions = seq.update(start + plan.duration + 2.0, states)
+    assert Land(2) not in actions
+    assert [a.kind for a in actions if isinstance(a, Notice)] == ["clear_spot"]
+    spot = np.asarray(seq.vehicles[2].landing_point)
+    keep = plan.limits.min_separation + LANDING_MARGIN_M
+    assert np.hypot(*(spot[:2] - mid[:2])) >= keep
+    assert np.hypot(*(spot[:2] - slot2[:2])) <= keep + plan.limits.min_separation
+    assert spot[2] == pytest.approx(slot2[2])
+    # Over it, it lands.
+    states[2].position_ned = (float(spot[1]), float(spot[0]), -float(spot[2]))
+    assert Land(2) in seq.update(start + plan.duration + 3.0, states)
+
+
+def test_the_nearest_clear_ground_keeps_off_drones_down_and_inside_the_geofence() -> None:
+    plan = make_plan(HOME[:2])
+    sep = plan.limits.min_separation
+    down = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    spot = clear_spot_near(plan, np.array([0.5, 0.0, 3.0]), down=down)
+    assert spot is not None and spot[2] == 3.0
+    d = np.hypot(*(down[:, :2] - spot[:2]).T)
+    assert d.min() >= sep + LANDING_MARGIN_M
+    assert np.hypot(*(spot[:2] - [0.5, 0.0])) <= sep + LANDING_MARGIN_M + 1.0
+    # A spot someone else lands on keeps the limit too.
+    blocked = spot[None, :]
+    other = clear_spot_near(plan, np.array([0.5, 0.0, 3.0]), blocked, down)
+    assert other is not None and np.hypot(*(other[:2] - spot[:2])) >= sep
+    # Only inside the geofence: a fence around the drones down leaves no clear ground.
+    fenced = replace(plan, limits=replace(plan.limits, geofence=(
+        (-1.0, -1.0), (2.0, -1.0), (2.0, 1.0), (-1.0, 1.0))))
+    assert clear_spot_near(fenced, np.array([0.5, 0.0, 3.0]), down=down) is None
+    wider = replace(plan, limits=replace(plan.limits, geofence=(
+        (-1.0, -1.0), (6.0, -1.0), (6.0, 1.0), (-1.0, 1.0))))
+    inside = clear_spot_near(wider, np.array([0.5, 0.0, 3.0]), down=down)
+    assert inside is not None and -1.0 <= inside[0] <= 6.0 and -1.0 <= inside[1] <= 1.0
 
 
 def _landing_after_show(flavour: Flavour = ARDU) -> tuple[ShowSequence, dict[int, VehicleState]]:

@@ -150,10 +150,10 @@ def test_a_join_is_flown_through_the_lifecycle_dark_until_it_is_on_the_track() -
     assert run.phase is VehiclePhase.JOINING
     req = seq.stream_request(arm_at + 3.0)
     assert 10 in req.sysids and req.paths[10].kind == "join"
-    assert seq.dark(arm_at + 3.0) == {10}
+    assert seq.dark(arm_at + 3.0) == {5, 10}  # the spare on its way, the drone that fell
     joined = seq.update(1.0 + join.until + 0.01, states)
     assert [a.kind for a in joined if isinstance(a, Notice)] == ["spare_joined"]
-    assert run.phase is VehiclePhase.SHOW and seq.dark(1.0 + join.until) == set()
+    assert run.phase is VehiclePhase.SHOW and seq.dark(1.0 + join.until) == {5}
     assert seq.stream_request(1.0 + join.until + 0.1).paths[10].kind == "plan"
     (r,) = seq.spares_report()["replacements"]  # type: ignore[misc]
     assert r["outcome"] == "joined" and r["spare"] == 10 and r["failed"] == 5
@@ -241,6 +241,23 @@ def test_two_drones_of_one_track_never_get_the_same_landing_spot() -> None:
     start = plan.landing_hover[[4, 4]] + np.array([[0.0, 0.0, 2.0], [3.0, 0.0, 2.0]])
     goals = assign_landing(plan, [4, 4], start, np.zeros((0, 3)))
     assert not np.allclose(goals[0], goals[1])
+
+
+def test_a_drone_that_leaves_the_show_goes_dark_and_the_fleet_lands_lit() -> None:
+    """Out of the show while it runs (it fell, the operator brought it down), a drone's
+    LEDs are off for the rest of the flight; at land-all the others land in their
+    colours as they always have."""
+    plan = spares_plan()
+    seq, states, now = _showing(plan, use_spares=False)
+    assert seq.dark(now + 0.5) == set()
+    _fall(seq, states, 5, now + 1.0)
+    assert seq.dark(now + 1.0) == {5}
+    seq.land_here(2, now + 1.5)
+    assert seq.vehicles[2].phase is VehiclePhase.LANDING
+    assert seq.dark(now + 1.5) == {2, 5}
+    seq.land_all(now + 2.0)
+    seq.update(now + 2.1, states)
+    assert seq.dark(now + 2.1) == {2, 5}
 
 
 def test_spares_in_the_air_take_off_with_the_fleet_wait_dark_and_land_at_the_end() -> None:

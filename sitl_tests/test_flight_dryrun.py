@@ -392,7 +392,11 @@ def test_land_one_mid_show_leaves_around_the_others_and_lands_on_its_spot(
         seen["sysid"] = sysid
         runner.land_one(sysid)
         await until(runner, lambda: seq.vehicles[sysid].phase is VehiclePhase.LEAVING)
-        seen["left_at"] = show_time(runner)
+        seen["left_at"] = left_at = show_time(runner)
+        # On its way out it is dark (a stray pixel otherwise); the others show the show.
+        await until(runner, lambda: show_time(runner) > left_at + 1.0)
+        ids, (_, leds) = sim.get("sysids"), sim.call("truth")
+        seen["leds"] = {s: led for s, (led, _) in zip(ids, leds, strict=True)}
         await until(runner, lambda: seq.vehicles[sysid].phase is VehiclePhase.LANDED)
         seen["landed_at"] = show_time(runner)
         seen["others"] = sorted({str(v.phase) for s, v in seq.vehicles.items() if s != sysid})
@@ -411,6 +415,8 @@ def test_land_one_mid_show_leaves_around_the_others_and_lands_on_its_spot(
     assert first.arrive - 1e-6 <= seen["left_at"] <= first.end + 0.5
     assert seen["landed_at"] < plan.duration and seen["others"] == ["show"]
     assert np.linalg.norm(seen["down_at"][:2] - seen["spot"][:2]) < 0.5
+    assert seen["leds"][seen["sysid"]] == (0, 0, 0)
+    assert all(led != (0, 0, 0) for s, led in seen["leds"].items() if s != seen["sysid"])
 
 
 @pytest.mark.parametrize("flavour", flavours(Flavour.PX4))

@@ -143,3 +143,29 @@ def test_a_send_the_link_refuses_costs_only_that_send() -> None:
 def test_link_delays_are_half_the_round_trip_bounded() -> None:
     rtts = {1: 0.04, 2: None, 3: 5.0, 4: -0.01}
     assert link_delays(rtts.get, [1, 2, 3, 4, 9]).tolist() == [0.02, 0.0, 1.0, 0.0, 0.0]
+
+
+def test_a_dark_vehicle_no_longer_streamed_is_turned_off_and_kept_off() -> None:
+    """A drone that left the show and came down in its own land mode is not streamed any
+    more: its LEDs are turned off all the same, refreshed once a second, and a dark
+    vehicle still streamed gets no colour change of its track."""
+    async def main() -> None:
+        clock = ManualClock(100.0)
+        sent = Sent(clock)
+        leds = stage(clock, sent)
+        lit = np.array([ORANGE] * 3)
+        leds.tick(100.0, None, list(SYSIDS), lit)
+        assert all(c == ORANGE for _, _, c in sent.log)
+        sent.log.clear()
+        streamed = [s for s in SYSIDS if s != 12]
+        leds.tick(100.1, None, streamed, lit[:2], dark={12, 13})
+        assert sorted(sent.log) == [(100.0, 12, BLACK), (100.0, 13, BLACK)]
+        sent.log.clear()
+        leds.tick(100.2, None, streamed, lit[:2], dark={12, 13})
+        assert sent.log == []  # off already: nothing again before the refresh
+        clock.advance(1.0)
+        leds.tick(101.2, None, streamed, lit[:2], dark={12, 13})
+        assert sorted(s for _, s, c in sent.log if c == BLACK) == [12, 13]
+        assert all(c == BLACK for _, s, c in sent.log if s != 11)
+
+    asyncio.run(main())

@@ -15,10 +15,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from groundctl.plan.feasibility import min_transition_time
 from groundctl.plan.plan import Plan
 from groundctl.plan.trajectory import Trajectories
+from groundctl.plan.verify import inside_polygon
 from groundctl.show.model import Limits, QuadrotorModel
 
 FloatArray = NDArray[np.float64]
@@ -161,6 +163,38 @@ def landing_candidates(plan: Plan) -> NDArray[np.float64]:
 #: descends (measured: a spot 1.5 m from a drone that came down by land-here, at a 1.5 m
 #: limit, was landed on 1.49 m from it).
 LANDING_MARGIN_M = 0.3
+
+
+#: The last resort's search for a clear spot around a drone: lattice steps of this many
+#: separation limits ...
+CLEAR_STEP = 0.5
+#: ... out to this many separation limits from it.
+CLEAR_REACH = 20.0
+
+
+def clear_spot_near(plan: Plan, point: FloatArray, blocked: FloatArray | None = None,
+                    down: FloatArray | None = None) -> FloatArray | None:
+    """The point nearest ``point`` (its altitude kept) on a lattice around it whose column
+    keeps what :func:`free_spots` keeps from ``blocked`` and ``down``, inside the show's
+    geofence if it has one; None when there is none within CLEAR_REACH separation limits.
+    For a drone with no landing candidate left: landing where it hovers could put it on
+    a drone that is down."""
+    sep = plan.limits.min_separation
+    steps = np.arange(-CLEAR_REACH, CLEAR_REACH + 1e-9, CLEAR_STEP) * sep
+    dx, dy = np.meshgrid(steps, steps)
+    offsets = np.column_stack([dx.ravel(), dy.ravel()])
+    offsets = offsets[np.argsort(np.hypot(offsets[:, 0], offsets[:, 1]), kind="stable")]
+    spots = np.column_stack([offsets + np.asarray(point, dtype=float)[:2],
+                             np.full(len(offsets), float(point[2]))])
+    keep = np.ones(len(spots), dtype=bool)
+    for points, clearance in ((blocked, sep), (down, sep + LANDING_MARGIN_M)):
+        if points is not None and len(points):
+            d, _ = cKDTree(np.asarray(points, dtype=float)[:, :2]).query(spots[:, :2])
+            keep &= d >= clearance
+    if plan.limits.geofence is not None:
+        keep &= inside_polygon(np.asarray(plan.limits.geofence, dtype=float), spots[:, :2])
+    hits = np.flatnonzero(keep)
+    return spots[hits[0]] if len(hits) else None
 
 
 def free_spots(plan: Plan, candidates: NDArray[np.float64],

@@ -212,6 +212,9 @@ class FlightMonitor:
         self.last_positions: tuple[float, list[int], FloatArray] | None = None
         """(time, system ids, show-frame positions) of the last :meth:`observe`."""
         self._led_shown: dict[int, float | None] = {}
+        self.dark: Collection[int] = frozenset()
+        """Vehicles the ground station keeps dark (spares on their way in, drones that
+        left the show): their LEDs are not timed against their track's colours."""
 
     def add(self, sysid: int, track: int) -> None:
         """``sysid`` (a spare) flies ``track`` from now on; its own figures start now."""
@@ -282,7 +285,7 @@ class FlightMonitor:
         ``show_time_of`` is ``changed_at`` on the show clock (None before the
         show clock started: takeoff colours are not timed).
         """
-        if sysid not in self.tracks or changed_at is None:
+        if sysid not in self.tracks or changed_at is None or sysid in self.dark:
             return
         if self._led_shown.get(sysid) == changed_at:
             return

@@ -90,9 +90,28 @@ class Spares(Failsafes):
                      for v in self.vehicles.values())
 
     def dark(self, now: float) -> set[int]:
-        """Spares on their way in: their LEDs stay off until they are on the plan."""
-        return {v.sysid for v in self.vehicles.values()
-                if v.pad is not None and (v.standing_by or v.phase in _ON_ITS_WAY)}
+        """Vehicles whose LEDs stay off whatever their track shows: spares until they are
+        on the plan, and every drone that left the show while it ran (from its way out's
+        instant, or as it came down, fell or was killed) for the rest of the flight -- a
+        drone on its way out lit in its track's colours is a stray pixel, and two when a
+        spare takes the track over.  At the show's end or at land-all the fleet lands in
+        its colours, as it always has."""
+        if self.started_at is not None and not self._ended:
+            t: float | None = None
+            for v in self.vehicles.values():
+                if v.sysid in self._gone_dark or v.track < 0 \
+                        or v.track in self.grounded_tracks:
+                    continue
+                if v.phase in _OUT:
+                    self._gone_dark.add(v.sysid)
+                elif v.leave is not None:
+                    t = self.show_time(now) if t is None else t
+                    if t >= v.leave.at:
+                        self._gone_dark.add(v.sysid)
+        spares = {v.sysid for v in self.vehicles.values()
+                  if v.pad is not None and (v.standing_by or v.phase in _ON_ITS_WAY)} \
+            if self.standby else set()
+        return spares | self._gone_dark
 
     def set_join(self, track: int, spare: int, join: Join, now: float) -> list[Action]:
         """Send ``spare`` into ``track`` on ``join``: it arms ``join.climb_s`` before

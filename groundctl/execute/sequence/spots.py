@@ -8,7 +8,7 @@ from collections.abc import Collection
 
 import numpy as np
 
-from groundctl.execute.leaving import free_spots, landing_candidates
+from groundctl.execute.leaving import clear_spot_near, free_spots, landing_candidates
 from groundctl.execute.paths import Path, PathKind, plan_path
 from groundctl.execute.sequence.lifecycle import Event
 from groundctl.execute.sequence.state import SequenceState
@@ -248,13 +248,33 @@ class PathsAndSpots(SequenceState):
                            "landing spot taken by a drone that is down: planning new spots")]
         spot = self.nearest_free_spot(v)
         if spot is None:
-            self._to(v, Event.LAND)
-            v.reason = "no free landing spot left"
-            return [Notice(v.sysid, f"vehicle {v.sysid}: no free landing spot left: landing "
-                                    "where it is; watch it"), self._send(v, Land(v.sysid), now)]
+            spot = self.clear_spot(v)
+            if spot is None:
+                self._to(v, Event.LAND)
+                v.reason = "no free landing spot left"
+                return [Notice(v.sysid, f"vehicle {v.sysid}: no free landing spot left: "
+                                        "landing where it is; watch it"),
+                        self._send(v, Land(v.sysid), now)]
+            v.landing_point, v.returning_since = spot, now
+            return [Notice(v.sysid, f"vehicle {v.sysid}: no landing spot of the plan is free; "
+                                    f"moving to the nearest clear ground ({spot[0]:.1f}, "
+                                    f"{spot[1]:.1f}) to land", "clear_spot",
+                           "no free landing spot: landing on the nearest clear ground")]
         v.landing_point, v.returning_since = spot, now
         return [Notice(v.sysid, f"vehicle {v.sysid}: its landing spot is taken; moving to the "
                                 f"nearest free spot ({spot[0]:.1f}, {spot[1]:.1f}) to land")]
+
+    def clear_spot(self, v: VehicleRun) -> tuple[float, float, float] | None:
+        """The nearest point to where ``v`` hovers clear of every drone down and every
+        spot someone else lands on (:func:`clear_spot_near`): when no landing candidate
+        of the plan is free."""
+        pos = self._positions.get(v.sysid)
+        here = self._landing_point(v) if pos is None else \
+            np.array([pos[0], pos[1], self._landing_point(v)[2]])
+        spot = clear_spot_near(self.plan, here,
+                               np.array(self.reserved_spots({v.sysid})).reshape(-1, 3),
+                               np.array(self.down_positions(v)).reshape(-1, 3))
+        return None if spot is None else (float(spot[0]), float(spot[1]), float(spot[2]))
 
     def nearest_free_spot(self, v: VehicleRun) -> tuple[float, float, float] | None:
         """The closest landing candidate (plan landing spots, then takeoff slots) clear of

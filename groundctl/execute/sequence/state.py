@@ -82,6 +82,7 @@ class SequenceState:
         self._said_no_spare: set[int] = set()
         self._spares_heard: set[int] = set()
         self._spares_low: set[int] = set()  # spares below the show's battery minimum
+        self._gone_dark: set[int] = set()  # left the show mid-show: LEDs off from then on
         self.takeoffs_s: list[float] = []
         """How long each vehicle took from being told to arm to hovering ready, s: a
         spare sent into a track is given the slowest of them (and more) to get up."""

@@ -57,11 +57,13 @@ class LedSends:
         tick, ``rgb`` their colours of the tick (n, 3, 0..255); ``show_time`` is the show
         clock's time when it runs at full rate (None: held, braking, before the show or
         after it, when the tick's own colours are sent as they change); ``dark``: vehicles
-        whose LEDs stay off whatever their track shows (spares on their way in)."""
+        whose LEDs stay off whatever their track shows (spares on their way in, drones
+        that left the show), streamed or not."""
         schedule = self.schedule
         if dark:
             rgb = np.array(rgb, dtype=np.uint8, copy=True)
             rgb[[i for i, s in enumerate(streamed) if s in dark]] = 0
+            self._dark_unstreamed(dark, streamed, now)
         if show_time is None or schedule is None:
             self.cancel()
             for sysid, (r, g, b) in self.tracker.due(streamed, rgb, now):
@@ -103,6 +105,21 @@ class LedSends:
                     or (sysid in dark and last[0] != (0, 0, 0)):
                 c = (0, 0, 0) if sysid in dark else colours[rows_of[sysid]]
                 self._send(sysid, (int(c[0]), int(c[1]), int(c[2])), now)
+
+    def _dark_unstreamed(self, dark: Collection[int], streamed: Sequence[int],
+                         now: float) -> None:
+        """Off, for the dark vehicles no longer streamed (down, coming down in their own
+        land mode): sent as they go dark, then refreshed like any colour."""
+        if len(dark) == 0:
+            return
+        on = set(streamed)
+        for sysid in dark:
+            if sysid in on:
+                continue
+            last = self.tracker.last(sysid)
+            if last is None or last[0] != (0, 0, 0) \
+                    or now - last[1] >= self.tracker.refresh_s:
+                self._send(sysid, (0, 0, 0), now)
 
     def _send_group(self, items: list[tuple[int, Colour]]) -> None:
         """Send ``items`` (system id, colour), their instant come."""

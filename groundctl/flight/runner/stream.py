@@ -69,11 +69,13 @@ class Streaming(LinkTiming):
                                     if req.clock is not None and not req.ended else None)
             # LED colours on the show clock at the vehicle while it runs at full rate;
             # otherwise the tick's own.
+            dark = seq.dark(now)
+            self.monitor.dark = dark
             running = seq.started_at is not None and not seq.ended \
                 and seq.clock.at(now).rate >= 1.0
             self._leds.tick(now, seq.show_time(now) if running else None,
                             [sp.sysids[i] for i in rows], sp.rgb[rows],
-                            seq.dark(now) if seq.standby else ())
+                            dark)
         # A set: the monitor and the leads ask it of every vehicle (a list was O(n²)).
         in_show = frozenset(s for s, v in seq.vehicles.items()
                             if v.phase is VehiclePhase.SHOW) \
