@@ -113,15 +113,16 @@ def test_a_column_counts_by_the_nearest_it_can_be(plan: Plan) -> None:
 def test_a_join_waits_until_the_failed_drone_has_left_its_slot(plan: Plan) -> None:
     """The failed drone hovers on its ring slot until show time 9 (heard again off its
     plan, held), then takes its way out: joining the ring at 8.4 s would meet it; the
-    spare takes the square instead, and the check covers its way out too."""
+    spare takes the track over after the ring, on its way to the square, and the check
+    covers the failed drone's way out too."""
     assert plan.spares is not None
     slot = plan.formations[0].goals[TRACK]
     leave = plan_leave(plan, TRACK, 9.0, {}, start=slot)
     assert leave.held
     join = plan_join(plan, TRACK, plan.spares.points[0], earliest=3.0,
                      leaves={TRACK: leave})
-    square = plan.formations[1]
-    assert square.arrive <= join.until <= square.end
+    ring, square = plan.formations[0], plan.formations[1]
+    assert ring.end < join.until <= square.end
     hovering = Moving(leave.trajectory, leave.at, 3.0, leave.until)
     path = Moving(join.trajectory, join.at, join.at, join.until)
     assert _dense_gap(plan, path, join.at, join.until, [], [hovering]) \
@@ -130,12 +131,50 @@ def test_a_join_waits_until_the_failed_drone_has_left_its_slot(plan: Plan) -> No
 
 def test_a_join_that_meets_a_drone_is_refused_and_retried_later(plan: Plan) -> None:
     """A drone down on the ground is no obstacle to a join in the air; one hovering at
-    the ring slot (another spare, say) is, for the ring: the square is taken."""
+    the ring slot (another spare, say) is, for the ring: the track is taken over on its
+    way from the ring to the square, once it is clear of the ring slot."""
     assert plan.spares is not None
-    ring_slot = plan.formations[0].goals[TRACK]
+    ring, square = plan.formations[0], plan.formations[1]
+    ring_slot = ring.goals[TRACK]
     join = plan_join(plan, TRACK, plan.spares.points[0], earliest=3.0,
                      static=ring_slot[None, :] + np.array([[0.0, 0.0, 0.5]]))
-    assert join.until >= plan.formations[1].arrive
+    assert ring.end < join.until <= square.arrive
+
+
+def test_a_spare_takes_a_track_over_in_motion_between_two_formations(plan: Plan) -> None:
+    """Between the ring and the square the track is in motion: the spare arrives on it
+    with its velocity and acceleration (no jump in its setpoints), sooner than the
+    square's rest, clear of everyone and within the limits the whole way."""
+    assert plan.spares is not None
+    ring, square = plan.formations[0], plan.formations[1]
+    start = plan.spares.points[0]
+    windows = join_windows(plan, TRACK, start, ring.end - 2.0)
+    moving = [w for w in windows if w.arrive < square.arrive]
+    assert moving and all(np.linalg.norm(w.vel) > 0.0 for w in moving)
+    join = plan_join(plan, TRACK, start, earliest=ring.end - 2.0,
+                     static=plan.spares.points[1:])
+    assert ring.end < join.until < square.arrive
+    assert join.until == pytest.approx(moving[0].arrive)
+    p1, v1, _ = join.state(join.until)
+    mine = plan.state_at(join.until)
+    assert np.allclose(p1, mine.pos[TRACK], atol=1e-6)
+    assert np.allclose(v1, mine.vel[TRACK], atol=1e-6)
+    assert np.linalg.norm(v1) > 0.5
+    # Its last step accelerates as the track does there (within the QP's tolerance).
+    tau = np.linspace(join.trajectory.end - 0.05, join.trajectory.end - 1e-6, 5)
+    a_end = join.trajectory.evaluate(tau)[2][0]
+    assert np.abs(a_end - mine.acc[TRACK]).max() < 0.3
+    # Within the limits, on a fine grid.
+    t = np.linspace(0.0, join.trajectory.end, 4001)
+    _, v, a = join.trajectory.evaluate(t)
+    lim = plan.limits
+    assert np.linalg.norm(v[0, :, :2], axis=1).max() <= lim.max_speed_h + 1e-3
+    assert v[0, :, 2].max() <= lim.max_speed_up + 1e-3
+    assert -v[0, :, 2].max() <= lim.max_speed_down + 1e-3
+    assert np.linalg.norm(a[0], axis=1).max() <= lim.max_accel + 1e-2
+    others = [j for j in range(plan.drones) if j != TRACK]
+    path = Moving(join.trajectory, join.at, join.at, join.until)
+    assert _dense_gap(plan, path, join.at, join.until, others) >= plan.limits.min_separation
 
 
 def test_no_window_left_is_one_line(plan: Plan) -> None:

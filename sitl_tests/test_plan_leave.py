@@ -36,6 +36,32 @@ def test_a_drone_crosses_a_line_of_moving_drones_without_touching_them() -> None
     assert res.max_slack < 5e-3
 
 
+def test_a_drone_handed_over_in_motion_arrives_with_the_velocity_asked() -> None:
+    """A spare joining a track mid-transition: it crosses the moving line and arrives at
+    its goal with the track's velocity and the last step's acceleration, within the
+    limits; an end state it cannot reach in the time is a PlanningError."""
+    start, goal = np.array([[0.0, -5.0, 10.0]]), np.array([[2.0, 5.0, 11.0]])
+    vel, acc = np.array([[1.5, 1.0, 0.2]]), np.array([[0.4, -0.3, 0.0]])
+    res = plan_among(1, "join", start, goal, 8.0, LIM, PlannerSettings(), _line_flying_east,
+                     goal_vel=vel, goal_acc=acc)
+    tr = res.trajectories
+    np.testing.assert_allclose(tr.pos[0, [0, -1]], [start[0], goal[0]])
+    np.testing.assert_allclose(tr.vel[0, 0], 0.0, atol=1e-9)
+    np.testing.assert_allclose(tr.vel[0, -1], vel[0], atol=1e-9)
+    t = np.linspace(0.0, 8.0, 4001)
+    p, v, a = tr.evaluate(t)
+    np.testing.assert_allclose(a[0, -1], acc[0], atol=0.05)
+    assert np.linalg.norm(v[0, :, :2], axis=1).max() <= LIM.max_speed_h + 1e-3
+    assert np.linalg.norm(a[0], axis=1).max() <= LIM.max_accel + 1e-2
+    closest = float(np.linalg.norm(_line_flying_east(t) - p[0][None], axis=2).min())
+    assert closest >= 1.5 - 1e-3
+    # Arriving 4 m/s the wrong way after 2 s from rest 0.5 m behind: beyond the limits.
+    with pytest.raises(PlanningError):
+        plan_among(1, "join", np.array([[0.0, 0.0, 10.0]]), np.array([[0.5, 0.0, 10.0]]),
+                   2.0, LIM, PlannerSettings(), lambda times: np.zeros((0, len(times), 3)),
+                   goal_vel=np.array([[-4.0, 0.0, 0.0]]))
+
+
 def test_leave_time_is_the_next_rest_on_a_formation_that_leaves_time_to_get_home() -> None:
     plan = quick_plan()
     ring, square, _landing = plan.formations

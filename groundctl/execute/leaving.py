@@ -70,7 +70,8 @@ class Leave:
 @dataclass(frozen=True)
 class Join:
     """A spare's way into ``track``: ``trajectory`` (one row, time 0 at show time ``at``)
-    from where it waits to the track's slot, reached at rest at show time :attr:`until`;
+    from where it waits onto the track's plan, reached at show time :attr:`until` in the
+    track's own state there (at rest at a formation's slot, or in motion between two);
     the track's plan after that."""
 
     track: int

@@ -2,13 +2,15 @@
 
 When a show drone leaves its track (a way out, a fall, a lost link), a spare waiting
 beside the show (:mod:`groundctl.plan.spares`) can fly its part from the next moment
-it can reach: :func:`plan_join` looks, formation by formation, for the earliest show
-time ``until`` at which the spare, starting at rest where it waits, can be at the
-track's slot at rest -- quadrotor transitions are rest to rest, so every formation's
-arrival and hold is such a moment -- and plans the path there with the show's own SCP
-planner among every drone that keeps flying (:func:`~groundctl.plan.scp_quad.plan_among`:
-the others on their plans, on their ways out, or on their own joins, and the points
-where drones hover or lie).  From ``until`` on the spare flies the track's plan.
+it can reach: :func:`plan_join` looks, earliest first, for the show time ``until`` at
+which the spare, starting at rest where it waits, can be on the track's plan in the
+track's own state there -- at a formation's slot while it rests (its arrival and hold),
+or in motion on the way into it (position, velocity and the acceleration of its last
+step: :func:`join_windows`) -- and plans the path there with the show's own SCP planner
+among every drone that keeps flying (:func:`~groundctl.plan.scp_quad.plan_among`: the
+others on their plans, on their ways out, or on their own joins, and the points where
+drones hover or lie).  From ``until`` on the spare flies the track's plan, its
+setpoints without a jump.
 
 Nothing is taken on trust: the path, and the track's plan from ``until`` on while the
 failed drone is still on its way out, are checked against every obstacle exactly in
@@ -24,9 +26,11 @@ decides when and which spare, runs this in a worker with a deadline, and flies i
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -53,10 +57,26 @@ from groundctl.plan.verify import (
 from groundctl.show.model import PlannerSettings
 
 FloatArray = NDArray[np.float64]
+log = logging.getLogger(__name__)
 
 #: The least a join is planned to last, s: time for the spare's autopilot to settle
 #: from its hover onto the path.
 MIN_JOIN_S = 4.0
+#: Chances to join a track in motion, per transition (before its formation's rest) ...
+MOVING_WINDOWS = 3
+#: ... this far apart in show time, s (the first on a grid of MOVING_GRID_S).
+MOVING_STEP_S = 2.0
+MOVING_GRID_S = 0.5
+#: A join in motion is given this many SCP iterations (one into a crowd in motion that
+#: does not converge in these does not in 30 either: 1,000 drones, 0.2-1.6 m of slack
+#: left after 30) ...
+MOVING_ITERATIONS = 12
+#: ... and windows in motion are tried only while planning has taken less than this, s
+#: (each is a full SCP among every drone: about 0.3 s at 1,000 drones).
+MOVING_BUDGET_S = 1.0
+#: A track slower than this, m/s, is at rest there (a formation's hold): the formation's
+#: own window covers it.
+MOVING_MIN_SPEED = 1e-3
 
 @dataclass(frozen=True)
 class Moving:
@@ -212,22 +232,66 @@ def _closest_rows(d: FloatArray) -> tuple[float, int, float]:
     return best, best_row, best_s
 
 
+class JoinWindow(NamedTuple):
+    """One chance to take a track over: leave where it waits at show time ``leave``,
+    be on the track's plan from ``arrive``, at ``slot`` with the plan's velocity
+    ``vel`` and acceleration ``acc`` there (zero at a formation's rest)."""
+
+    leave: float
+    arrive: float
+    slot: FloatArray
+    vel: FloatArray
+    acc: FloatArray
+
+
 def join_windows(plan: Plan, track: int, start: FloatArray, earliest: float,
-                 vacating: Leave | None = None) -> list[tuple[float, float, FloatArray]]:
-    """(leave, arrive, slot): show times and the track's slot of each chance to join
-    ``track`` from ``start`` (at rest) no sooner than ``earliest``: per formation, the
-    earliest arrival at the track's slot while it rests there (its arrival to the end of
-    its hold), with the time a way home of that length would be given
+                 vacating: Leave | None = None) -> list[JoinWindow]:
+    """Each chance to join ``track`` from ``start`` (at rest) no sooner than ``earliest``,
+    earliest arrival first.  Per formation, the earliest arrival at the track's slot
+    while it rests there (its arrival to the end of its hold); before it, in the
+    transition the track flies to it, up to :data:`MOVING_WINDOWS` instants
+    :data:`MOVING_STEP_S` apart at which the spare arrives on the track in motion.  Each
+    is given the time a way home of that length would be
     (:func:`~groundctl.execute.leaving.return_duration`), at least :data:`MIN_JOIN_S`;
     the spare waits where it is until it must leave.  ``vacating``: the failed drone's
-    own way out; a formation it leaves during its hold also offers the moment its slot
-    is clear again (the limit plus the join's margin away)."""
-    out = []
+    own way out; no moving window comes before it leaves, and a formation it leaves
+    during its hold also offers the moment its slot is clear again (the limit plus the
+    join's margin away)."""
+    out: list[JoinWindow] = []
     clear = plan.limits.min_separation + TRACKING_MARGIN_M
+    still = np.zeros(3)
+
+    def need(goal: FloatArray) -> float:
+        return max(return_duration(plan, start[None, :], goal[None, :]), MIN_JOIN_S)
+
+    moved_from = 0.0  # where the transition into the next formation begins
+    last = plan.formations[-1].index if plan.formations else None
     for w in plan.formations:
         goal = w.goals[track]
-        need = max(return_duration(plan, start[None, :], goal[None, :]), MIN_JOIN_S)
-        arrivals = [max(earliest + need, w.arrive)]
+        # In motion, on the way into this formation (not into the landing: the fleet is
+        # coming down, and the failed drone may be down on the track's spot).
+        times = np.arange(moved_from + MOVING_GRID_S, w.arrive - MOVING_STEP_S / 2,
+                          MOVING_GRID_S) if w.index != last else np.zeros(0)
+        if len(times):
+            pos, vel, acc = plan.trajectories.evaluate(times, np.array([track]))
+            taken, previous = 0, -math.inf
+            for k, t in enumerate(times):
+                if taken == MOVING_WINDOWS or t >= plan.duration:
+                    break
+                if t < previous + MOVING_STEP_S - 1e-9:
+                    continue
+                if np.linalg.norm(vel[0, k]) < MOVING_MIN_SPEED:
+                    continue  # at rest: the formation's window covers it
+                if vacating is not None and t <= vacating.at:
+                    continue  # the failed drone is still on the track there
+                lead = need(pos[0, k])
+                if t - lead >= earliest:
+                    out.append(JoinWindow(float(t) - lead, float(t), pos[0, k], vel[0, k],
+                                          acc[0, k]))
+                    taken, previous = taken + 1, float(t)
+        moved_from = w.end
+        need_w = need(goal)
+        arrivals = [max(earliest + need_w, w.arrive)]
         if vacating is not None and vacating.at < w.end:
             t = np.arange(max(vacating.at, w.arrive), w.end + 1e-9, 0.05)
             gone = np.linalg.norm(vacating.position(t) - goal, axis=1) >= clear
@@ -235,8 +299,8 @@ def join_windows(plan: Plan, track: int, start: FloatArray, earliest: float,
                 arrivals.append(max(float(t[int(np.argmax(gone))]), arrivals[0]))
         for arrive in sorted(set(arrivals)):
             if arrive <= w.end + 1e-9 and arrive < plan.duration:
-                out.append((arrive - need, arrive, goal))
-    return out
+                out.append(JoinWindow(arrive - need_w, arrive, goal, still, still))
+    return sorted(out, key=lambda j: j.arrive)
 
 
 def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
@@ -272,8 +336,16 @@ def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
     flown = np.array([j for j in range(plan.drones) if j not in gone], dtype=np.intp)
     limit = plan.limits.min_separation
     reasons: list[str] = []
-    for leave_at, arrive, goal in join_windows(plan, track, start, earliest + climb_s,
-                                               leaves.get(track)):
+    said = 0
+    for leave_at, arrive, goal, goal_vel, goal_acc in join_windows(
+            plan, track, start, earliest + climb_s, leaves.get(track)):
+        if len(reasons) > said:
+            said = len(reasons)
+            log.debug("join of track %d: %s (%.0f ms so far)", track + 1, reasons[-1],
+                      (time.perf_counter() - t_start) * 1000.0)
+        moving_end = bool(np.any(goal_vel))
+        if moving_end and time.perf_counter() - t_start > MOVING_BUDGET_S:
+            continue  # tried long enough in motion: the formations' rests are left
         moving: list[Moving] = []
         for j, lv in leaves.items():
             moving += _leave_pieces(plan, j, lv, leave_at - climb_s, plan.duration)
@@ -302,7 +374,12 @@ def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
         try:
             result = plan_among(0, f"join of track {track}", start[None, :], goal[None, :],
                                 arrive - leave_at, plan.limits,
-                                PlannerSettings(tracking_margin=TRACKING_MARGIN_M), others_at)
+                                PlannerSettings(tracking_margin=TRACKING_MARGIN_M,
+                                                max_iterations=MOVING_ITERATIONS)
+                                if moving_end else
+                                PlannerSettings(tracking_margin=TRACKING_MARGIN_M), others_at,
+                                goal_vel=goal_vel[None, :] if moving_end else None,
+                                goal_acc=goal_acc[None, :] if moving_end else None)
         except GroundctlError as exc:
             reasons.append(f"arriving at {arrive:.1f} s: {exc}")
             continue

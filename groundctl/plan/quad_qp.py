@@ -8,7 +8,8 @@ separation pair-segment and per obstacle segment S (m + m_o,).
 Constraints (rows of OSQP's l <= Ax <= u):
 
 * dynamics: p[k+1] = p[k] + dt v[k] + dt^2/2 a[k],  v[k+1] = v[k] + dt a[k];
-* boxes: start/goal positions and zero end velocities fixed; altitude limits
+* boxes: start/goal positions and end velocities fixed (zero, or the goal's own for
+  a drone handed over in motion: :meth:`GroupQP.end_on_the_move`); altitude limits
   and an SCP trust region on interior positions; per-axis speed and
   acceleration boxes;
 * tangent planes of the norm limits at the previous iterate,
@@ -119,6 +120,9 @@ class GroupQP:
         n_steps = steps
         self.g, self.N, self.dt, self.limits = g, n_steps, dt, limits
         self.start, self.goal, self.ref = start, goal, ref
+        self.goal_vel = np.zeros_like(goal)
+        """(g, 3) velocities at the goal: zero (rest to rest) unless
+        :meth:`end_on_the_move` set them."""
         self.pairs = pairs
         self.obstacles = obstacles if obstacles is not None else ObstacleSegments.empty()
         self._alpha, self._beta = alpha, beta
@@ -304,6 +308,25 @@ class GroupQP:
         self.l[self.box_rows] = lo
         self.u[self.box_rows] = hi
 
+    def end_on_the_move(self, goal_vel: FloatArray, goal_acc: FloatArray | None = None
+                        ) -> None:
+        """End at the goals with velocities ``goal_vel`` (g, 3), not at rest, and (if
+        given) the last step's accelerations ``goal_acc`` (g, 3, each axis clipped to the
+        limit): a drone handed over onto a trajectory in motion (a spare joining its
+        track mid-transition), without a jump in its setpoints.  Taken by the next
+        :meth:`linearise`."""
+        g, N = self.g, self.N
+        self.goal_vel = np.asarray(goal_vel, dtype=float).reshape(g, 3).copy()
+        V_lo = self._box_lo[self.oV: self.oA].reshape(g, N + 1, 3)
+        V_hi = self._box_hi[self.oV: self.oA].reshape(g, N + 1, 3)
+        V_lo[:, -1], V_hi[:, -1] = self.goal_vel, self.goal_vel
+        if goal_acc is not None:
+            acc = np.clip(np.asarray(goal_acc, dtype=float).reshape(g, 3),
+                          -self.limits.max_accel, self.limits.max_accel)
+            A_lo = self._box_lo[self.oA: self.oS].reshape(g, N, 3)
+            A_hi = self._box_hi[self.oA: self.oS].reshape(g, N, 3)
+            A_lo[:, -1], A_hi[:, -1] = acc, acc
+
     def linearise(self, P: FloatArray, V: FloatArray, A: FloatArray, trust: float,
                   others: FloatArray | None = None,
                   others_acc: FloatArray | None = None) -> None:
@@ -400,5 +423,5 @@ class GroupQP:
         # End states are equalities by construction; ADMM only meets them to its
         # tolerance (1e-7 when polishing fails), so return them exactly.
         P[:, 0], P[:, -1] = self.start, self.goal
-        V[:, [0, -1]] = 0.0
+        V[:, 0], V[:, -1] = 0.0, self.goal_vel
         return P, V, A, S

@@ -352,6 +352,21 @@ def _straight_lines(index: int, name: str, start: FloatArray, goal: FloatArray,
     return _Lines(steps, dt, ref, V, A, synchronised=len(fast) == 0)
 
 
+def _hermite_guess(start: FloatArray, goal: FloatArray, goal_vel: FloatArray,
+                   duration: float, steps: int) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Positions, velocities (g, N+1, 3) and step accelerations (g, N, 3) on the cubic
+    from rest at ``start`` to ``goal`` with ``goal_vel`` in ``duration``: the guess (and
+    reference) of a transition that ends in motion."""
+    s = np.linspace(0.0, 1.0, steps + 1)[None, :, None]
+    p0, p1 = start[:, None, :], goal[:, None, :]
+    m1 = goal_vel[:, None, :] * duration
+    P = (2 * s**3 - 3 * s**2 + 1) * p0 + (-2 * s**3 + 3 * s**2) * p1 + (s**3 - s**2) * m1
+    V = ((6 * s**2 - 6 * s) * p0 + (-6 * s**2 + 6 * s) * p1 + (3 * s**2 - 2 * s) * m1) \
+        / duration
+    A = np.diff(V, axis=1) / (duration / steps)
+    return P, V, A
+
+
 def _conflict(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
               P: FloatArray, V: FloatArray, limits: Limits, reason: str
               ) -> SeparationConflict:
@@ -527,7 +542,9 @@ def _scp(index: int, name: str, start: FloatArray, goal: FloatArray, guess: _Lin
 
 def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, duration: float,
                limits: Limits, settings: PlannerSettings,
-               others_at: Callable[[FloatArray], FloatArray]) -> TransitionResult:
+               others_at: Callable[[FloatArray], FloatArray], *,
+               goal_vel: FloatArray | None = None,
+               goal_acc: FloatArray | None = None) -> TransitionResult:
     """Plan ``start`` -> ``goal`` (g, 3) in ``duration`` s among drones that keep flying.
 
     ``others_at(times)`` gives the other drones' positions (m, len(times), 3) at the
@@ -538,11 +555,20 @@ def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, durat
     :mod:`groundctl.flight.returning`).  The rows tighten the limit by the chord
     bulge of *both* drones, so they hold between the knots as long as the others'
     trajectories keep the acceleration limit, as planned ones do.
+
+    ``goal_vel`` (g, 3): arrive with these velocities, not at rest (and ``goal_acc``,
+    the last step's accelerations): handed over onto a trajectory in motion.  The guess
+    is then the cubic from rest at the start to that state at the goal.
     """
     t0 = time.perf_counter()
     g = start.shape[0]
     guess = _straight_lines(index, name, start, goal, duration, limits, settings)
     steps, dt, ref, V, A = guess.steps, guess.dt, guess.ref, guess.V, guess.A
+    moving_end = goal_vel is not None and bool(np.any(goal_vel))
+    if moving_end:
+        assert goal_vel is not None
+        ref, V, A = _hermite_guess(start, goal, np.asarray(goal_vel, dtype=float),
+                                   duration, steps)
     P = ref.copy()
     delta = goal - start
     times = np.linspace(0.0, duration, steps + 1)
@@ -576,6 +602,9 @@ def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, durat
                                  trust=TRUST_RADIUS if state is None else state.trust,
                                  margin=margin)
             qp = state.spec.build()
+            if moving_end:
+                assert goal_vel is not None
+                qp.end_on_the_move(goal_vel, goal_acc)
             # The obstacles never move: their rows' positions are set once per build.
             fixed = np.stack([every[state.obs_other, qp.obstacles.k],
                               every[state.obs_other, qp.obstacles.k + 1]], axis=1)
