@@ -28,7 +28,7 @@ from groundctl.execute.sequence import (
     VehiclePhase,
 )
 from groundctl.flight.joining import plan_join
-from groundctl.flight.returning import assign_landing
+from groundctl.flight.returning import assign_landing, plan_leave
 from groundctl.link.flavours import Flavour
 from groundctl.link.state import VehicleState
 from groundctl.plan.plan import Plan
@@ -341,3 +341,37 @@ def test_a_show_that_cannot_start_lands_the_air_spares() -> None:
             seq.vehicles[s].phase = VehiclePhase.FAILED  # ... are all given up
     actions = seq.update(1.0, states)
     assert {Land(s) for s in SPARES} <= set(actions)
+
+
+def test_a_replaced_drone_on_its_way_out_is_an_obstacle_of_its_own_beside_the_spare() -> None:
+    """The track a spare takes over is flown by the spare: for the planners it stays on
+    its plan, and the drone replaced, still on its way out, is a way out of its own
+    (it was the track's way out, so the spare on the track's plan was nobody's)."""
+    plan = spares_plan()
+    seq, states, now = _showing(plan)
+    seq.replace(3, now + 1.0)
+    ((sysid, track, at, _hold),) = seq.leave_needed
+    assert sysid == 3
+    leave = plan_leave(plan, track, at, seq.leaves)
+    seq.set_leave(3, leave, now + 1.0)
+    assert seq.leaves == {track: leave} and seq.replaced_leaves == []
+    seq.update(now + 1.1, states)
+    ((vacated, spare, _pad),) = seq.join_needed
+    assert vacated == track
+    assert plan.spares is not None
+    join = plan_join(plan, track, plan.spares.pads[SPARES[spare]], seq.show_time(now + 1.1),
+                     leaves=seq.leaves, climb=plan.takeoff_altitude)
+    seq.set_join(track, spare, join, now + 1.2)
+    assert seq.vehicles[3].replaced_by == spare
+    assert seq.leaves == {} and seq.replaced_leaves == [(track, leave)]
+    # Planned around the spare's track and the drone replaced alike.
+    other = plan_leave(plan, 0, at, seq.leaves, joins=seq.joins,
+                       replaced=seq.replaced_leaves)
+    t = np.linspace(at, other.until, 2001)
+    mine = other.position(t)
+    theirs = np.where((t >= leave.at)[:, None], leave.position(t),
+                      plan.trajectories.evaluate(t, np.array([track]))[0][0])
+    assert float(np.linalg.norm(mine - theirs, axis=1).min()) >= plan.limits.min_separation
+    # Down, it is where it is (a drone down), not a way out any more.
+    _fall(seq, states, 3, now + 2.0)
+    assert seq.replaced_leaves == []

@@ -129,6 +129,21 @@ def test_a_join_waits_until_the_failed_drone_has_left_its_slot(plan: Plan) -> No
         >= plan.limits.min_separation
 
 
+def test_a_drone_replaced_before_is_still_an_obstacle_on_its_way_out(plan: Plan) -> None:
+    """The same hovering drone, handed over as one a spare already replaced (the track is
+    flown by the spare now): still what the join waits for and keeps clear of."""
+    assert plan.spares is not None
+    slot = plan.formations[0].goals[TRACK]
+    leave = plan_leave(plan, TRACK, 9.0, {}, start=slot)
+    join = plan_join(plan, TRACK, plan.spares.points[0], earliest=3.0,
+                     replaced=[(TRACK, leave)])
+    assert join.until > plan.formations[0].end
+    hovering = Moving(leave.trajectory, leave.at, 3.0, leave.until)
+    path = Moving(join.trajectory, join.at, join.at, join.until)
+    assert _dense_gap(plan, path, join.at, join.until, [], [hovering]) \
+        >= plan.limits.min_separation
+
+
 def test_a_join_that_meets_a_drone_is_refused_and_retried_later(plan: Plan) -> None:
     """A drone down on the ground is no obstacle to a join in the air; one hovering at
     the ring slot (another spare, say) is, for the ring: the track is taken over on its

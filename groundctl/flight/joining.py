@@ -307,7 +307,8 @@ def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
               absent: Collection[int] = (), leaves: Mapping[int, Leave] | None = None,
               joins: Mapping[int, Join] | None = None,
               static: FloatArray | None = None, climb: float = 0.0,
-              climb_s: float | None = None) -> Join:
+              climb_s: float | None = None,
+              replaced: Sequence[tuple[int, Leave]] = ()) -> Join:
     """The spare waiting at rest at ``start`` takes over ``track`` at the earliest window
     it can (module docstring), leaving no sooner than show time ``earliest``.
 
@@ -321,7 +322,9 @@ def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
     goes in ``static``, (k, 3) points that do not move, like waiting spares); ``leaves``
     (track -> Leave) are ways out being flown -- the failed ``track``'s own among them;
     ``joins`` (track -> Join) other spares on their way in (their tracks count as flown
-    from each one's ``until``).  PlanningError if no window works."""
+    from each one's ``until``); ``replaced`` (track, Leave) drones a spare replaced, still
+    on their way out (the track itself flown by the spare).  PlanningError if no window
+    works."""
     import time
 
     t_start = time.perf_counter()
@@ -337,8 +340,10 @@ def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
     limit = plan.limits.min_separation
     reasons: list[str] = []
     said = 0
+    vacating = leaves.get(track) or next(
+        (lv for j, lv in reversed(replaced) if j == track), None)
     for leave_at, arrive, goal, goal_vel, goal_acc in join_windows(
-            plan, track, start, earliest + climb_s, leaves.get(track)):
+            plan, track, start, earliest + climb_s, vacating):
         if len(reasons) > said:
             said = len(reasons)
             log.debug("join of track %d: %s (%.0f ms so far)", track + 1, reasons[-1],
@@ -347,7 +352,7 @@ def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
         if moving_end and time.perf_counter() - t_start > MOVING_BUDGET_S:
             continue  # tried long enough in motion: the formations' rests are left
         moving: list[Moving] = []
-        for j, lv in leaves.items():
+        for j, lv in [*leaves.items(), *replaced]:
             moving += _leave_pieces(plan, j, lv, leave_at - climb_s, plan.duration)
         for j, jn in joins.items():
             moving.append(Moving(jn.trajectory, jn.at, leave_at - climb_s, jn.until))

@@ -17,7 +17,7 @@ drone's way out is planned around them (:func:`plan_leave`; when it leaves is
 
 from __future__ import annotations
 
-from collections.abc import Collection, Mapping
+from collections.abc import Collection, Mapping, Sequence
 
 import numpy as np
 from numpy.typing import NDArray
@@ -139,7 +139,8 @@ def column(top: NDArray[np.float64]) -> NDArray[np.float64]:
 def plan_leave(plan: Plan, track: int, at: float, leaves: Mapping[int, Leave],
                absent: Collection[int] = (), static: NDArray[np.float64] | None = None,
                start: NDArray[np.float64] | None = None,
-               joins: Mapping[int, Join] | None = None) -> Leave:
+               joins: Mapping[int, Join] | None = None,
+               replaced: Sequence[tuple[int, Leave]] = ()) -> Leave:
     """A way for ``track`` from its formation point at show time ``at`` (or from
     ``start``, where it hovers) to its landing point, around every other drone as it
     will fly meanwhile.
@@ -149,7 +150,9 @@ def plan_leave(plan: Plan, track: int, at: float, leaves: Mapping[int, Leave],
     plan (excluded, landed, descending, killed); where they really are goes in
     ``static`` (k, 3), points that do not move (see :func:`column`); ``joins`` (track ->
     Join) are spares on their way into those tracks: over their pads' columns' tops until
-    they set off, on their ways in, then on the track's plan.  Raises the planner's
+    they set off, on their ways in, then on the track's plan; ``replaced`` (track, Leave)
+    are drones a spare replaced, still on their way out (on the track's plan before it):
+    obstacles of their own, the track itself flown by the spare.  Raises the planner's
     InfeasibleTransition / PlanningError.
     """
     origin = plan.state_at(at).pos[track] if start is None else np.asarray(start, dtype=float)
@@ -174,7 +177,10 @@ def plan_leave(plan: Plan, track: int, at: float, leaves: Mapping[int, Leave],
         coming = [np.where((at + times < jn.until)[:, None], jn.position(at + times),
                            plan.trajectories.evaluate(show_t, np.array([j]))[0][0])[None]
                   for j, jn in (joins or {}).items()]
-        return np.concatenate([pos, still, *coming])
+        going = [np.where((lv.held | (at + times >= lv.at))[:, None], lv.position(at + times),
+                          plan.trajectories.evaluate(show_t, np.array([j]))[0][0])[None]
+                 for j, lv in replaced]
+        return np.concatenate([pos, still, *coming, *going])
 
     result = plan_among(0, f"way out of track {track}", origin[None, :], goal, duration,
                         plan.limits,

@@ -35,7 +35,7 @@ import math
 import os
 import pickle
 import time
-from collections.abc import Callable, Collection, Mapping
+from collections.abc import Callable, Collection, Mapping, Sequence
 from concurrent.futures import CancelledError, Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from types import TracebackType
@@ -217,7 +217,8 @@ class PlannerPool:
                          absent: Collection[int], static: NDArray[np.float64] | None,
                          start: NDArray[np.float64] | None, deadline_s: float, *,
                          what: str | None = None,
-                         joins: Mapping[int, Join] | None = None) -> Leave:
+                         joins: Mapping[int, Join] | None = None,
+                         replaced: Sequence[tuple[int, Leave]] = ()) -> Leave:
         """:func:`~groundctl.flight.returning.plan_leave` of ``track`` (same arguments),
         in a worker, within ``deadline_s`` wall seconds.
 
@@ -229,13 +230,15 @@ class PlannerPool:
 
         return await self._call(
             what or f"planning track {track}'s way out", deadline_s, returning.plan_leave,
-            track, at, dict(leaves), list(absent), static, start, joins=dict(joins or {}))
+            track, at, dict(leaves), list(absent), static, start, joins=dict(joins or {}),
+            replaced=list(replaced))
 
     async def plan_join(self, track: int, pad: NDArray[np.float64], earliest: float,
                         deadline_s: float, *, absent: Collection[int],
                         leaves: Mapping[int, Leave], joins: Mapping[int, Join],
                         static: NDArray[np.float64] | None, climb: float,
-                        climb_s: float | None = None, what: str | None = None) -> Join:
+                        climb_s: float | None = None, what: str | None = None,
+                        replaced: Sequence[tuple[int, Leave]] = ()) -> Join:
         """:func:`~groundctl.flight.joining.plan_join` of a spare on ``pad`` into
         ``track`` (same arguments), in a worker, within ``deadline_s`` wall seconds.
         Raises PlanningTimeout past the deadline, FlightError if the worker dies, and
@@ -246,7 +249,7 @@ class PlannerPool:
             what or f"planning a spare's way into track {track + 1}", deadline_s,
             joining.plan_join, track, pad, earliest, absent=list(absent),
             leaves=dict(leaves), joins=dict(joins), static=static, climb=climb,
-            climb_s=climb_s)
+            climb_s=climb_s, replaced=list(replaced))
 
     # -- machinery ---------------------------------------------------------------------
 

@@ -56,14 +56,23 @@ class WaysOut(Columns):
 
     @property
     def leaves(self) -> dict[int, Leave]:
-        """Planned ways out by *track* (obstacles for the next one, starts for a return).
-        Two runs of one track (a drone replaced by a spare that leaves in turn): the
-        spare's (the drone replaced left at least a formation earlier)."""
-        out: dict[int, Leave] = {}
-        for v in self.vehicles.values():
-            if v.leave is not None and (v.track not in out or v.replaced_by is None):
-                out[v.track] = v.leave
-        return out
+        """Planned ways out by *track*, of the drone that flies it now (obstacles for the
+        next one, starts for a return).  A drone a spare replaced is not its track's any
+        more: its way out is in :attr:`replaced_leaves`, and the track, flown by the
+        spare, stays on its plan for the planners."""
+        return {v.track: v.leave for v in self.vehicles.values()
+                if v.leave is not None and v.replaced_by is None and v.track >= 0}
+
+    @property
+    def replaced_leaves(self) -> list[tuple[int, Leave]]:
+        """(track it flew, way out) of every drone a spare replaced that is still up on
+        its way out (or still on the track's plan before it, or lost meanwhile): moving
+        obstacles of their own for the planners, beside the spare on the track.  Once
+        it comes down it is where it is, like any drone down."""
+        return [(v.track, v.leave) for v in self.vehicles.values()
+                if v.leave is not None and v.replaced_by is not None and v.track >= 0
+                and v.phase not in (VehiclePhase.LANDING, VehiclePhase.LANDED,
+                                    VehiclePhase.FAILED, VehiclePhase.KILLED)]
 
     def set_leave(self, sysid: int, leave: Leave, now: float) -> list[Action]:
         """Fly ``leave`` from its show time on, then land."""

@@ -159,7 +159,8 @@ class Planning(Commands):
                     track, at, seq.leaves, absent, static,
                     None if start is None else np.asarray(start, dtype=float),
                     wall,
-                    what=f"planning vehicle {sysid}'s way out", joins=seq.joins)
+                    what=f"planning vehicle {sysid}'s way out", joins=seq.joins,
+                    replaced=seq.replaced_leaves)
             except PlanningTimeout as exc:
                 self._perform(seq.leave_late(sysid, str(exc), self.clock.now()))
                 return
@@ -197,7 +198,8 @@ class Planning(Commands):
                     track, np.asarray(pad, dtype=float), earliest, wall, absent=absent,
                     leaves=seq.leaves, joins=seq.joins, static=static,
                     climb=seq.spare_climb, climb_s=seq.spare_climb_s(),
-                    what=f"planning spare {spare}'s way into track {track + 1}")
+                    what=f"planning spare {spare}'s way into track {track + 1}",
+                    replaced=seq.replaced_leaves)
             except PlanningTimeout as exc:
                 self._perform(seq.join_failed(track, spare, str(exc), self.clock.now(),
                                               retry=True))
