@@ -349,9 +349,13 @@ def test_a_replaced_drone_on_its_way_out_is_an_obstacle_of_its_own_beside_the_sp
     (it was the track's way out, so the spare on the track's plan was nobody's)."""
     plan = spares_plan()
     seq, states, now = _showing(plan)
-    seq.replace(3, now + 1.0)
+    said = seq.replace(3, now + 1.0)
     ((sysid, track, at, _hold),) = seq.leave_needed
     assert sysid == 3
+    # Healthy, it holds the formation whole: it leaves at the end of the ring's hold.
+    assert at == pytest.approx(plan.formations[0].end)
+    assert any("at the end of its formation's hold" in a.text for a in said
+               if isinstance(a, Notice))
     leave = plan_leave(plan, track, at, seq.leaves)
     seq.set_leave(3, leave, now + 1.0)
     assert seq.leaves == {track: leave} and seq.replaced_leaves == []

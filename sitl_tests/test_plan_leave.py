@@ -71,6 +71,10 @@ def test_leave_time_is_the_next_rest_on_a_formation_that_leaves_time_to_get_home
     assert leave_time(plan, 0, ring.end - 1.0) == pytest.approx(square.arrive)
     # Past the last formation before landing: nothing left, it lands with the others.
     assert leave_time(plan, 0, square.end) is None
+    # A drone a spare replaces holds its formation whole: the end of the hold.
+    assert leave_time(plan, 0, ring.arrive, after_hold=True) == pytest.approx(ring.end)
+    assert leave_time(plan, 0, ring.end - 1.0, after_hold=True) == pytest.approx(square.end)
+    assert leave_time(plan, 0, square.end, after_hold=True) is None
     at = leave_time(plan, 4, 0.0)
     assert at is not None and at + leave_duration(plan, 4, at) <= plan.duration
 

@@ -129,17 +129,22 @@ def return_duration(plan: Plan, start: NDArray[np.float64], goal: NDArray[np.flo
     return max(bound.seconds * TIME_MARGIN, MIN_DURATION_S)
 
 
-def leave_time(plan: Plan, track: int, show_time: float) -> float | None:
+def leave_time(plan: Plan, track: int, show_time: float, *,
+               after_hold: bool = False) -> float | None:
     """When ``track`` can leave: the first show time >= ``show_time`` + LEAVE_LEAD_S at
     which it rests on a formation and from which its way out ends before the plan
     does.  None if there is none (it lands with the others at the end).
+    ``after_hold``: the end of that formation's hold instead (a drone a spare replaces:
+    the formation is held whole, and the spare takes the track over on the way to the
+    next one).
     """
     if plan.model != "quadrotor":
         return None
     earliest = show_time + LEAVE_LEAD_S
     for w in plan.formations:
-        at = max(w.arrive, earliest)
-        if at <= w.end + 1e-9 and at + leave_duration(plan, track, at) <= plan.duration:
+        at = w.end if after_hold else max(w.arrive, earliest)
+        if earliest <= at + 1e-9 and at <= w.end + 1e-9 \
+                and at + leave_duration(plan, track, at) <= plan.duration:
             return at
     return None
 
