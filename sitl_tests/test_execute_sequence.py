@@ -1111,6 +1111,8 @@ def test_the_nearest_clear_ground_keeps_off_drones_down_and_inside_the_geofence(
         (-1.0, -1.0), (6.0, -1.0), (6.0, 1.0), (-1.0, 1.0))))
     inside = clear_spot_near(wider, np.array([0.5, 0.0, 3.0]), down=down)
     assert inside is not None and -1.0 <= inside[0] <= 6.0 and -1.0 <= inside[1] <= 1.0
+    # ... by the arrive tolerance at least: a drone descends within it of its spot.
+    assert -0.5 <= inside[0] <= 5.5 and -0.5 <= inside[1] <= 0.5
 
 
 def _landing_after_show(flavour: Flavour = ARDU) -> tuple[ShowSequence, dict[int, VehicleState]]:

@@ -258,6 +258,10 @@ def test_a_drone_that_leaves_the_show_goes_dark_and_the_fleet_lands_lit() -> Non
     seq.land_all(now + 2.0)
     seq.update(now + 2.1, states)
     assert seq.dark(now + 2.1) == {2, 5}
+    # Brought down after the show was called off: it lands in its colours like the rest.
+    seq.land_here(4, now + 2.2)
+    assert seq.vehicles[4].phase is VehiclePhase.LANDING
+    assert seq.dark(now + 2.3) == {2, 5}
 
 
 def test_spares_in_the_air_take_off_with_the_fleet_wait_dark_and_land_at_the_end() -> None:
@@ -368,14 +372,31 @@ def test_a_replaced_drone_on_its_way_out_is_an_obstacle_of_its_own_beside_the_sp
     seq.set_join(track, spare, join, now + 1.2)
     assert seq.vehicles[3].replaced_by == spare
     assert seq.leaves == {} and seq.replaced_leaves == [(track, leave)]
-    # Planned around the spare's track and the drone replaced alike.
-    other = plan_leave(plan, 0, at, seq.leaves, joins=seq.joins,
-                       replaced=seq.replaced_leaves)
-    t = np.linspace(at, other.until, 2001)
-    mine = other.position(t)
-    theirs = np.where((t >= leave.at)[:, None], leave.position(t),
-                      plan.trajectories.evaluate(t, np.array([track]))[0][0])
-    assert float(np.linalg.norm(mine - theirs, axis=1).min()) >= plan.limits.min_separation
+    # The spare flies its way in and is on the track's plan (out of seq.joins) while the
+    # drone it replaced is still on its way out.
+    arm_at = now + join.at - join.climb_s
+    _up(seq, states, [spare], arm_at, climb=False)
+    set_altitude(states[spare], plan.takeoff_altitude)
+    seq.update(arm_at + 3.0, states)
+    seq.update(now + join.until + 0.01, states)
+    assert seq.vehicles[spare].phase is VehiclePhase.SHOW and seq.joins == {}
+    t_on = join.until + 0.01
+    assert leave.at < t_on < leave.until
+    assert seq.replaced_leaves == [(track, leave)] and track not in seq.leaves
+    # (Before, the drone replaced stood for the track in seq.leaves: the spare on the
+    # track's plan was nobody's obstacle.)  Ways out planned from here keep clear of
+    # both: the spare on the track's plan and the drone replaced on its way out.
+    for other_track in (0, 7, 8):
+        at_o = seq.show_time(now + join.until + 0.01) + 2.0
+        other = plan_leave(plan, other_track, at_o, seq.leaves, joins=seq.joins,
+                           replaced=seq.replaced_leaves)
+        t = np.linspace(at_o, min(other.until, plan.duration), 2001)
+        mine = other.position(t)
+        spare_at = plan.trajectories.evaluate(t, np.array([track]))[0][0]
+        replaced_at = leave.position(t)
+        for theirs in (spare_at, replaced_at):
+            assert float(np.linalg.norm(mine - theirs, axis=1).min()) \
+                >= plan.limits.min_separation - 1e-3, other_track
     # Down, it is where it is (a drone down), not a way out any more.
-    _fall(seq, states, 3, now + 2.0)
+    _fall(seq, states, 3, now + join.until + 1.0)
     assert seq.replaced_leaves == []

@@ -129,6 +129,31 @@ def test_a_join_waits_until_the_failed_drone_has_left_its_slot(plan: Plan) -> No
         >= plan.limits.min_separation
 
 
+def test_no_window_while_the_failed_drone_is_still_on_its_slot(plan: Plan) -> None:
+    """Leaving from the end of the ring's hold (a replaced drone holds its formation
+    whole), it is on the slot until then: the ring offers no window, and none in motion
+    comes before it leaves."""
+    assert plan.spares is not None
+    ring = plan.formations[0]
+    leave = plan_leave(plan, TRACK, ring.end, {})
+    assert not leave.held
+    windows = join_windows(plan, TRACK, plan.spares.points[0], 0.0, leave)
+    assert windows and all(w.arrive > leave.at for w in windows)
+    assert join_windows(plan, TRACK, plan.spares.points[0], 0.0)[0].arrive < leave.at
+
+
+def test_a_way_in_beyond_the_limits_is_refused(plan: Plan) -> None:
+    from groundctl.flight.joining import _beyond_limits
+
+    t = np.array([0.0, 4.0])  # rest to rest: peak speed 1.5 d / T, acceleration 6 d / T²
+    slow = Trajectories(t, np.array([[[0.0, 0.0, 5.0], [2.0, 0.0, 5.0]]]),
+                        np.array([[[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]]))
+    assert _beyond_limits(slow, plan) is None
+    fast = Trajectories(t, np.array([[[0.0, 0.0, 5.0], [12.0, 0.0, 5.0]]]),
+                        np.array([[[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]]))
+    assert _beyond_limits(fast, plan).endswith("horizontally (limit 4)")  # type: ignore[union-attr]
+
+
 def test_a_drone_replaced_before_is_still_an_obstacle_on_its_way_out(plan: Plan) -> None:
     """The same hovering drone, handed over as one a spare already replaced (the track is
     flown by the spare now): still what the join waits for and keeps clear of."""

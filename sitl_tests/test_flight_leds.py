@@ -147,8 +147,9 @@ def test_link_delays_are_half_the_round_trip_bounded() -> None:
 
 def test_a_dark_vehicle_no_longer_streamed_is_turned_off_and_kept_off() -> None:
     """A drone that left the show and came down in its own land mode is not streamed any
-    more: its LEDs are turned off all the same, refreshed once a second, and a dark
-    vehicle still streamed gets no colour change of its track."""
+    more: its LEDs are turned off all the same, refreshed once a second; a dark
+    vehicle still streamed gets no colour change of its track; one never lit is left
+    alone."""
     async def main() -> None:
         clock = ManualClock(100.0)
         sent = Sent(clock)
@@ -167,5 +168,9 @@ def test_a_dark_vehicle_no_longer_streamed_is_turned_off_and_kept_off() -> None:
         leds.tick(101.2, None, streamed, lit[:2], dark={12, 13})
         assert sorted(s for _, s, c in sent.log if c == BLACK) == [12, 13]
         assert all(c == BLACK for _, s, c in sent.log if s != 11)
+        # One never lit and not streamed (a spare waiting on its pad): left alone.
+        sent.log.clear()
+        leds.tick(101.3, None, streamed, lit[:2], dark={12, 13, 14})
+        assert [s for _, s, _ in sent.log if s == 14] == []
 
     asyncio.run(main())

@@ -55,6 +55,15 @@ def test_a_drone_handed_over_in_motion_arrives_with_the_velocity_asked() -> None
     assert np.linalg.norm(a[0], axis=1).max() <= LIM.max_accel + 1e-2
     closest = float(np.linalg.norm(_line_flying_east(t) - p[0][None], axis=2).min())
     assert closest >= 1.5 - 1e-3
+    # Climbing at the end of a descent: the cubic guess dips far below the floor; the
+    # plan keeps within the altitude limits (the guess is clipped, the box never empty).
+    low = Limits(min_separation=1.5, min_alt=2.0, max_alt=100.0)
+    dip = plan_among(1, "join", np.array([[0.0, 0.0, 10.0]]), np.array([[0.0, 4.0, 5.0]]),
+                     22.0, low, PlannerSettings(), lambda times: np.zeros((0, len(times), 3)),
+                     goal_vel=np.array([[0.0, 0.5, 2.0]]))
+    z = dip.trajectories.evaluate(np.linspace(0.0, 22.0, 2001))[0][0, :, 2]
+    assert z.min() >= low.min_alt - 0.01  # knots on the floor, the cubic between them
+    np.testing.assert_allclose(dip.trajectories.vel[0, -1], [0.0, 0.5, 2.0], atol=1e-9)
     # Arriving 4 m/s the wrong way after 2 s from rest 0.5 m behind: beyond the limits.
     with pytest.raises(PlanningError):
         plan_among(1, "join", np.array([[0.0, 0.0, 10.0]]), np.array([[0.5, 0.0, 10.0]]),

@@ -174,17 +174,21 @@ LANDING_MARGIN_M = 0.3
 #: The last resort's search for a clear spot around a drone: lattice steps of this many
 #: separation limits ...
 CLEAR_STEP = 0.5
-#: ... out to this many separation limits from it.
+#: ... out to this many separation limits from it ...
 CLEAR_REACH = 20.0
+#: ... and at least this far inside the geofence, m (the sequence's arrive tolerance: a
+#: drone descends once within it of its spot).
+CLEAR_FENCE_MARGIN_M = 0.5
 
 
 def clear_spot_near(plan: Plan, point: FloatArray, blocked: FloatArray | None = None,
                     down: FloatArray | None = None) -> FloatArray | None:
     """The point nearest ``point`` (its altitude kept) on a lattice around it whose column
-    keeps what :func:`free_spots` keeps from ``blocked`` and ``down``, inside the show's
-    geofence if it has one; None when there is none within CLEAR_REACH separation limits.
-    For a drone with no landing candidate left: landing where it hovers could put it on
-    a drone that is down."""
+    keeps what :func:`free_spots` keeps from ``blocked`` and ``down``, CLEAR_FENCE_MARGIN_M
+    inside the show's geofence if it has one; None when there is none within CLEAR_REACH
+    separation limits.  For a drone with no landing candidate left: landing where it
+    hovers could put it on a drone that is down.  (The flight there, at the altitude it
+    hovers at, is not planned: as for the plan's own spots, see ``_blocked``.)"""
     sep = plan.limits.min_separation
     steps = np.arange(-CLEAR_REACH, CLEAR_REACH + 1e-9, CLEAR_STEP) * sep
     dx, dy = np.meshgrid(steps, steps)
@@ -192,15 +196,23 @@ def clear_spot_near(plan: Plan, point: FloatArray, blocked: FloatArray | None = 
     offsets = offsets[np.argsort(np.hypot(offsets[:, 0], offsets[:, 1]), kind="stable")]
     spots = np.column_stack([offsets + np.asarray(point, dtype=float)[:2],
                              np.full(len(offsets), float(point[2]))])
-    keep = np.ones(len(spots), dtype=bool)
-    for points, clearance in ((blocked, sep), (down, sep + LANDING_MARGIN_M)):
-        if points is not None and len(points):
-            d, _ = cKDTree(np.asarray(points, dtype=float)[:, :2]).query(spots[:, :2])
-            keep &= d >= clearance
     if plan.limits.geofence is not None:
-        keep &= inside_polygon(np.asarray(plan.limits.geofence, dtype=float), spots[:, :2])
-    hits = np.flatnonzero(keep)
+        fence = np.asarray(plan.limits.geofence, dtype=float)
+        spots = spots[inside_polygon(fence, spots[:, :2])
+                      & (_edge_distance(fence, spots[:, :2]) >= CLEAR_FENCE_MARGIN_M)]
+    hits = free_spots(plan, spots, blocked, down)
     return spots[hits[0]] if len(hits) else None
+
+
+def _edge_distance(polygon: FloatArray, xy: FloatArray) -> FloatArray:
+    """Each point's distance to the nearest edge of ``polygon`` (k, 2), m."""
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    ab = b - a
+    rel = xy[:, None, :] - a[None, :, :]
+    t = np.clip(np.einsum("nkd,kd->nk", rel, ab) / np.maximum(
+        np.einsum("kd,kd->k", ab, ab), 1e-12), 0.0, 1.0)
+    nearest = a[None, :, :] + t[:, :, None] * ab[None, :, :]
+    return np.asarray(np.linalg.norm(xy[:, None, :] - nearest, axis=2).min(axis=1))
 
 
 def free_spots(plan: Plan, candidates: NDArray[np.float64],
@@ -213,8 +225,8 @@ def free_spots(plan: Plan, candidates: NDArray[np.float64],
     free = np.ones(len(candidates), dtype=bool)
     for points, keep in ((blocked, plan.limits.min_separation),
                          (down, plan.limits.min_separation + LANDING_MARGIN_M)):
-        if points is not None and len(points):
-            d = np.linalg.norm(candidates[:, None, :2] - np.asarray(points)[None, :, :2],
-                               axis=2)
-            free &= d.min(axis=1) >= keep
+        if points is not None and len(points) and len(candidates):
+            d, _ = cKDTree(np.asarray(points, dtype=float)[:, :2]).query(
+                np.asarray(candidates, dtype=float)[:, :2])
+            free &= d >= keep
     return np.flatnonzero(free)

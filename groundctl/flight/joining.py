@@ -298,6 +298,8 @@ def join_windows(plan: Plan, track: int, start: FloatArray, earliest: float,
             if gone.any():
                 arrivals.append(max(float(t[int(np.argmax(gone))]), arrivals[0]))
         for arrive in sorted(set(arrivals)):
+            if vacating is not None and not vacating.held and arrive < vacating.at:
+                continue  # the failed drone is still on the slot then
             if arrive <= w.end + 1e-9 and arrive < plan.duration:
                 out.append(JoinWindow(arrive - need_w, arrive, goal, still, still))
     return sorted(out, key=lambda j: j.arrive)
@@ -340,8 +342,8 @@ def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
     limit = plan.limits.min_separation
     reasons: list[str] = []
     said = 0
-    vacating = leaves.get(track) or next(
-        (lv for j, lv in reversed(replaced) if j == track), None)
+    vacating = leaves.get(track) or max(
+        (lv for j, lv in replaced if j == track), key=lambda lv: lv.at, default=None)
     for leave_at, arrive, goal, goal_vel, goal_acc in join_windows(
             plan, track, start, earliest + climb_s, vacating):
         if len(reasons) > said:
@@ -388,6 +390,10 @@ def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
         except GroundctlError as exc:
             reasons.append(f"arriving at {arrive:.1f} s: {exc}")
             continue
+        beyond = _beyond_limits(result.trajectories, plan)
+        if beyond is not None:
+            reasons.append(f"arriving at {arrive:.1f} s its way in would fly {beyond}")
+            continue
         path = Moving(result.trajectories, leave_at, leave_at, arrive)
         closest, what = closest_approach(path, plan, flown, moving, static, leave_at, arrive)
         if closest < limit - DIST_TOL:
@@ -407,6 +413,33 @@ def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
                     plan_ms=(time.perf_counter() - t_start) * 1000.0, climb_s=climb_s)
     raise PlanningError(0, "no join", f"track {track + 1}: " + (
         "; ".join(reasons) if reasons else "no formation left to join before the show ends"))
+
+
+#: The way in's limits are checked on this many samples per second of it.
+LIMIT_SAMPLES_PER_S = 200
+#: Allowed over a limit, relative (the QP's norm limits are tangent planes, exact only
+#: at convergence: a window planned in motion is given fewer iterations).
+LIMIT_TOLERANCE = 0.01
+
+
+def _beyond_limits(trajectory: Trajectories, plan: Plan) -> str | None:
+    """What ``trajectory`` (one row) breaks of the plan's speed and acceleration limits,
+    in words, on a fine grid; None within them."""
+    lim = plan.limits
+    t = np.linspace(0.0, trajectory.end, max(int(trajectory.end * LIMIT_SAMPLES_PER_S), 2))
+    _, v, a = trajectory.evaluate(t)
+    grow = 1.0 + LIMIT_TOLERANCE
+    for name, value, limit in (
+            ("horizontally", float(np.linalg.norm(v[0, :, :2], axis=1).max()),
+             lim.max_speed_h),
+            ("up", float(v[0, :, 2].max(initial=0.0)), lim.max_speed_up),
+            ("down", float(-v[0, :, 2].min(initial=0.0)), lim.max_speed_down)):
+        if value > limit * grow:
+            return f"{value:.2f} m/s {name} (limit {limit:g})"
+    acc = float(np.linalg.norm(a[0], axis=1).max())
+    if acc > lim.max_accel * grow:
+        return f"accelerating {acc:.2f} m/s² (limit {lim.max_accel:g})"
+    return None
 
 
 def _climb_clearance(plan: Plan, flown: NDArray[np.intp], moving: Sequence[Moving],

@@ -393,6 +393,9 @@ class GroupQP:
         P_hi = hi[: self.nP].reshape(g, N + 1, 3)
         P_lo[:, 1:-1] = np.maximum(P_lo[:, 1:-1], P[:, 1:-1] - tr)
         P_hi[:, 1:-1] = np.minimum(P_hi[:, 1:-1], P[:, 1:-1] + tr)
+        # An iterate outside the altitude box (a guess) must not empty it: OSQP refuses
+        # bounds that cross and would keep solving on the old ones.
+        np.minimum(P_lo, P_hi, out=P_lo)
         self.l[self.box_rows] = lo
         self.u[self.box_rows] = hi
         self.solver.update(Ax=self._pattern.refresh(), l=self.l, u=self.u)

@@ -569,6 +569,11 @@ def plan_among(index: int, name: str, start: FloatArray, goal: FloatArray, durat
         assert goal_vel is not None
         ref, V, A = _hermite_guess(start, goal, np.asarray(goal_vel, dtype=float),
                                    duration, steps)
+        # Within the altitude limits (never tighter than the ends themselves): the QP's
+        # trust region is around the guess, and a guess below the floor would empty it.
+        low = np.minimum(limits.min_alt, np.minimum(start[:, 2], goal[:, 2]))[:, None]
+        high = np.maximum(limits.max_alt, np.maximum(start[:, 2], goal[:, 2]))[:, None]
+        ref[:, :, 2] = np.clip(ref[:, :, 2], low, high)
     P = ref.copy()
     delta = goal - start
     times = np.linspace(0.0, duration, steps + 1)

@@ -108,8 +108,9 @@ class LedSends:
 
     def _dark_unstreamed(self, dark: Collection[int], streamed: Sequence[int],
                          now: float) -> None:
-        """Off, for the dark vehicles no longer streamed (down, coming down in their own
-        land mode): sent as they go dark, then refreshed like any colour."""
+        """Off, for the dark vehicles no longer streamed that were lit (down, coming down
+        in their own land mode): sent as they go dark, then refreshed like any colour.
+        One never lit (a spare waiting on its pad) is left to its autopilot."""
         if len(dark) == 0:
             return
         on = set(streamed)
@@ -117,8 +118,8 @@ class LedSends:
             if sysid in on:
                 continue
             last = self.tracker.last(sysid)
-            if last is None or last[0] != (0, 0, 0) \
-                    or now - last[1] >= self.tracker.refresh_s:
+            if last is not None and (last[0] != (0, 0, 0)
+                                     or now - last[1] >= self.tracker.refresh_s):
                 self._send(sysid, (0, 0, 0), now)
 
     def _send_group(self, items: list[tuple[int, Colour]]) -> None:
