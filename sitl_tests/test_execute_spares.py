@@ -27,6 +27,7 @@ from groundctl.execute.sequence import (
     Takeoff,
     VehiclePhase,
 )
+from groundctl.flight import returning
 from groundctl.flight.joining import plan_join
 from groundctl.flight.returning import assign_landing, plan_leave
 from groundctl.link.flavours import Flavour
@@ -347,7 +348,8 @@ def test_a_show_that_cannot_start_lands_the_air_spares() -> None:
     assert {Land(s) for s in SPARES} <= set(actions)
 
 
-def test_a_replaced_drone_on_its_way_out_is_an_obstacle_of_its_own_beside_the_spare() -> None:
+def test_a_replaced_drone_on_its_way_out_is_an_obstacle_of_its_own_beside_the_spare(
+        monkeypatch: pytest.MonkeyPatch) -> None:
     """The track a spare takes over is flown by the spare: for the planners it stays on
     its plan, and the drone replaced, still on its way out, is a way out of its own
     (it was the track's way out, so the spare on the track's plan was nobody's)."""
@@ -372,6 +374,21 @@ def test_a_replaced_drone_on_its_way_out_is_an_obstacle_of_its_own_beside_the_sp
     seq.set_join(track, spare, join, now + 1.2)
     assert seq.vehicles[3].replaced_by == spare
     assert seq.leaves == {} and seq.replaced_leaves == [(track, leave)]
+    # A way out planned now sees each drone once: the others on their plans, the spare on
+    # its way in (then on the track's plan), the drone replaced on its way out -- not the
+    # track's plan as well, with nobody on it between the two.
+    rows: list[int] = []
+    real = returning.plan_among
+
+    def counting(*args: object, **kwargs: object) -> object:
+        others_at = args[7]
+        rows.append(others_at(np.array([0.0, 1.0])).shape[0])  # type: ignore[operator]
+        return real(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(returning, "plan_among", counting)
+    plan_leave(plan, 0, leave.at, seq.leaves, joins=seq.joins, replaced=seq.replaced_leaves)
+    assert rows == [(plan.drones - 2) + 1 + 1]
+    monkeypatch.undo()
     # The spare flies its way in and is on the track's plan (out of seq.joins) while the
     # drone it replaced is still on its way out.
     arm_at = now + join.at - join.climb_s

@@ -158,7 +158,10 @@ def plan_leave(plan: Plan, track: int, at: float, leaves: Mapping[int, Leave],
     origin = plan.state_at(at).pos[track] if start is None else np.asarray(start, dtype=float)
     goal = plan.landing_hover[track][None, :]
     duration = leave_duration(plan, track, at, origin)
-    gone = set(absent) | {track}
+    # A track a spare is on its way into is the spare's way in, then the track's plan
+    # (``coming`` below), not the plan throughout: the drone it replaces, if still up, is
+    # its own way out (``going``).
+    gone = set(absent) | {track} | set(joins or {})
     others = np.array([j for j in range(plan.drones) if j not in gone], dtype=np.intp)
     fixed = np.empty((0, 3)) if static is None else np.asarray(static, dtype=float)
 
