@@ -143,15 +143,17 @@ def test_no_window_while_the_failed_drone_is_still_on_its_slot(plan: Plan) -> No
 
 
 def test_a_way_in_beyond_the_limits_is_refused(plan: Plan) -> None:
-    from groundctl.flight.joining import _beyond_limits
+    """A way in is checked against the limits as the verifier checks a plan."""
+    from groundctl.plan.verify import kinematics, limit_violations
 
     t = np.array([0.0, 4.0])  # rest to rest: peak speed 1.5 d / T, acceleration 6 d / T²
     slow = Trajectories(t, np.array([[[0.0, 0.0, 5.0], [2.0, 0.0, 5.0]]]),
                         np.array([[[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]]))
-    assert _beyond_limits(slow, plan) is None
+    assert limit_violations(kinematics(slow, plan.limits), plan.limits) == []
     fast = Trajectories(t, np.array([[[0.0, 0.0, 5.0], [12.0, 0.0, 5.0]]]),
                         np.array([[[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]]))
-    assert _beyond_limits(fast, plan).endswith("horizontally (limit 4)")  # type: ignore[union-attr]
+    said = limit_violations(kinematics(fast, plan.limits), plan.limits)
+    assert said[0].startswith("horizontal speed reaches 4.50 m/s (limit 4.0")
 
 
 def test_a_drone_replaced_before_is_still_an_obstacle_on_its_way_out(plan: Plan) -> None:

@@ -53,6 +53,8 @@ from groundctl.plan.verify import (
     bounding_spheres,
     closest_on_segment,
     hermite_power,
+    kinematics,
+    limit_violations,
 )
 from groundctl.show.model import PlannerSettings
 
@@ -195,15 +197,16 @@ def closest_approach(path: Moving, plan: Plan, tracks: NDArray[np.intp],
                       [None, :, None], 0.0, pv)
         a = hermite_power(pp[0, :-1], pp[0, 1:], pv[0, :-1] * h[:, None],
                           pv[0, 1:] * h[:, None])
-        for point in np.asarray(static, dtype=float).reshape(-1, 3):
-            rel = a.copy()
-            rel[:, 0] -= point
-            dmin, s_at = closest_on_segment(rel, shared=True, below=best)
-            k = int(np.argmin(dmin))
-            if dmin[k] < best:
-                best = float(dmin[k])
-                where = ", ".join(f"{c:.1f}" for c in point)
-                what = f"the drone at ({where}) at show time {t[k] + s_at[k] * h[k]:.1f} s"
+        # Every point against every segment at once (row point * segments + k), pruned by
+        # the segments' hulls like the moving sides.
+        points = np.asarray(static, dtype=float).reshape(-1, 3)
+        d = np.tile(a, (len(points), 1, 1))
+        d[:, 0] -= np.repeat(points, len(h), axis=0)
+        near, row, at = _closest_rows(d)
+        if row >= 0 and near < best:
+            i, k = divmod(row, len(h))
+            where = ", ".join(f"{c:.1f}" for c in points[i])
+            best, what = near, f"the drone at ({where}) at show time {t[k] + at * h[k]:.1f} s"
     return best, what
 
 
@@ -390,9 +393,11 @@ def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
         except GroundctlError as exc:
             reasons.append(f"arriving at {arrive:.1f} s: {exc}")
             continue
-        beyond = _beyond_limits(result.trajectories, plan)
-        if beyond is not None:
-            reasons.append(f"arriving at {arrive:.1f} s its way in would fly {beyond}")
+        # The QP's norm limits are tangent planes, exact only at convergence (and a
+        # window in motion is given fewer iterations): checked as the verifier does.
+        beyond = limit_violations(kinematics(result.trajectories, plan.limits), plan.limits)
+        if beyond:
+            reasons.append(f"arriving at {arrive:.1f} s on its way in {beyond[0]}")
             continue
         path = Moving(result.trajectories, leave_at, leave_at, arrive)
         closest, what = closest_approach(path, plan, flown, moving, static, leave_at, arrive)
@@ -413,33 +418,6 @@ def plan_join(plan: Plan, track: int, start: FloatArray, earliest: float, *,
                     plan_ms=(time.perf_counter() - t_start) * 1000.0, climb_s=climb_s)
     raise PlanningError(0, "no join", f"track {track + 1}: " + (
         "; ".join(reasons) if reasons else "no formation left to join before the show ends"))
-
-
-#: The way in's limits are checked on this many samples per second of it.
-LIMIT_SAMPLES_PER_S = 200
-#: Allowed over a limit, relative (the QP's norm limits are tangent planes, exact only
-#: at convergence: a window planned in motion is given fewer iterations).
-LIMIT_TOLERANCE = 0.01
-
-
-def _beyond_limits(trajectory: Trajectories, plan: Plan) -> str | None:
-    """What ``trajectory`` (one row) breaks of the plan's speed and acceleration limits,
-    in words, on a fine grid; None within them."""
-    lim = plan.limits
-    t = np.linspace(0.0, trajectory.end, max(int(trajectory.end * LIMIT_SAMPLES_PER_S), 2))
-    _, v, a = trajectory.evaluate(t)
-    grow = 1.0 + LIMIT_TOLERANCE
-    for name, value, limit in (
-            ("horizontally", float(np.linalg.norm(v[0, :, :2], axis=1).max()),
-             lim.max_speed_h),
-            ("up", float(v[0, :, 2].max(initial=0.0)), lim.max_speed_up),
-            ("down", float(-v[0, :, 2].min(initial=0.0)), lim.max_speed_down)):
-        if value > limit * grow:
-            return f"{value:.2f} m/s {name} (limit {limit:g})"
-    acc = float(np.linalg.norm(a[0], axis=1).max())
-    if acc > lim.max_accel * grow:
-        return f"accelerating {acc:.2f} m/s² (limit {lim.max_accel:g})"
-    return None
 
 
 def _climb_clearance(plan: Plan, flown: NDArray[np.intp], moving: Sequence[Moving],

@@ -422,6 +422,29 @@ def _window(dp: _DensePass, limits: Limits, t0: float, t1: float) -> WindowMetri
         outside_fence=int(dp.seg_outside[segs].sum()))
 
 
+def limit_violations(o: WindowMetrics, lim: Limits, *, quadrotor: bool = True) -> list[str]:
+    """The speed (a quadrotor's), acceleration and altitude limits ``o`` breaks, in words."""
+    v: list[str] = []
+    if quadrotor:
+        checks = [("horizontal speed", o.max_speed_h, lim.max_speed_h, "m/s"),
+                  ("climb rate", o.max_speed_up, lim.max_speed_up, "m/s"),
+                  ("descent rate", o.max_speed_down, lim.max_speed_down, "m/s"),
+                  ("acceleration", o.max_accel, lim.max_accel, "m/s^2")]
+        for what, got, limit, unit in checks:
+            if got > limit * (1 + LIMIT_TOL):
+                v.append(f"{what} reaches {got:.2f} {unit} (limit {limit} {unit})")
+    if o.min_alt < lim.min_alt - DIST_TOL:
+        v.append(f"altitude goes down to {o.min_alt:.2f} m (min_altitude {lim.min_alt} m)")
+    if o.max_alt > lim.max_alt + DIST_TOL:
+        v.append(f"altitude goes up to {o.max_alt:.2f} m (max_altitude {lim.max_alt} m)")
+    return v
+
+
+def kinematics(tr: Trajectories, limits: Limits) -> WindowMetrics:
+    """``tr``'s figures over its whole time, as :func:`verify` reads them."""
+    return _window(_dense_pass(tr), limits, tr.start, tr.end)
+
+
 def verify(plan: Plan) -> Verification:
     """Check every limit of ``plan.limits`` on the continuous trajectories."""
     lim = plan.limits
@@ -440,18 +463,7 @@ def verify(plan: Plan) -> Verification:
         v.append(f"drones {o.min_separation_pair[0]} and {o.min_separation_pair[1]} come "
                  f"{o.min_separation:.3f} m apart at t = {o.min_separation_time:.2f} s "
                  f"(min_separation {lim.min_separation} m)")
-    if plan.model == "quadrotor":
-        checks = [("horizontal speed", o.max_speed_h, lim.max_speed_h, "m/s"),
-                  ("climb rate", o.max_speed_up, lim.max_speed_up, "m/s"),
-                  ("descent rate", o.max_speed_down, lim.max_speed_down, "m/s"),
-                  ("acceleration", o.max_accel, lim.max_accel, "m/s^2")]
-        for what, got, limit, unit in checks:
-            if got > limit * (1 + LIMIT_TOL):
-                v.append(f"{what} reaches {got:.2f} {unit} (limit {limit} {unit})")
-    if o.min_alt < lim.min_alt - DIST_TOL:
-        v.append(f"altitude goes down to {o.min_alt:.2f} m (min_altitude {lim.min_alt} m)")
-    if o.max_alt > lim.max_alt + DIST_TOL:
-        v.append(f"altitude goes up to {o.max_alt:.2f} m (max_altitude {lim.max_alt} m)")
+    v += limit_violations(o, lim, quadrotor=plan.model == "quadrotor")
     for f, err in zip(plan.formations, errors, strict=True):
         if err > PATTERN_TOL:
             v.append(f"formation {f.index} '{f.name}': a drone is {err:.3f} m from its slot "

@@ -71,16 +71,25 @@ class OperatorCommands(WaysOut):
             actions += self._land(v, now)
         return actions
 
-    def land_one(self, sysid: int, now: float) -> list[Action]:
+    def land_one(self, sysid: int, now: float, *, after_hold: bool = False) -> list[Action]:
         """Vehicle ``sysid`` back to its landing slot and down; the others go on.
 
         Mid-show it first flies on to the next instant it rests on a formation and
         leaves from there on a way out planned around the others (see
         :attr:`leave_needed`); a straight line home would cut through the show.
+        ``after_hold``: at the end of that formation's hold if it can (a healthy drone a
+        spare replaces holds the formation whole).
         """
         v = self.vehicles.get(sysid)
-        next_instant = cache(lambda: None if v is None else
-                             leave_time(self.plan, v.track, self.show_time(now)))
+
+        def instant() -> float | None:
+            if v is None:
+                return None
+            t = self.show_time(now)
+            late = leave_time(self.plan, v.track, t, after_hold=True) if after_hold else None
+            return late if late is not None else leave_time(self.plan, v.track, t)
+
+        next_instant = cache(instant)
         verdict = land_one_asked(
             known=v is not None, in_columns=self._columns,
             mid_show=v is not None and self.streamed_as(v) is VehiclePhase.SHOW
@@ -103,9 +112,11 @@ class OperatorCommands(WaysOut):
         if verdict is LandOne.LEAVE_AT_NEXT:
             v.leave_at = next_instant()
             assert v.leave_at is not None
+            held = " at the end of its formation's hold," if after_hold and any(
+                abs(w.end - v.leave_at) < 1e-9 for w in self.plan.formations) else ","
             return [Notice(sysid, f"vehicle {sysid} leaves the show at show time "
-                                  f"{v.leave_at:.1f} s, on a way out planned around the "
-                                  "others")]
+                                  f"{v.leave_at:.1f} s{held} on a way out planned around "
+                                  "the others")]
         return [Notice(sysid, f"landing vehicle {sysid}"), *self._land(v, now)]
 
     def land_here(self, sysid: int, now: float) -> list[Action]:

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from groundctl.execute.leaving import Join, climb_time, leave_time
+from groundctl.execute.leaving import Join, climb_time
 from groundctl.execute.sequence.failsafes import Failsafes
 from groundctl.execute.sequence.lifecycle import Event
 from groundctl.execute.sequence.policies.spares import SpareView, choose_spares
@@ -211,21 +211,11 @@ class Spares(Failsafes):
                 else "no spare is ready" if self.standby else "this show has no spares"
             return [Notice(sysid, f"replace {sysid}: {why}; land {sysid} takes it out "
                                   "without one")]
-        had = v.leave_at
-        actions = self.land_one(sysid, now)
+        # A healthy drone: it holds the formation it is on (or flies to) whole and leaves
+        # at the end of its hold; the spare takes over on the way to the next.
+        actions = self.land_one(sysid, now, after_hold=True)
         if v.leave_at is None and not self._ended:
             return actions  # land-one refused (said why)
-        if had is None and v.leave_at is not None and v.leave is None:
-            # A healthy drone: it holds the formation it is on (or flies to) whole and
-            # leaves at the end of its hold; the spare takes over on the way to the next.
-            later = leave_time(self.plan, v.track, self.show_time(now), after_hold=True)
-            if later is not None and later > v.leave_at:
-                v.leave_at = later
-                actions = [a for a in actions if not (isinstance(a, Notice)
-                                                      and a.sysid == sysid)]
-                actions.append(Notice(sysid, f"vehicle {sysid} leaves the show at show time "
-                                             f"{later:.1f} s, at the end of its formation's "
-                                             "hold, on a way out planned around the others"))
         return [*actions, Notice(sysid, f"vehicle {sysid} leaves the show; a spare takes its "
                                         f"track {v.track + 1} over", "replace",
                                  "replaced by a spare")]

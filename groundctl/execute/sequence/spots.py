@@ -246,44 +246,38 @@ class PathsAndSpots(SequenceState):
             return [Notice(v.sysid, f"vehicle {v.sysid}: its landing spot is taken by a drone "
                                     "that is down; planning new spots", "spot_taken",
                            "landing spot taken by a drone that is down: planning new spots")]
-        spot = self.nearest_free_spot(v)
+        spot, of_plan = self.free_ground(v)
         if spot is None:
-            spot = self.clear_spot(v)
-            if spot is None:
-                self._to(v, Event.LAND)
-                v.reason = "no free landing spot left"
-                return [Notice(v.sysid, f"vehicle {v.sysid}: no free landing spot left: "
-                                        "landing where it is; watch it"),
-                        self._send(v, Land(v.sysid), now)]
-            v.landing_point, v.returning_since = spot, now
+            self._to(v, Event.LAND)
+            v.reason = "no free landing spot left"
+            return [Notice(v.sysid, f"vehicle {v.sysid}: no free landing spot left: "
+                                    "landing where it is; watch it"),
+                    self._send(v, Land(v.sysid), now)]
+        v.landing_point, v.returning_since = spot, now
+        if not of_plan:
             return [Notice(v.sysid, f"vehicle {v.sysid}: no landing spot of the plan is free; "
                                     f"moving to the nearest clear ground ({spot[0]:.1f}, "
                                     f"{spot[1]:.1f}) to land", "clear_spot",
                            "no free landing spot: landing on the nearest clear ground")]
-        v.landing_point, v.returning_since = spot, now
         return [Notice(v.sysid, f"vehicle {v.sysid}: its landing spot is taken; moving to the "
                                 f"nearest free spot ({spot[0]:.1f}, {spot[1]:.1f}) to land")]
 
-    def clear_spot(self, v: VehicleRun) -> tuple[float, float, float] | None:
-        """The nearest point to where ``v`` hovers clear of every drone down and every
-        spot someone else lands on (:func:`clear_spot_near`): when no landing candidate
-        of the plan is free."""
+    def free_ground(self, v: VehicleRun) -> tuple[tuple[float, float, float] | None, bool]:
+        """Where ``v`` lands when its spot is taken, and whether it is one of the plan's:
+        the closest landing candidate (plan landing spots, then takeoff slots, then pads)
+        clear of every drone down and every spot someone else lands on; with none free,
+        the nearest clear ground to where it hovers (:func:`clear_spot_near`); None when
+        there is none."""
+        down = np.array(self.down_positions(v)).reshape(-1, 3)
+        reserved = np.array(self.reserved_spots({v.sysid})).reshape(-1, 3)
+        candidates = landing_candidates(self.plan)
+        free = candidates[free_spots(self.plan, candidates, reserved, down)]
+        if len(free):
+            best = free[np.argmin(np.linalg.norm(free - self._landing_point(v), axis=1))]
+            return (float(best[0]), float(best[1]), float(best[2])), True
         pos = self._positions.get(v.sysid)
         here = self._landing_point(v) if pos is None else \
             np.array([pos[0], pos[1], self._landing_point(v)[2]])
-        spot = clear_spot_near(self.plan, here,
-                               np.array(self.reserved_spots({v.sysid})).reshape(-1, 3),
-                               np.array(self.down_positions(v)).reshape(-1, 3))
-        return None if spot is None else (float(spot[0]), float(spot[1]), float(spot[2]))
-
-    def nearest_free_spot(self, v: VehicleRun) -> tuple[float, float, float] | None:
-        """The closest landing candidate (plan landing spots, then takeoff slots) clear of
-        every drone down and every spot someone else lands on."""
-        candidates = landing_candidates(self.plan)
-        down = np.array(self.down_positions(v)).reshape(-1, 3)
-        reserved = np.array(self.reserved_spots({v.sysid})).reshape(-1, 3)
-        free = candidates[free_spots(self.plan, candidates, reserved, down)]
-        if not len(free):
-            return None
-        best = free[np.argmin(np.linalg.norm(free - self._landing_point(v), axis=1))]
-        return (float(best[0]), float(best[1]), float(best[2]))
+        spot = clear_spot_near(self.plan, here, reserved, down)
+        return (None if spot is None else (float(spot[0]), float(spot[1]), float(spot[2])),
+                False)
