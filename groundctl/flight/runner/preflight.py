@@ -123,8 +123,11 @@ class Preflight(RunnerState):
                     break
             else:
                 show_ready = None
-            # Give up early on what waiting cannot fix.
+            # Give up early on what waiting cannot fix: once one check has failed that
+            # long, naming every vehicle failing such a check now (on a busy link the
+            # others' answers came a little later, the same fault).
             permanent: dict[int, list[str]] = {}
+            settled = False
             for sysid, results in report.results.items():
                 if sysid in cfg.excluded or sysid in report.spares:
                     continue
@@ -134,9 +137,9 @@ class Preflight(RunnerState):
                         failing_since.pop(key, None)
                         continue
                     since = failing_since.setdefault(key, now)
-                    if now - since >= cfg.settle_s:
-                        permanent.setdefault(sysid, []).append(str(r))
-            if permanent:
+                    settled = settled or now - since >= cfg.settle_s
+                    permanent.setdefault(sysid, []).append(str(r))
+            if settled:
                 self._say("pre-flight refused: " + report.summary(cfg.excluded) + "\n"
                           + "\n".join(report.failing_by_check(cfg.excluded)), "preflight_failed",
                           failures=permanent)
