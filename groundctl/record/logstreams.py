@@ -24,7 +24,7 @@ log = logging.getLogger(__name__)
 
 #: Message id -> Hz, both autopilots.
 LOG_STREAMS: dict[int, float] = {
-    mavlink.MAVLINK_MSG_ID_ATTITUDE: 2.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 1.0,
     mavlink.MAVLINK_MSG_ID_BATTERY_STATUS: 0.5,
     mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
 }
