@@ -208,7 +208,8 @@ class FleetLink:
         """Where each network's socket binds, in network order."""
         self.listen = listens[0]
         self.clock = clock
-        self._speed = float(getattr(clock, "speed", 1.0)) or 1.0
+        real_s = clock.wall_interval(1.0)  # 0: a clock real time does not move
+        self._speed = 1.0 / real_s if real_s > 0 else 1.0
         """Clock seconds a real second (a dry-run's pace), for the tlog's stamps."""
         self.endpoints = list(endpoints)
         self.expected_ids = None if expected_ids is None else frozenset(expected_ids)

@@ -59,6 +59,7 @@ from collections.abc import Callable, Collection
 from dataclasses import dataclass, field, replace
 from enum import Enum
 
+from groundctl import wgs84
 from groundctl.link.flavours import Flavour
 
 Vec3 = tuple[float, float, float]
@@ -133,10 +134,6 @@ ORIGIN_TOLERANCE_FRACTION = 0.01
 HOME_UNDER_M = 2.0
 #: A local and a global sample this far apart on the vehicle's clock still pair, s.
 PAIR_WINDOW_S = 0.3
-
-# WGS-84, for metres per degree at a latitude.
-_A = 6378137.0
-_E2 = 6.69437999014e-3
 
 #: Modes a vehicle lands in (as the link decodes them): a disarm on the ground in one
 #: of these is the landing ending.
@@ -422,8 +419,8 @@ def metres_per_degree(lat_deg: float) -> tuple[float, float]:
     """(north, east) metres per degree of latitude and longitude at ``lat_deg`` (WGS-84)."""
     phi = math.radians(lat_deg)
     s2 = math.sin(phi) ** 2
-    m = _A * (1 - _E2) / (1 - _E2 * s2) ** 1.5
-    n = _A / math.sqrt(1 - _E2 * s2)
+    m = wgs84.A * (1 - wgs84.E2) / (1 - wgs84.E2 * s2) ** 1.5
+    n = wgs84.A / math.sqrt(1 - wgs84.E2 * s2)
     return math.radians(1.0) * m, math.radians(1.0) * n * math.cos(phi)
 
 

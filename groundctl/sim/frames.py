@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 import pymap3d
 
+from groundctl import wgs84
+
 
 def _ecef_to_enu_rotation(lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarray:
     """Rotations ``(n, 3, 3)`` taking ECEF vectors to local East-North-Up."""
@@ -31,14 +33,6 @@ def _ecef_to_enu_rotation(lat_deg: np.ndarray, lon_deg: np.ndarray) -> np.ndarra
         np.stack([-sp * cl, -sp * sl, cp], axis=-1),
         np.stack([cp * cl, cp * sl, sp], axis=-1),
     ], axis=-2)
-
-
-#: WGS-84: semi-major axis (m) and flattening.
-_WGS84_A = 6378137.0
-_WGS84_F = 1.0 / 298.257223563
-_WGS84_B = _WGS84_A * (1.0 - _WGS84_F)
-_E2 = 1.0 - (_WGS84_B / _WGS84_A) ** 2  # first eccentricity squared
-_EP2 = (_WGS84_A / _WGS84_B) ** 2 - 1.0  # second eccentricity squared
 
 
 @functools.cache
@@ -54,7 +48,7 @@ def _ecef_to_geodetic(ecef: np.ndarray) -> np.ndarray:
     """ECEF points ``(..., 3)`` to (lat deg, lon deg, height above WGS-84 m): Heikkinen
     (1982), exact in closed form away from the Earth's centre."""
     x, y, z = ecef[..., 0], ecef[..., 1], ecef[..., 2]
-    a, b, e2 = _WGS84_A, _WGS84_B, _E2
+    a, b, e2 = wgs84.A, wgs84.B, wgs84.E2
     p2 = x * x + y * y
     p = np.sqrt(p2)
     z2 = z * z
@@ -73,7 +67,7 @@ def _ecef_to_geodetic(ecef: np.ndarray) -> np.ndarray:
     v = np.sqrt(d * d + (1.0 - e2) * z2)
     z0 = b * b * z / (a * v)
     out = np.empty(np.shape(ecef), dtype=float)
-    out[..., 0] = np.degrees(np.arctan2(z + _EP2 * z0, p))
+    out[..., 0] = np.degrees(np.arctan2(z + wgs84.EP2 * z0, p))
     out[..., 1] = np.degrees(np.arctan2(y, x))
     out[..., 2] = u * (1.0 - b * b / (a * v))
     return out
