@@ -8,7 +8,12 @@ import numpy as np
 import pytest
 from test_execute_support import ORIGIN, geo_offset, make_plan, make_vehicle
 
-from groundctl.flight.monitor import FlightMonitor, nearest_pair, telemetry_positions
+from groundctl.flight.monitor import (
+    BRUTE_FORCE_PAIRS,
+    FlightMonitor,
+    nearest_pair,
+    telemetry_positions,
+)
 from groundctl.link.state import VehicleState
 from groundctl.link.timesync import NS, TimesyncSample
 
@@ -57,6 +62,23 @@ def test_stale_and_lost_vehicles_are_left_out() -> None:
     b.lost = True
     assert telemetry_positions(make_plan(), {1: a, 2: b}, now=10.0)[0] == []
     assert nearest_pair([], np.zeros((0, 3))).distance_m == math.inf
+
+
+@pytest.mark.parametrize("n", [2, 3, 9, BRUTE_FORCE_PAIRS, BRUTE_FORCE_PAIRS + 1, 200])
+def test_the_nearest_pair_is_every_pairs_closest_on_either_side_of_the_kd_tree(n: int) -> None:
+    """Every pair compared on a small fleet, a KD-tree on a large one: the same answer as
+    the distance matrix, the pair named by system id (low first)."""
+    rng = np.random.default_rng(n)
+    for _ in range(20):
+        pos = rng.uniform(-20.0, 20.0, (n, 3))
+        ids = [int(s) for s in rng.permutation(254)[:n] + 1]
+        d = np.linalg.norm(pos[:, None] - pos[None], axis=-1)
+        d[np.diag_indices(n)] = np.inf
+        i, j = np.unravel_index(np.argmin(d), d.shape)
+        sep = nearest_pair(ids, pos)
+        assert sep.distance_m == pytest.approx(d[i, j], rel=1e-12)
+        assert sep.pair == (min(ids[i], ids[j]), max(ids[i], ids[j]))
+    assert nearest_pair([7], pos[:1]).distance_m == math.inf
 
 
 def test_tracking_error_and_pattern_error_against_the_plan() -> None:

@@ -149,10 +149,24 @@ class Separation:
     """The fleet's wind estimate at that instant, m/s (:mod:`groundctl.execute.wind`)."""
 
 
+#: Up to this many positions :func:`nearest_pair` compares every pair (a few numpy calls);
+#: beyond it a KD-tree, whose building and querying costs more than that on a small fleet.
+BRUTE_FORCE_PAIRS = 40
+
+
 def nearest_pair(ids: list[int], pos: FloatArray) -> Separation:
-    """The closest two of ``pos`` (rows for ``ids``), by KD-tree."""
-    if len(ids) < 2:
+    """The closest two of ``pos`` (rows for ``ids``): every pair of a small fleet, a
+    KD-tree's nearest neighbours in a larger one."""
+    n = len(ids)
+    if n < 2:
         return Separation(math.inf)
+    if n <= BRUTE_FORCE_PAIRS:
+        diff = pos[:, None, :] - pos[None, :, :]
+        d2 = np.add.reduce(diff * diff, axis=-1)
+        d2.flat[::n + 1] = np.inf
+        k = int(np.argmin(d2))
+        i, j = divmod(k, n)
+        return Separation(math.sqrt(float(d2[i, j])), (min(ids[i], ids[j]), max(ids[i], ids[j])))
     dist, idx = cKDTree(pos).query(pos, k=2)
     i = int(np.argmin(dist[:, 1]))
     j = int(idx[i, 1])

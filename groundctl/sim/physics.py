@@ -82,23 +82,32 @@ def _limit_norm(v: np.ndarray, limit: np.ndarray | float) -> np.ndarray:
     return v * scale
 
 
-def _sqrt_controller(err: np.ndarray, p: float, accel: float) -> np.ndarray:
-    """Output for an error: linear near zero, sqrt(2 a d) far away (elementwise).
+def _sqrt_controller_hv(err: np.ndarray, p: np.ndarray, accel: np.ndarray,
+                        limit_h: np.ndarray | float = np.inf) -> np.ndarray:
+    """ArduPilot's ``sqrt_controller`` on ``(n, 3)`` errors: horizontally on the xy norm,
+    along the error's direction, its output limited to norm ``limit_h``; vertically on
+    its own.  ``p`` and ``accel`` are ``(2,)``: (horizontal, vertical).
 
-    The same shape as ArduPilot's ``sqrt_controller``: P gain inside
-    ``accel / p²``, constant-deceleration braking curve outside, so that a far
-    target is approached at a speed from which the vehicle can still stop.
+    Output for an error of size d: ``p * d`` (linear) inside ``accel / p²``, the
+    constant-deceleration braking curve ``sqrt(2 accel (d - accel / 2p²))`` outside, so
+    that a far target is approached at a speed from which the vehicle can still stop.
+
+    Both magnitudes go through the controller as one array, and the horizontal limit
+    applies to the output's magnitude, which the controller computes anyway (a fleet's
+    physics step at 50 Hz makes three of these calls on a few rows; numpy's per-call
+    cost, not the arithmetic, is what they cost).
     """
-    dist = np.abs(err)
+    mag = np.empty((err.shape[0], 2))
+    mag[:, 0] = np.sqrt(err[:, 0] * err[:, 0] + err[:, 1] * err[:, 1])
+    mag[:, 1] = np.abs(err[:, 2])
     linear = accel / (p * p)
-    far = np.sqrt(np.maximum(2.0 * accel * (dist - linear / 2.0), 0.0))
-    return np.sign(err) * np.where(dist <= linear, p * dist, far)
-
-
-def _sqrt_controller_xy(err: np.ndarray, p: float, accel: float) -> np.ndarray:
-    """:func:`_sqrt_controller` on the norm of ``(n, 2)`` errors, along their direction."""
-    dist = _norm(err)
-    return err / np.maximum(dist, 1e-12) * _sqrt_controller(dist, p, accel)
+    out = np.where(mag <= linear, p * mag,
+                   np.sqrt(np.maximum(2.0 * accel * (mag - linear / 2.0), 0.0)))
+    res = np.empty_like(err)
+    res[:, :2] = err[:, :2] * (np.minimum(out[:, 0], limit_h)
+                               / np.maximum(mag[:, 0], 1e-12))[:, None]
+    res[:, 2] = np.sign(err[:, 2]) * out[:, 1]
+    return res
 
 
 class GustField:
@@ -152,6 +161,17 @@ class FleetPhysics:
         n = homes_enu.shape[0]
         self.n = n
         self.dyn = dynamics
+        d = dynamics
+        j = d.max_jerk
+        a_h, a_v = d.max_accel_xy, d.max_accel_z
+        # Gains and accelerations of the three sqrt controllers, (horizontal, vertical).
+        self._shape_pos = (np.array([0.5 * j / a_h, 0.5 * j / a_v]),
+                           np.array([0.5 * a_h, 0.5 * a_v]))
+        self._shape_vel = (np.array([j / a_h, j / a_v]), np.array([j, j]))
+        self._pos_loop = (np.array([d.pos_p, d.pos_p_z]), np.array([a_h, a_v]))
+        self._vel_p = np.array([d.vel_p, d.vel_p, d.vel_p_z])
+        self._vel_i = np.array([d.vel_i, d.vel_i, d.vel_i_z])
+        self._lag = np.array([d.response_tau, d.response_tau, d.response_tau_z])
         self.rng = rng
         self.t = 0.0
         self.pos = homes_enu.astype(float).copy()
@@ -305,18 +325,13 @@ class FleetPhysics:
         self.des_vel += self.des_acc * dt
 
         e = np.where(pos_on, p_in - self.des_pos, 0.0)
-        a_xy, a_z = d.max_accel_xy, d.max_accel_z
-        v_t = np.empty_like(e)
-        v_t[:, :2] = _limit_norm(_sqrt_controller_xy(e[:, :2], 0.5 * jerk / a_xy, 0.5 * a_xy),
-                                 d.max_speed_xy)
-        v_t[:, 2] = _clip(_sqrt_controller(e[:, 2], 0.5 * jerk / a_z, 0.5 * a_z),
-                            -d.max_speed_down, self.climb_limit)
+        v_t = _sqrt_controller_hv(e, *self._shape_pos, d.max_speed_xy)
+        v_t[:, 2] = _clip(v_t[:, 2], -d.max_speed_down, self.climb_limit)
         v_t += v_in
         v_t[:, 2] = _clip(v_t[:, 2], -d.max_speed_down, self.climb_limit)
-        ev = v_t - self.des_vel
-        a_t = np.empty_like(ev)
-        a_t[:, :2] = _limit_norm(_sqrt_controller_xy(ev[:, :2], jerk / a_xy, jerk), a_xy)
-        a_t[:, 2] = _clip(_sqrt_controller(ev[:, 2], jerk / a_z, jerk), -a_z, a_z)
+        a_t = _sqrt_controller_hv(v_t - self.des_vel, *self._shape_vel, d.max_accel_xy)
+        a_z = d.max_accel_z
+        a_t[:, 2] = _clip(a_t[:, 2], -a_z, a_z)
         a_t += a_in
         self.des_acc[:, :2] += _limit_norm(a_t[:, :2] - self.des_acc[:, :2], jerk * dt)
         self.des_acc[:, 2] += _clip(a_t[:, 2] - self.des_acc[:, 2], -jerk * dt, jerk * dt)
@@ -362,9 +377,7 @@ class FleetPhysics:
 
         # Position loop (horizontal on the xy norm, vertical on its own, as both autopilots do).
         err = np.where(fb, self.des_pos - self.est_pos, 0.0)
-        v_dem = np.empty((n, 3))
-        v_dem[:, :2] = _sqrt_controller_xy(err[:, :2], d.pos_p, d.max_accel_xy)
-        v_dem[:, 2] = _sqrt_controller(err[:, 2], d.pos_p_z, d.max_accel_z)
+        v_dem = _sqrt_controller_hv(err, *self._pos_loop)
         v_dem += self.des_vel
         auth = self.authority
         v_dem[:, :2] = _limit_norm(v_dem[:, :2], d.max_speed_xy * auth)
@@ -374,7 +387,7 @@ class FleetPhysics:
         # limited once, at the lean-angle limit (nothing is clipped before the sum, so
         # the integrator can carry a steady wind up to the airframe's authority).
         v_err = v_dem - (self.vel + self.vel_bias)
-        a_dem = self.des_acc + np.array([d.vel_p, d.vel_p, d.vel_p_z]) * v_err + self._vint
+        a_dem = self.des_acc + self._vel_p * v_err + self._vint
         a_lim = a_dem.copy()
         a_lim[:, :2] = _limit_norm(a_dem[:, :2], d.max_tilt_accel * auth)
         a_lim[:, 2] = _clip(a_dem[:, 2], -d.thrust_accel_z * auth, d.thrust_accel_z * auth)
@@ -383,7 +396,7 @@ class FleetPhysics:
             self._acc_dem = a_lim  # the path is already jerk-limited
         else:
             self._acc_dem = self._acc_dem + _limit_norm(a_lim - self._acc_dem, d.max_jerk * dt)
-        lag = np.minimum(1.0, dt / np.array([d.response_tau, d.response_tau, d.response_tau_z]))
+        lag = np.minimum(1.0, dt / self._lag)
         acc = self.acc + (self._acc_dem - self.acc) * lag
         # Unpowered: no thrust at all, the vehicle falls (or rests on the ground).
         acc = np.where(powered[:, None], acc, np.array([0.0, 0.0, -GRAVITY]))
@@ -406,22 +419,24 @@ class FleetPhysics:
 
         # Ground contact: clamp, stop, detect crashes.
         below = self.pos[:, 2] <= self.ground_z
-        impact = below & (self.vel[:, 2] < -CRASH_SPEED)
-        self.crashed |= impact
-        self.pos[:, 2] = np.where(below, self.ground_z, self.pos[:, 2])
-        self.vel = np.where(below[:, None], 0.0, self.vel)
         self.on_ground = below
-        resting = below & ~(powered & (v_dem[:, 2] > 0))
+        resting = below
+        if below.any():  # (in flight nobody is: the rest of this block is a no-op then)
+            self.crashed |= below & (self.vel[:, 2] < -CRASH_SPEED)
+            self.pos[:, 2] = np.where(below, self.ground_z, self.pos[:, 2])
+            self.vel = np.where(below[:, None], 0.0, self.vel)
+            resting = below & ~(powered & (v_dem[:, 2] > 0))
         self.ground_time = np.where(resting, self.ground_time + dt, 0.0)
-        # On the ground the controllers start afresh (AC_PosControl's init_controller):
-        # no integrator wind-up before lift-off, the path starts where the vehicle is.
-        rest = resting[:, None]
-        self._vint = np.where(rest, 0.0, self._vint)
-        self._acc_dem = np.where(rest, 0.0, self._acc_dem)
-        self.acc = np.where(rest, 0.0, self.acc)
-        self.des_pos = np.where(rest, self.est_pos, self.des_pos)
-        self.des_vel = np.where(rest, 0.0, self.des_vel)
-        self.des_acc = np.where(rest, 0.0, self.des_acc)
+        if resting.any():
+            # On the ground the controllers start afresh (AC_PosControl's init_controller):
+            # no integrator wind-up before lift-off, the path starts where the vehicle is.
+            rest = resting[:, None]
+            self._vint = np.where(rest, 0.0, self._vint)
+            self._acc_dem = np.where(rest, 0.0, self._acc_dem)
+            self.acc = np.where(rest, 0.0, self.acc)
+            self.des_pos = np.where(rest, self.est_pos, self.des_pos)
+            self.des_vel = np.where(rest, 0.0, self.des_vel)
+            self.des_acc = np.where(rest, 0.0, self.des_acc)
 
         # Estimate error: slow OU process, as an EKF fed by a GPS wanders.
         if self.gps_noise_m > 0:
@@ -450,13 +465,14 @@ class FleetPhysics:
         learnt even while the vehicle is being blown away.
         """
         d = self.dyn
-        grow = np.array([d.vel_i, d.vel_i, d.vel_i_z]) * v_err * dt
+        grow = self._vel_i * v_err * dt
         lim_xy = a_dem[:, :2] - a_lim[:, :2]
         limited = _norm(lim_xy) > 1e-9
-        u = a_dem[:, :2] / np.maximum(_norm(a_dem[:, :2]), 1e-12)
-        along = np.sum(grow[:, :2] * u, axis=1, keepdims=True)
-        drop = limited & (along > 0)
-        grow[:, :2] -= np.where(drop, along * u, 0.0)
+        if limited.any():
+            u = a_dem[:, :2] / np.maximum(_norm(a_dem[:, :2]), 1e-12)
+            along = np.sum(grow[:, :2] * u, axis=1, keepdims=True)
+            drop = limited & (along > 0)
+            grow[:, :2] -= np.where(drop, along * u, 0.0)
         lim_z = a_dem[:, 2] != a_lim[:, 2]
         grow[:, 2] = np.where(lim_z & (grow[:, 2] * a_dem[:, 2] > 0), 0.0, grow[:, 2])
         self._vint = self._vint + grow

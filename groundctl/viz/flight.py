@@ -24,10 +24,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pymap3d
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from groundctl.execute.frames import geodetic_to_show, ned_vel_to_show
-from groundctl.flight.monitor import MAX_SAMPLE_AGE_S
+from groundctl.flight.monitor import MAX_SAMPLE_AGE_S, nearest_pair
 from groundctl.plan.plan import Plan
 from groundctl.record.showclock import ShowClockTable
 from groundctl.show.model import GeoOrigin
@@ -179,7 +178,7 @@ def led_at(data: TlogData, sysid: int, unix_s: FloatArray) -> NDArray[np.uint8]:
 def separations(positions: FloatArray, sysids: tuple[int, ...]
                 ) -> tuple[FloatArray, NDArray[np.int64]]:
     """Per tick: the closest distance between any two vehicles present and their ids
-    (a KD-tree per tick, as the monitor's :func:`~groundctl.flight.monitor.nearest_pair`)."""
+    (the monitor's own :func:`~groundctl.flight.monitor.nearest_pair` per tick)."""
     t_count = positions.shape[0]
     dist = np.full(t_count, np.nan)
     pair = np.zeros((t_count, 2), dtype=np.int64)
@@ -187,11 +186,10 @@ def separations(positions: FloatArray, sysids: tuple[int, ...]
     present = np.isfinite(positions[..., 0])
     for k in np.flatnonzero(present.sum(axis=1) >= 2):
         cols = np.flatnonzero(present[k])
-        d, idx = cKDTree(positions[k, cols]).query(positions[k, cols], k=2)
-        i = int(np.argmin(d[:, 1]))
-        a, b = ids[cols[i]], ids[cols[idx[i, 1]]]
-        dist[k] = d[i, 1]
-        pair[k] = (min(a, b), max(a, b))
+        sep = nearest_pair([int(s) for s in ids[cols]], positions[k, cols])
+        assert sep.pair is not None  # two or more present
+        dist[k] = sep.distance_m
+        pair[k] = sep.pair
     return dist, pair
 
 
