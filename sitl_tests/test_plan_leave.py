@@ -173,3 +173,17 @@ def test_no_drone_lands_within_the_limit_and_its_landing_margin_of_a_drone_down(
     assert len({tuple(g) for g in goals.round(3)}) == len(tracks)  # one spot each
     far = np.array([[spot[0] - 1.5 - LANDING_MARGIN_M - 0.1, spot[1], 0.0]])
     assert np.allclose(assign_landing(plan, tracks, start, far), plan.landing_hover[tracks])
+
+
+def test_a_points_distance_to_the_fence_is_to_its_nearest_edge_inside_or_out() -> None:
+    """What a clear landing spot keeps from the geofence (and what makes a point on the
+    fence line count as inside it): the nearest edge, its ends included."""
+    from groundctl.show.checks import inside_polygon, polygon_edge_distance
+
+    square = np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]])
+    points = np.array([[5.0, 5.0, 3.0],    # the middle: 5 m from every side
+                       [1.0, 4.0, 0.0],    # inside, 1 m from the west side
+                       [13.0, 14.0, 0.0],  # outside, beyond a corner: 5 m from it
+                       [10.0, 2.5, 0.0]])  # on the east side
+    np.testing.assert_allclose(polygon_edge_distance(points, square), [5.0, 1.0, 5.0, 0.0])
+    assert inside_polygon(points, square).tolist() == [True, True, False, True]

@@ -21,6 +21,7 @@ from groundctl.plan.feasibility import min_transition_time
 from groundctl.plan.plan import Plan
 from groundctl.plan.trajectory import Trajectories
 from groundctl.plan.verify import inside_polygon
+from groundctl.show.checks import polygon_edge_distance
 from groundctl.show.model import Limits, QuadrotorModel
 
 FloatArray = NDArray[np.float64]
@@ -199,20 +200,9 @@ def clear_spot_near(plan: Plan, point: FloatArray, blocked: FloatArray | None = 
     if plan.limits.geofence is not None:
         fence = np.asarray(plan.limits.geofence, dtype=float)
         spots = spots[inside_polygon(fence, spots[:, :2])
-                      & (_edge_distance(fence, spots[:, :2]) >= CLEAR_FENCE_MARGIN_M)]
+                      & (polygon_edge_distance(spots, fence) >= CLEAR_FENCE_MARGIN_M)]
     hits = free_spots(plan, spots, blocked, down)
     return spots[hits[0]] if len(hits) else None
-
-
-def _edge_distance(polygon: FloatArray, xy: FloatArray) -> FloatArray:
-    """Each point's distance to the nearest edge of ``polygon`` (k, 2), m."""
-    a, b = polygon, np.roll(polygon, -1, axis=0)
-    ab = b - a
-    rel = xy[:, None, :] - a[None, :, :]
-    t = np.clip(np.einsum("nkd,kd->nk", rel, ab) / np.maximum(
-        np.einsum("kd,kd->k", ab, ab), 1e-12), 0.0, 1.0)
-    nearest = a[None, :, :] + t[:, :, None] * ab[None, :, :]
-    return np.asarray(np.linalg.norm(xy[:, None, :] - nearest, axis=2).min(axis=1))
 
 
 def free_spots(plan: Plan, candidates: NDArray[np.float64],

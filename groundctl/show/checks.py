@@ -85,11 +85,20 @@ def inside_polygon(points: FloatArray, polygon: FloatArray) -> NDArray[np.bool_]
         x_at = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
     inside = np.count_nonzero(crosses & (x < x_at), axis=1) % 2 == 1
     # Points on an edge count as inside: a fence drawn through a slot is not a breach.
-    ab = b - a
+    return inside | (polygon_edge_distance(p, poly) < 1e-6)
+
+
+def polygon_edge_distance(points: FloatArray, polygon: FloatArray) -> FloatArray:
+    """Each (M, 2+) point's distance to the nearest edge of the (K, 2) polygon, m."""
+    p = np.asarray(points, dtype=float)[:, :2]
+    poly = np.asarray(polygon, dtype=float)
+    x, y = p[:, 0:1], p[:, 1:2]
+    a = poly
+    ab = np.roll(poly, -1, axis=0) - a
     t = np.clip(((x - a[:, 0]) * ab[:, 0] + (y - a[:, 1]) * ab[:, 1])
                 / np.maximum((ab**2).sum(axis=1), 1e-12), 0.0, 1.0)
     gap = np.hypot(a[:, 0] + t * ab[:, 0] - x, a[:, 1] + t * ab[:, 1] - y)
-    return inside | (gap.min(axis=1) < 1e-6)
+    return np.asarray(gap.min(axis=1))
 
 
 def geofence_problem(points: FloatArray, limits: Limits, what: str = "point") -> str | None:

@@ -82,19 +82,24 @@ class OperatorCommands(WaysOut):
         """
         v = self.vehicles.get(sysid)
 
-        def instant() -> float | None:
+        def instant() -> tuple[float, bool] | None:
+            """When it leaves, and whether that is the end of a hold it was asked for."""
             if v is None:
                 return None
             t = self.show_time(now)
             late = leave_time(self.plan, v.track, t, after_hold=True) if after_hold else None
-            return late if late is not None else leave_time(self.plan, v.track, t)
+            if late is not None:
+                return late, True
+            at = leave_time(self.plan, v.track, t)
+            return None if at is None else (at, False)
 
-        next_instant = cache(instant)
+        chosen = cache(instant)
         verdict = land_one_asked(
             known=v is not None, in_columns=self._columns,
             mid_show=v is not None and self.streamed_as(v) is VehiclePhase.SHOW
             and not self._ended,
-            leaving=v is not None and v.leave_at is not None, next_instant=next_instant)
+            leaving=v is not None and v.leave_at is not None,
+            next_instant=lambda: None if (c := chosen()) is None else c[0])
         if verdict is LandOne.UNKNOWN:
             return [Notice(None, f"no vehicle {sysid} in this show")]
         assert v is not None
@@ -110,10 +115,10 @@ class OperatorCommands(WaysOut):
                                   "from; it lands with the others at the end (land-here "
                                   f"{sysid} brings it straight down now)")]
         if verdict is LandOne.LEAVE_AT_NEXT:
-            v.leave_at = next_instant()
-            assert v.leave_at is not None
-            held = " at the end of its formation's hold," if after_hold and any(
-                abs(w.end - v.leave_at) < 1e-9 for w in self.plan.formations) else ","
+            pick = chosen()
+            assert pick is not None
+            v.leave_at, at_hold_end = pick
+            held = " at the end of its formation's hold," if at_hold_end else ","
             return [Notice(sysid, f"vehicle {sysid} leaves the show at show time "
                                   f"{v.leave_at:.1f} s{held} on a way out planned around "
                                   "the others")]
