@@ -10,6 +10,8 @@ issue's item 1 reproduced without a network.
 
 from __future__ import annotations
 
+import itertools
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -606,3 +608,27 @@ def test_random_forged_samples_do_not_keep_a_real_track_from_being_believed() ->
         believed += got
         m.offer(_s(t + 0.05, float(rng.normal(0, 30)), float(rng.normal(0, 5))))
     assert believed and all(s.pos[0] == pytest.approx(2.0 * (s.t - 1.0)) for s in believed)
+
+
+@pytest.mark.parametrize("rate_hz", [10.0, 5.0, 4.0, 2.0])
+@pytest.mark.parametrize("height_m", [3.0, 8.0, 10.0, 20.0])
+def test_a_fall_that_ends_on_the_ground_is_no_second_sender(rate_hz: float,
+                                                            height_m: float) -> None:
+    """A drone whose motors stop falls and stops dead on the ground, faster than any
+    manoeuvre: the first sample on the ground does not follow the fall, the next fits
+    both it and the fall.  That is one vehicle, not two senders (before: "position
+    samples 0.4 m off the track, which went on (another sender)" on a motor failure)."""
+    g = 9.81
+    impact = math.sqrt(2.0 * height_m / g)
+    m = MotionCheck()
+    believed: list[Sample] = []
+    for k in range(int(4.0 * rate_hz)):
+        t = 1.0 + k / rate_hz
+        fall = t - 1.0
+        z, vz = (-height_m + 0.5 * g * fall * fall, g * fall) if fall < impact else (0.0, 0.0)
+        got, conflict = m.offer(Sample(t, (0.0, 0.0, z), (0.0, 0.0, vz), t))
+        assert conflict is None, (t, conflict)
+        believed += got
+    assert m.ref is not None and m.ref.pos == (0.0, 0.0, 0.0)  # believed down
+    assert not m.chains  # nothing of the fall left waiting to be believed later
+    assert all(a.t < b.t for a, b in itertools.pairwise(believed))

@@ -23,7 +23,10 @@ refuse to believe what contradicts the stream that vehicle has been sending:
   that does not run ahead of ours.  The first track, and a jump (a GPS glitch, an EKF
   reset, a reboot), are believed once a run of samples following each other spans
   :data:`JUMP_CONFIRM_S`; a sample that the next one contradicts (it continues the
-  old track) was not the vehicle's.
+  old track) was not the vehicle's.  A sample that continues both the old track and
+  the run that left it contradicts neither: the two met again (an impact stops a
+  falling drone faster than any manoeuvre, and the next sample on the ground fits the
+  fall too).
 * **the EKF origin and home** (:func:`origin_error_m`) must agree with the vehicle's
   own local and global positions: an origin that does not is not its origin.
 * **reports that end a show or hold a vehicle back** (a mode nobody asked for, a
@@ -386,11 +389,14 @@ class MotionCheck:
                 return [], None  # overtaken on the way (a reordering link): stale, not false
             if follows(ref, s):
                 conflict = None
-                if self.chains:
+                # A sample both tracks lead to is no second sender: the two met again
+                # (an impact: the first sample on the ground stopped faster than a
+                # multirotor can brake, and the next one fits both it and the fall).
+                if self.chains and not any(follows(c[-1], s) for c in self.chains):
                     far = max(self._jump(c[0]) for c in self.chains)
                     conflict = (f"position samples {far:.1f} m off the track, which went on "
                                 "(another sender)")
-                    self.chains = []
+                self.chains = []
                 self.ref = s
                 return [s], conflict
         for chain in self.chains:
