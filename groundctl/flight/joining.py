@@ -49,12 +49,11 @@ from groundctl.plan.scp_quad import plan_among
 from groundctl.plan.trajectory import Trajectories
 from groundctl.plan.verify import (
     DIST_TOL,
-    PAIR_BLOCK,
     bounding_spheres,
-    closest_on_segment,
     hermite_power,
     kinematics,
     limit_violations,
+    nearest_in_order,
 )
 from groundctl.show.model import PlannerSettings
 
@@ -223,16 +222,8 @@ def _closest_rows(d: FloatArray) -> tuple[float, int, float]:
                       np.linalg.norm(d.sum(axis=1), axis=1).min()))
     rows = np.flatnonzero(lower <= upper)
     rows = rows[np.argsort(lower[rows], kind="stable")]
-    best, best_row, best_s = math.inf, -1, 0.0
-    for c in range(0, len(rows), PAIR_BLOCK):
-        blk = rows[c:c + PAIR_BLOCK]
-        if lower[blk[0]] >= best:
-            break
-        dmin, at = closest_on_segment(d[blk], shared=True, below=best)
-        q = int(np.argmin(dmin))
-        if dmin[q] < best:
-            best, best_row, best_s = float(dmin[q]), int(blk[q]), float(at[q])
-    return best, best_row, best_s
+    best, k, s = nearest_in_order(lower[rows], lambda blk: d[rows[blk]])
+    return best, int(rows[k]) if k >= 0 else -1, s
 
 
 class JoinWindow(NamedTuple):

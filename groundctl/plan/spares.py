@@ -32,10 +32,9 @@ from groundctl.plan.plan import Plan, SparePlan
 from groundctl.plan.trajectory import Trajectories
 from groundctl.plan.verify import (
     DIST_TOL,
-    PAIR_BLOCK,
     bounding_spheres,
-    closest_on_segment,
     hermite_power,
+    nearest_in_order,
 )
 from groundctl.show.checks import closest_pair, inside_polygon
 from groundctl.show.model import SpareSettings
@@ -146,22 +145,20 @@ def closest_to_point(tr: Trajectories, q: FloatArray, hulls: Hulls | None = None
     rows, lower = hulls.near(q)
     segs = hulls.segments
     h = np.diff(tr.times)
-    best, best_drone, best_t = math.inf, -1, 0.0
-    for c in range(0, len(rows), PAIR_BLOCK):
-        blk = rows[c:c + PAIR_BLOCK]
-        if lower[c] >= best:
-            break
-        drone, seg = blk // segs, blk % segs
+
+    def cubics(blk: slice) -> FloatArray:
+        drone, seg = rows[blk] // segs, rows[blk] % segs
         coef = hermite_power(tr.pos[drone, seg], tr.pos[drone, seg + 1],
                              tr.vel[drone, seg] * h[seg, None],
                              tr.vel[drone, seg + 1] * h[seg, None])
         coef[:, 0] -= q
-        dmin, at = closest_on_segment(coef, shared=True, below=best)
-        k = int(np.argmin(dmin))
-        if dmin[k] < best:
-            best, best_drone = float(dmin[k]), int(drone[k])
-            best_t = float(tr.times[seg[k]] + at[k] * h[seg[k]])
-    return best, best_drone, best_t
+        return coef
+
+    best, k, s = nearest_in_order(lower, cubics)
+    if k < 0:
+        return best, -1, 0.0
+    drone, seg = divmod(int(rows[k]), segs)
+    return best, drone, float(tr.times[seg] + s * h[seg])
 
 
 def clearance(plan: Plan, pads: FloatArray, points: FloatArray,

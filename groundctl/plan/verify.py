@@ -11,6 +11,8 @@ read off SAMPLES points per segment, drone-chunk by drone-chunk.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -223,6 +225,24 @@ def closest_on_segment(d: FloatArray, shared: bool = False, below: float = np.in
         pair, a, w = np.repeat(pair[keep], 2), np.repeat(a[keep], 2), np.repeat(w[keep], 2) / 2
         a[1::2] += w[1::2]
     return best, best_s
+
+
+def nearest_in_order(lower: FloatArray,
+                     cubics: Callable[[slice], FloatArray]) -> tuple[float, int, float]:
+    """(distance, index, s in [0, 1]) of the smallest minimum of |d(s)| over relative
+    cubics visited in the order of their lower bounds ``lower`` (ascending): ``cubics(k)``
+    gives those of the slice ``k`` (m, 4, 3), built as they are needed, PAIR_BLOCK at a
+    time, until the next lower bound cannot beat the best found.  (inf, -1, 0) for none."""
+    best, best_k, best_s = math.inf, -1, 0.0
+    for c in range(0, len(lower), PAIR_BLOCK):
+        if lower[c] >= best:
+            break
+        dmin, at = closest_on_segment(cubics(slice(c, c + PAIR_BLOCK)), shared=True,
+                                      below=best)
+        q = int(np.argmin(dmin))
+        if dmin[q] < best:
+            best, best_k, best_s = float(dmin[q]), c + q, float(at[q])
+    return best, best_k, best_s
 
 
 def _pairs_within(coef: FloatArray, reach: float) -> NDArray[np.intp]:
