@@ -5,7 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from groundctl.execute.replan import ReplanSupervisor, predicted_conflicts
+from groundctl.execute.replan import (
+    BRUTE_FORCE_VEHICLES,
+    ReplanSupervisor,
+    predicted_conflicts,
+)
 from groundctl.show.model import MpcSettings
 
 SETTINGS = MpcSettings(trigger_error_m=0.4, release_error_m=0.15, release_after_s=2.0)
@@ -53,3 +57,24 @@ def test_a_predicted_conflict_starts_both_and_losing_eligibility_ends_it() -> No
     assert predicted_conflicts([1], paths[:1], errors[:1], 1.5) == {}
     with pytest.raises(ValueError, match="`confirm_ticks`"):
         ReplanSupervisor(SETTINGS, confirm_ticks=0)
+
+
+@pytest.mark.parametrize("n", [2, 9, BRUTE_FORCE_VEHICLES, BRUTE_FORCE_VEHICLES + 1, 120])
+def test_predicted_conflicts_name_each_vehicles_closest_on_either_side_of_the_kd_tree(
+        n: int) -> None:
+    """Every pair compared on a small fleet, a KD-tree per instant on a large one: each
+    vehicle within the limit at some instant, with the other it comes closest to."""
+    rng = np.random.default_rng(n)
+    paths = rng.uniform(0.0, 1.5 * n ** (1 / 3), (n, 7, 3))
+    errors = rng.normal(0.0, 0.3, (n, 7, 3))
+    ids = [int(s) for s in rng.permutation(254)[:n] + 1]
+    pred = paths + errors
+    d = np.linalg.norm(pred[:, None] - pred[None], axis=-1).min(axis=2)
+    d[np.diag_indices(n)] = np.inf
+    want = {ids[a]: (ids[int(np.argmin(d[a]))], float(d[a].min()))
+            for a in range(n) if d[a].min() <= 1.5}
+    got = predicted_conflicts(ids, paths, errors, 1.5)
+    assert want, "the case should hold some conflicts"
+    assert got.keys() == want.keys()
+    for s, (other, dist) in want.items():
+        assert got[s][0] == other and got[s][1] == pytest.approx(dist, rel=1e-12)

@@ -70,6 +70,10 @@ def error_forecast(error: FloatArray, error_rate: FloatArray, horizon: FloatArra
                                                                                       None]
 
 
+#: Up to this many vehicles :func:`predicted_conflicts` compares every pair directly.
+BRUTE_FORCE_VEHICLES = 24
+
+
 def predicted_conflicts(ids: Sequence[int], path_pos: FloatArray, errors: FloatArray,
                         limit_m: float) -> dict[int, tuple[int, float]]:
     """Vehicles whose predicted positions (path at the horizon's instants, ``path_pos``
@@ -82,6 +86,16 @@ def predicted_conflicts(ids: Sequence[int], path_pos: FloatArray, errors: FloatA
     err = np.asarray(errors, dtype=float)
     pred = np.asarray(path_pos, dtype=float) + (err[:, None, :] if err.ndim == 2 else err)
     out: dict[int, tuple[int, float]] = {}
+    if n <= BRUTE_FORCE_VEHICLES:
+        # Every pair at every instant in one pass (a KD-tree per instant costs more
+        # than that on a small fleet): each vehicle's closest approach over the horizon.
+        diff = pred[:, None] - pred[None, :]
+        closest = np.sqrt(np.add.reduce(diff * diff, axis=-1)).min(axis=2)
+        closest[np.diag_indices(n)] = np.inf
+        for a in map(int, np.flatnonzero(closest.min(axis=1) <= limit_m)):
+            b = int(np.argmin(closest[a]))
+            out[ids[a]] = (ids[b], float(closest[a, b]))
+        return out
     for k in range(pred.shape[1]):
         tree = cKDTree(pred[:, k])
         for i, j in tree.query_pairs(limit_m):
