@@ -21,7 +21,7 @@ import bisect
 import copy
 import math
 import time
-from typing import Any, Protocol
+from typing import Protocol
 
 
 class Clock(Protocol):
@@ -132,21 +132,30 @@ def pace_slack(speed: float) -> float:
 
 
 class _Held:
-    """A ``with`` block holding a (multiprocessing) lock: ``as`` gives whether it was
-    taken within ``timeout`` s; released on the way out only if it was."""
+    """A ``with`` block holding a paced clock's (multiprocessing) lock: ``as`` gives
+    whether it was taken within :attr:`PacedClock.LOCK_TIMEOUT_S`; released on the way
+    out only if it was.
 
-    __slots__ = ("_lock", "_ok", "_timeout")
+    Once a wait has timed out (its holder died holding it), the clock's later readings in
+    this process only look at the lock (taking it if it is free again) instead of waiting
+    again: a loop reads its clock thousands of times a second, and a dry-run whose
+    simulator was killed holding the lock waited 2 s at every reading, until pytest's
+    120 s timeout (test_flight_simdeath.py, once in a suite run)."""
 
-    def __init__(self, lock: Any, timeout: float) -> None:
-        self._lock, self._timeout, self._ok = lock, timeout, False
+    __slots__ = ("_clock", "_ok")
+
+    def __init__(self, clock: PacedClock) -> None:
+        self._clock, self._ok = clock, False
 
     def __enter__(self) -> bool:
-        self._ok = bool(self._lock.acquire(timeout=self._timeout))
+        c = self._clock
+        self._ok = bool(c._lock.acquire(timeout=0.0 if c._orphaned else c.LOCK_TIMEOUT_S))
+        c._orphaned = not self._ok
         return self._ok
 
     def __exit__(self, *exc: object) -> None:
         if self._ok:
-            self._lock.release()
+            self._clock._lock.release()
 
 
 class PacedClock:
@@ -208,6 +217,7 @@ class PacedClock:
         self._p0 = self._RING + 2 * self.ANCHORS
         self._mem = ctx.RawArray("d", self._p0 + 4 * participants)
         self._lock = ctx.Lock()
+        self._orphaned = False  # a wait for the lock timed out: its holder died holding it
         self._slot: int | None = None
         wall = time.monotonic()
         self._seen = (0.0, wall)  # this process's last reading, and when
@@ -238,7 +248,7 @@ class PacedClock:
         holding it (after LOCK_TIMEOUT_S).  A small class, not a ``contextlib``
         generator: the loops read the clock thousands of times a second, and the
         generator was most of a reading's cost."""
-        return _Held(self._lock, self.LOCK_TIMEOUT_S)
+        return _Held(self)
 
     # -- reading ---------------------------------------------------------------------
 

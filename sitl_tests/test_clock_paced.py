@@ -227,3 +227,19 @@ def test_a_process_killed_while_it_holds_the_lock_hangs_nobody(
     # the dating of a link worker's batch.
     assert len(clock.held_s()) == 2 and clock.left_behind() == [0, 0]
     assert len(clock.dated([0.0, 0.01])[1]) == 2 and len(clock.dated([0.01])[1]) == 1
+    # Only the first reading waited: every later one only looks at the lock (a dry-run
+    # whose simulator died holding it waited at every reading, 2 s each, and never ended).
+    asked: list[float] = []
+    lock = clock._lock
+
+    class Recording:
+        def acquire(self, timeout: float) -> bool:
+            asked.append(timeout)
+            return bool(lock.acquire(timeout=timeout))
+
+        def release(self) -> None:
+            lock.release()
+
+    clock._lock = Recording()
+    readings = [clock.now() for _ in range(20)]
+    assert asked == [0.0] * 20 and readings == sorted(readings)
