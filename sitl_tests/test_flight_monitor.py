@@ -8,14 +8,10 @@ import numpy as np
 import pytest
 from test_execute_support import ORIGIN, geo_offset, make_plan, make_vehicle
 
-from groundctl.flight.monitor import (
-    BRUTE_FORCE_PAIRS,
-    FlightMonitor,
-    nearest_pair,
-    telemetry_positions,
-)
+from groundctl.flight.monitor import FlightMonitor, nearest_pair, telemetry_positions
 from groundctl.link.state import VehicleState
 from groundctl.link.timesync import NS, TimesyncSample
+from groundctl.show.checks import BRUTE_FORCE_PAIRS
 
 
 def _with_sample(v: VehicleState, ned: tuple[float, float, float],

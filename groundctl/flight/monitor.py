@@ -26,11 +26,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from groundctl.execute.frames import ned_to_show
 from groundctl.link.state import VehicleState
 from groundctl.plan.plan import Plan
+from groundctl.show.checks import closest_pair
 
 FloatArray = NDArray[np.float64]
 
@@ -149,28 +149,13 @@ class Separation:
     """The fleet's wind estimate at that instant, m/s (:mod:`groundctl.execute.wind`)."""
 
 
-#: Up to this many positions :func:`nearest_pair` compares every pair (a few numpy calls);
-#: beyond it a KD-tree, whose building and querying costs more than that on a small fleet.
-BRUTE_FORCE_PAIRS = 40
-
-
 def nearest_pair(ids: list[int], pos: FloatArray) -> Separation:
-    """The closest two of ``pos`` (rows for ``ids``): every pair of a small fleet, a
-    KD-tree's nearest neighbours in a larger one."""
-    n = len(ids)
-    if n < 2:
+    """The closest two of ``pos`` (rows for ``ids``), named by system id, low first
+    (:func:`~groundctl.show.checks.closest_pair`)."""
+    d, i, j = closest_pair(pos)
+    if i < 0:
         return Separation(math.inf)
-    if n <= BRUTE_FORCE_PAIRS:
-        diff = pos[:, None, :] - pos[None, :, :]
-        d2 = np.add.reduce(diff * diff, axis=-1)
-        d2.flat[::n + 1] = np.inf
-        k = int(np.argmin(d2))
-        i, j = divmod(k, n)
-        return Separation(math.sqrt(float(d2[i, j])), (min(ids[i], ids[j]), max(ids[i], ids[j])))
-    dist, idx = cKDTree(pos).query(pos, k=2)
-    i = int(np.argmin(dist[:, 1]))
-    j = int(idx[i, 1])
-    return Separation(float(dist[i, 1]), (min(ids[i], ids[j]), max(ids[i], ids[j])))
+    return Separation(d, (min(ids[i], ids[j]), max(ids[i], ids[j])))
 
 
 def telemetry_positions(plan: Plan, states: Mapping[int, VehicleState],

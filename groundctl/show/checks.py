@@ -25,11 +25,25 @@ def ceil_to(x: float, step: float = 0.1) -> float:
     return math.ceil(x / step - 1e-9) * step
 
 
+#: Up to this many points :func:`closest_pair` compares every pair (a few numpy calls);
+#: beyond it a KD-tree, whose building and querying costs more than that on a small fleet
+#: (the flight monitor, guard and replay call it every tick on a few vehicles).
+BRUTE_FORCE_PAIRS = 40
+
+
 def closest_pair(points: FloatArray) -> tuple[float, int, int]:
-    """(distance, i, j) of the two closest points; (inf, -1, -1) for fewer than two."""
+    """(distance, i, j) of the two closest points, i < j; (inf, -1, -1) for fewer than
+    two."""
     pts = np.asarray(points, dtype=float)
-    if len(pts) < 2:
+    n = len(pts)
+    if n < 2:
         return math.inf, -1, -1
+    if n <= BRUTE_FORCE_PAIRS:
+        diff = pts[:, None, :] - pts[None, :, :]
+        d2 = np.add.reduce(diff * diff, axis=-1)
+        d2.flat[::n + 1] = np.inf
+        i, j = divmod(int(np.argmin(d2)), n)
+        return math.sqrt(float(d2[i, j])), min(i, j), max(i, j)
     dist, idx = cKDTree(pts).query(pts, k=2)
     i = int(np.argmin(dist[:, 1]))
     j = int(idx[i, 1])
