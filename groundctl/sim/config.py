@@ -114,6 +114,18 @@ class Dynamics:
     centimetre or two that wanders over tens of seconds, per vehicle."""
     velocity_bias_tau: float = 40.0
     """Correlation time of that bias, s."""
+    airframe_noise: float = 0.0
+    """Standard deviation of a random horizontal acceleration on each flying vehicle, per
+    axis, m/s²: what a real airframe adds to the commanded acceleration and a point mass
+    does not (the attitude loop's errors from IMU noise and bias, the motors' response,
+    the air the rotors stir).  The position and velocity loops reject it; what they leave
+    is a real vehicle's wander about its target, a couple of centimetres each way, holding
+    as much as moving, correlated over a second or two."""
+    airframe_noise_z: float = 0.0
+    """The same vertically (the thrust's), m/s²: the vertical loops are stiffer, so the
+    same wander takes more of it."""
+    airframe_noise_tau: float = 1.0
+    """Correlation time of that acceleration, s."""
     input_shaping: bool = False
     """ArduCopter AC_PosControl: the target is reached along a jerk-limited kinematic
     path (shape_pos_vel_accel: sqrt controllers of gain ``max_jerk / max_accel_xy``)
@@ -129,12 +141,14 @@ class Dynamics:
         positive = ("max_speed_xy", "max_speed_up", "max_speed_down", "max_accel_xy",
                     "max_accel_z", "thrust_accel_z", "max_jerk", "max_tilt_accel", "pos_p",
                     "pos_p_z", "vel_p", "vel_p_z", "response_tau", "response_tau_z",
-                    "takeoff_speed", "land_speed", "velocity_bias_tau")
+                    "takeoff_speed", "land_speed", "velocity_bias_tau",
+                    "airframe_noise_tau")
         for name in positive:
             if not getattr(self, name) > 0:
                 raise ValueError(f"`{name}` must be positive, got {getattr(self, name)}")
         non_negative = ("vel_i", "vel_i_z", "vel_imax", "vel_imax_z", "takeoff_spool_s",
-                        "land_detect_s", "drag", "drag_quad", "velocity_bias")
+                        "land_detect_s", "drag", "drag_quad", "velocity_bias",
+                        "airframe_noise", "airframe_noise_z")
         for name in non_negative:
             if getattr(self, name) < 0:
                 raise ValueError(f"`{name}` must be non-negative, got {getattr(self, name)}")
@@ -152,8 +166,12 @@ class Dynamics:
 #: spool-up before lift-off and the land detector's delay, fitted to the takeoff and LAND
 #: times; the velocity estimate's bias, 2 cm/s wandering over 40 s, fitted to nine SITL
 #: instances flying the quick show (benchmarks/bench_sitl.py: per-vehicle RMS 0.031-0.043
-#: m, across the path 0.028 m, formations held within 2 cm of their slots' offsets; the
-#: hover drift over 4 s stays SITL's 0.012 m).
+#: m, across the path 0.028 m, formations held within 2 cm of their slots' offsets); the
+#: airframe's own wander (session 38), a random acceleration of 0.03 m/s² horizontally and
+#: 0.12 m/s² vertically per axis over 3 s, fitted to the same flights' holds, where SITL's
+#: reported positions wander 0.021 / 0.022 / 0.016 m RMS (east / north / up) about their
+#: slots and move a median 0.021 m in 2 s: a point mass without it held 0.013 / 0.015 /
+#: 0.007 m, and the show's per-vehicle RMS was a third below SITL's.
 ARDUPILOT_DYNAMICS = Dynamics(
     firmware=(4, 8, 0),
     max_accel_z=1.0,
@@ -181,6 +199,9 @@ ARDUPILOT_DYNAMICS = Dynamics(
     drag=0.03,
     drag_quad=0.043,
     velocity_bias=0.02,
+    airframe_noise=0.03,
+    airframe_noise_z=0.12,
+    airframe_noise_tau=3.0,
     input_shaping=True,
     advance_target=True,
 )

@@ -260,6 +260,17 @@ class FleetPhysics:
         if self.dyn.velocity_bias > 0:  # from the stationary distribution: no settling
             self.vel_bias[:, :2] = self.dyn.velocity_bias * self._bias_rng.standard_normal(
                 (n, 2))
+        self.airframe_acc = np.zeros((n, 3))
+        """The airframe's random acceleration, ENU m/s² (:attr:`Dynamics.airframe_noise`)."""
+        # A stream of its own, spawned from the bias's generator (which leaves that
+        # generator's own draws as they were without it).
+        self._airframe_sigma = np.array([d.airframe_noise, d.airframe_noise,
+                                         d.airframe_noise_z])
+        self._airframe_rng = self._bias_rng.spawn(1)[0] if self._airframe_sigma.any() \
+            else None
+        if self._airframe_rng is not None:  # stationary from the start, as the bias
+            self.airframe_acc = self._airframe_sigma * self._airframe_rng.standard_normal(
+                (n, 3))
 
     # -- derived ----------------------------------------------------------------------------
 
@@ -414,6 +425,11 @@ class FleetPhysics:
         self.wind_est += follow[:, None] * (wind - self.wind_est)
         drag = (d.drag + d.drag_quad * _norm(air)) * air
         total = acc + np.where(airborne[:, None], drag, 0.0)
+        if self._airframe_rng is not None:
+            k = dt / d.airframe_noise_tau
+            self.airframe_acc += -self.airframe_acc * k + self._airframe_sigma * np.sqrt(
+                2 * k) * self._airframe_rng.standard_normal((n, 3))
+            total += np.where((powered & ~self.on_ground)[:, None], self.airframe_acc, 0.0)
         self.vel = self.vel + total * dt
         self.pos = self.pos + (self.vel + self.carry) * dt
 
