@@ -111,8 +111,13 @@ def test_ardupilot_sequence_guided_before_arming_then_show_then_landing() -> Non
     states[1].position_ned = (0.1, 0.0, -3.0)  # over its slot (show x=0, y=0.1 -> N 0.1)
     states[2].position_ned = (0.0, 1.0, -3.0)  # 2 m short of its slot
     assert seq.update(13.0, states) == [Land(1)]
+    assert seq.vehicles[2].land_from is None  # not told to land yet
     states[2].position_ned = (0.0, 3.2, -3.0)
     assert seq.update(14.0, states) == [Land(2)]
+    # Where each was told to land (its land mode descends over it): the report's
+    # commanded separation of a closest approach during a descent (runner/stream.py).
+    assert seq.vehicles[1].land_from == pytest.approx((0.0, 0.1))
+    assert seq.vehicles[2].land_from == pytest.approx((3.2, 0.0))
     assert seq.stream_request(14.0).sysids == frozenset()
     states[1].armed = states[2].armed = False
     assert seq.update(20.0, states) == [Notice(1, "vehicle 1 landed"),

@@ -16,6 +16,7 @@ from groundctl.execute.sequence.types import (
     NO_TRACK,
     Action,
     Command,
+    Land,
     SequenceConfig,
     ShowPhase,
     StreamRequest,
@@ -267,6 +268,10 @@ class SequenceState:
     def _send(self, v: VehicleRun, command: Command, now: float) -> Command:
         if command != v.pending:
             v.attempts = 0
+        if isinstance(command, Land) and v.land_from is None:
+            here = self._positions.get(v.sysid)
+            if here is not None:
+                v.land_from = (float(here[0]), float(here[1]))
         v.pending, v.sent_at, v.retry_at = command, now, None
         v.attempts += 1
         return command

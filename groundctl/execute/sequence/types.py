@@ -315,6 +315,10 @@ class VehicleRun:
     """Our time it started returning to its landing point."""
     landing_point: tuple[float, float, float] | None = None
     """Where it descends from when not the plan's landing spot (a return re-assigned it)."""
+    land_from: tuple[float, float] | None = None
+    """Where it was (show frame, east and north) when first told to land: its autopilot's
+    land mode descends over that point, so it is where it was sent (None: not told to, or
+    its position was unknown then)."""
     battery_low: bool = False
     """Its battery fell below the show's threshold (it has been told to land)."""
     leave_late: int = 0

@@ -99,12 +99,16 @@ class Streaming(LinkTiming):
                                            paths={s: req.paths[s] for s in streamed}), now)
         for s in sep.pair:
             v = seq.vehicles.get(s)
-            if s not in wanted and v is not None and v.phase is VehiclePhase.LANDING \
-                    and v.column and v.hold_point is not None and s in last[1]:
-                # Sent straight down by the last resort from where it held: told to stay
-                # over that point (at the height it is at).
+            if s in wanted or v is None or v.phase is not VehiclePhase.LANDING \
+                    or s not in last[1]:
+                continue
+            # Told to land: over the point it was sent down from (the last resort's
+            # column: where it held; otherwise where it was when told), at the height it
+            # is at.
+            over = v.hold_point[:2] if v.column and v.hold_point is not None else v.land_from
+            if over is not None:
                 z = last[2][last[1].index(s)][2]
-                wanted[s] = np.array([v.hold_point[0], v.hold_point[1], z])
+                wanted[s] = np.array([over[0], over[1], z])
         a, b = sep.pair
         wind = self.guard.wind.wind
         if a in wanted and b in wanted:
