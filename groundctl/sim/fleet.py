@@ -487,8 +487,8 @@ class SimFleet:
                         heapq.heappush(self._inbox, (due, self._seq, i, data, addr))
         # Acted on in the order they arrived, from the first step at or after arrival.
         while self._arrived and self._arrived[0][0] <= now:
-            _, _, i, msgs = heapq.heappop(self._arrived)
-            self._handle(i, msgs, now)
+            arrived, _, i, msgs = heapq.heappop(self._arrived)
+            self._handle(i, msgs, now, age=max(now - arrived, 0.0))
 
     def _deliver(self, i: int, data: bytes, addr: tuple[str, int], now: float,
                  arrived: float, read_at: float) -> None:
@@ -518,10 +518,13 @@ class SimFleet:
         self._seq += 1
         heapq.heappush(self._arrived, (arrived, self._seq, i, msgs))
 
-    def _handle(self, i: int, msgs: list[mavlink.MAVLink_message], now: float) -> None:
+    def _handle(self, i: int, msgs: list[mavlink.MAVLink_message], now: float,
+                age: float = 0.0) -> None:
+        """Vehicle ``i`` acts on ``msgs`` at physics time ``now``; they arrived ``age``
+        seconds before (between two physics steps)."""
         vehicle = self.vehicles[i]
         for msg in msgs:
-            out = vehicle.handle(msg, now)
+            out = vehicle.handle(msg, now, age)
             if out:
                 self._send(i, out, now)
 

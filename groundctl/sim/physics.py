@@ -547,8 +547,12 @@ class FleetPhysics:
             self.mode[i] = CTRL_TRACK
 
     def set_target(self, i: int, pos: np.ndarray | None, vel: np.ndarray | None,
-                   acc: np.ndarray | None) -> None:
-        """Track ``pos`` / ``vel`` / ``acc`` (None: not used), in the show frame."""
+                   acc: np.ndarray | None, since: float = 0.0) -> None:
+        """Track ``pos`` / ``vel`` / ``acc`` (None: not used), in the show frame, given
+        ``since`` seconds ago (it arrived between two steps).  An autopilot that advances
+        its target between messages (:attr:`Dynamics.advance_target`: ArduCopter's GUIDED,
+        on its 400 Hz loop) has advanced it that long already when the next step runs: the
+        physics' 50 Hz step does not add up to a step's lag to its response."""
         if pos is not None:
             self.tgt_pos[i] = pos
         self.use_pos[i] = pos is not None
@@ -556,3 +560,8 @@ class FleetPhysics:
         self.use_vel[i] = vel is not None
         self.tgt_acc[i] = acc if acc is not None else 0.0
         self.use_acc[i] = acc is not None
+        if since > 0 and self.dyn.advance_target and vel is not None:
+            a = self.tgt_acc[i] if acc is not None else 0.0
+            if pos is not None:
+                self.tgt_pos[i] += self.tgt_vel[i] * since + 0.5 * a * since * since
+            self.tgt_vel[i] += a * since

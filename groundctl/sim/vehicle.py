@@ -185,6 +185,8 @@ class Vehicle:
         command is carried out, its answer never arrives)."""
         self.last_gcs_heartbeat: float | None = None
         self.last_setpoint: float | None = None
+        self.message_age = 0.0
+        """How long before the physics step acting on it the message in hand arrived, s."""
         self.setpoint_kind = "none"  # "pos", "posvel", "vel", "acc"
         self.takeoff_alt: float | None = None  # ENU z the current takeoff climbs to
         self.rtl_phase: str | None = None
@@ -257,8 +259,11 @@ class Vehicle:
 
     # -- I/O-free interface -------------------------------------------------------------------
 
-    def handle(self, msg: Msg, now: float) -> list[Msg]:
-        """React to one decoded message from the ground station; returns the replies."""
+    def handle(self, msg: Msg, now: float, age: float = 0.0) -> list[Msg]:
+        """React to one decoded message from the ground station; returns the replies.
+        ``age``: how long before ``now`` (a physics step) it arrived (:meth:`apply_setpoint`
+        takes a setpoint up as of then)."""
+        self.message_age = age
         try:
             handler = self._HANDLERS.get(msg.get_type())
             if handler is not None:
@@ -466,7 +471,7 @@ class Vehicle:
         if sp.pos is None and sp.vel is None and sp.acc is None:
             self.ph.hold(i)
             return
-        self.ph.set_target(i, sp.pos, sp.vel, sp.acc)
+        self.ph.set_target(i, sp.pos, sp.vel, sp.acc, since=self.message_age)
         if self.ph.mode[i] == P.CTRL_LAND:
             self.ph.mode[i] = P.CTRL_TRACK
 
