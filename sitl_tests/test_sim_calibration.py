@@ -30,9 +30,11 @@ from groundctl.sim.config import (
     ARDUPILOT_47_DYNAMICS,
     ARDUPILOT_DYNAMICS,
     PROFILE_NAMES,
+    Dynamics,
     default_dynamics,
     dynamics_profile,
 )
+from groundctl.sim.physics import FleetPhysics
 
 AP = Flavour.ARDUPILOT
 PX4 = Flavour.PX4
@@ -243,6 +245,21 @@ def test_profiles_are_named_and_the_default_is_4_8() -> None:
         type(ARDUPILOT_DYNAMICS)(max_jerk=0.0)
 
 
+def hovering(d: Dynamics, bias_seed: int, n: int = 40) -> tuple[FleetPhysics, np.ndarray]:
+    """``n`` vehicles of dynamics ``d`` hovering at 5 m, each on its own target (the physics
+    alone, seeded), and those targets."""
+    from groundctl.sim.physics import CTRL_TRACK
+
+    ph = FleetPhysics(np.zeros((n, 3)), d, np.random.default_rng(0),
+                      bias_rng=np.random.default_rng(bias_seed))
+    ph.pos[:, 2] = 5.0
+    ph.mode[:] = CTRL_TRACK
+    target = ph.pos.copy()
+    for i in range(n):
+        ph.set_target(i, target[i], np.zeros(3), np.zeros(3))
+    return ph, target
+
+
 def test_the_velocity_bias_holds_each_vehicle_off_its_target_as_sitl_does() -> None:
     """ArduCopter's velocity estimate is never exact, and its position loop holds the
     vehicle where the estimated velocity meets the loop's demand: nine SITL instances
@@ -250,17 +267,8 @@ def test_the_velocity_bias_holds_each_vehicle_off_its_target_as_sitl_does() -> N
     RMS 0.031-0.043 m, 0.015-0.022 m without this).  Forty hovering vehicles: each off its
     target by about ``bias / pos_p``, a different way each, wandering slowly (over 4 s
     about SITL's 0.012 m)."""
-    from groundctl.sim.physics import CTRL_TRACK, FleetPhysics
-
     d = replace(ARDUPILOT_DYNAMICS, airframe_noise=0.0, airframe_noise_z=0.0)  # the bias alone
-    n = 40
-    ph = FleetPhysics(np.zeros((n, 3)), d, np.random.default_rng(0),
-                      bias_rng=np.random.default_rng(1))
-    ph.pos[:, 2] = 5.0
-    ph.mode[:] = CTRL_TRACK
-    target = ph.pos.copy()
-    for i in range(n):
-        ph.set_target(i, target[i], np.zeros(3), np.zeros(3))
+    ph, target = hovering(d, bias_seed=1)
     for _ in range(int(20 / 0.02)):
         ph.step(0.02)
     off = np.linalg.norm(ph.est_pos[:, :2] - target[:, :2], axis=1)
@@ -291,18 +299,10 @@ def test_the_airframe_wanders_about_its_target_as_sitl_does_in_a_show() -> None:
     every random process of the 4.8 profile: the same size per axis and the same drift in
     2 s, within a factor 1.5 (RMS over 30 s; the profile's velocity bias adds its slower
     centimetre horizontally)."""
-    from groundctl.sim.physics import CTRL_TRACK, FleetPhysics
-
     d = ARDUPILOT_DYNAMICS
     assert d.airframe_noise > 0 and d.airframe_noise_z > 0
     n = 40
-    ph = FleetPhysics(np.zeros((n, 3)), d, np.random.default_rng(0),
-                      bias_rng=np.random.default_rng(2))
-    ph.pos[:, 2] = 5.0
-    ph.mode[:] = CTRL_TRACK
-    target = ph.pos.copy()
-    for i in range(n):
-        ph.set_target(i, target[i], np.zeros(3), np.zeros(3))
+    ph, target = hovering(d, bias_seed=2, n=n)
     for _ in range(int(10 / 0.02)):  # settled
         ph.step(0.02)
     samples = []
