@@ -148,31 +148,39 @@ def wander(record: Path) -> dict[str, float] | None:
     if not fa.tracks or ok.sum() < 30:
         return None
     t = t[ok]
+    step = float(np.median(np.diff(t)))
+    if not step > 0:
+        return None  # a show clock that stood still: no time to measure over
     cols = [fa.sysids.index(s) for s in fa.tracks]
     planned, vel, _ = plan.trajectories.evaluate(t, np.array(list(fa.tracks.values())))
-    pos = fa.positions[ok][:, cols]  # (T, n, 3)
-    off = pos - planned.transpose(1, 0, 2)
-    step = float(np.median(np.diff(t)))
+    off = fa.positions[ok][:, cols] - planned.transpose(1, 0, 2)  # (T, n, 3)
     still = (np.linalg.norm(vel, axis=2) < HOLD_SPEED).T  # (T, n)
     run = np.zeros(still.shape)  # how long the plan has held, s
     for i in range(1, len(t)):
-        run[i] = np.where(still[i], run[i - 1] + (t[i] - t[i - 1]), 0.0)
+        run[i] = np.where(still[i] & still[i - 1], run[i - 1] + (t[i] - t[i - 1]), 0.0)
     hold = still & (run >= HOLD_AFTER_S)
-    axes = np.sqrt(np.nanmean(off[hold] ** 2, axis=0))
+    held = off[hold]
+    held = held[np.all(np.isfinite(held), axis=1)]
+    if not len(held):
+        return None
+    axes = np.sqrt(np.mean(held**2, axis=0))
     k2 = max(round(2.0 / step), 1)
     both = hold[:-k2] & hold[k2:] & (run[k2:] >= 2.0 + HOLD_AFTER_S)
-    moved = np.linalg.norm(pos[k2:] - pos[:-k2], axis=2)[both]
+    moved = np.linalg.norm(off[k2:] - off[:-k2], axis=2)[both]  # the plan stands still
     moved = moved[np.isfinite(moved)]
 
     def correlation(seconds: float) -> float:
+        """Over pairs ``seconds`` apart whose both ends were heard (a gap is not closed
+        up), per vehicle and axis, then averaged."""
         lag = max(round(seconds / step), 1)
         values = []
         for j in range(off.shape[1]):
             for a in range(3):
-                x = off[:, j, a]
-                x = x[np.isfinite(x)] - np.nanmean(x)
-                if len(x) > lag and np.dot(x, x) > 0:
-                    values.append(float(np.dot(x[:-lag], x[lag:]) / np.dot(x, x)))
+                x = off[:, j, a] - np.nanmean(off[:, j, a])
+                pair = np.isfinite(x[:-lag]) & np.isfinite(x[lag:])
+                var = np.nansum(x * x)
+                if pair.sum() > 1 and var > 0:
+                    values.append(float(np.sum(x[:-lag][pair] * x[lag:][pair]) / var))
         return float(np.mean(values)) if values else float("nan")
 
     return {"east": float(axes[0]), "north": float(axes[1]), "up": float(axes[2]),
@@ -197,16 +205,23 @@ def wander_lines(real: Path, dry: Path) -> list[str]:
 def spread(reports: list[dict[str, Any]], real: dict[str, Any] | None) -> str:
     """One line on several dry-runs: their per-vehicle RMS means and largest errors, the
     range and the mean, against the real flight's."""
-    means = [sum(v["rms_tracking_error_m"] for v in r["vehicles"]) / len(r["vehicles"])
-             for r in reports]
-    largest = [r["max_tracking_error_m"] for r in reports]
+    def mean_rms(r: dict[str, Any]) -> float | None:
+        xs = [v["rms_tracking_error_m"] for v in r["vehicles"]
+              if v.get("rms_tracking_error_m") is not None]  # not flown: none
+        return sum(xs) / len(xs) if xs else None
+
+    means = [m for r in reports if (m := mean_rms(r)) is not None]
+    largest = [r["max_tracking_error_m"] for r in reports if r.get("max_tracking_error_m")]
+    if not means or not largest:
+        return f"{len(reports)} dry-runs: no tracking figures"
+    mean, big = sum(means) / len(means), sum(largest) / len(largest)
     line = (f"{len(reports)} dry-runs: per-vehicle RMS means {min(means):.3f} to "
-            f"{max(means):.3f} (mean {sum(means) / len(means):.3f} m), largest errors "
-            f"{min(largest):.3f} to {max(largest):.3f} (mean {sum(largest) / len(largest):.3f} m)")
-    if real is not None:
-        rm = sum(v["rms_tracking_error_m"] for v in real["vehicles"]) / len(real["vehicles"])
-        line += (f"; gaps of the means {sum(means) / len(means) / rm - 1:+.0%} and "
-                 f"{sum(largest) / len(largest) / real['max_tracking_error_m'] - 1:+.0%}")
+            f"{max(means):.3f} (mean {mean:.3f} m), largest errors "
+            f"{min(largest):.3f} to {max(largest):.3f} (mean {big:.3f} m)")
+    rm = mean_rms(real) if real is not None else None
+    if real is not None and rm and real.get("max_tracking_error_m"):
+        line += (f"; gaps of the means {mean / rm - 1:+.0%} and "
+                 f"{big / real['max_tracking_error_m'] - 1:+.0%}")
     return line
 
 

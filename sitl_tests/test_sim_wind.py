@@ -151,14 +151,14 @@ def test_a_step_gust_carries_ardupilot_as_far_as_it_carries_sitl() -> None:
 
 def test_ardupilot_rides_8_m_s_with_turbulence_no_better_than_sitl() -> None:
     f = mean_figures(AP, WIND_8)
-    for name, value, sitl in (("line RMS", f.line_rms, SITL_LINE_8[0]),
-                              ("line max", f.line_max, SITL_LINE_8[1]),
-                              ("drift in 4 s", f.drift_4s, SITL_DRIFT_8)):
-        # At most 2.5 x: the simulated turbulence is on the cautious side (its line 1.4 x
-        # SITL's), and its drift in 4 s was already 1.98 x SITL's (0.337 m) before the
-        # airframe's own wander (session 38, ARDUPILOT_DYNAMICS.airframe_noise) added its
-        # 5 mm.
-        assert sitl <= value <= 2.5 * sitl, f"{name} {value:.3f} m against SITL's {sitl} m"
+    # The drift in 4 s at most 2.5 x, the line 2 x: the simulated turbulence is on the
+    # cautious side (its line 1.4 x SITL's), and its drift was already 1.98 x SITL's
+    # (0.337 m) before the airframe's own wander (session 38,
+    # ARDUPILOT_DYNAMICS.airframe_noise) added its 5 mm.
+    for name, value, sitl, most in (("line RMS", f.line_rms, SITL_LINE_8[0], 2.0),
+                                    ("line max", f.line_max, SITL_LINE_8[1], 2.0),
+                                    ("drift in 4 s", f.drift_4s, SITL_DRIFT_8, 2.5)):
+        assert sitl <= value <= most * sitl, f"{name} {value:.3f} m against SITL's {sitl} m"
     assert f.hold_max < 0.15, f"hold {f.hold_max:.3f} m"
 
 

@@ -118,9 +118,10 @@ class Dynamics:
     """Standard deviation of a random horizontal acceleration on each flying vehicle, per
     axis, m/s²: what a real airframe adds to the commanded acceleration and a point mass
     does not (the attitude loop's errors from IMU noise and bias, the motors' response,
-    the air the rotors stir).  The position and velocity loops reject it; what they leave
-    is a real vehicle's wander about its target, a couple of centimetres each way, holding
-    as much as moving, correlated over a second or two."""
+    the air the rotors stir), correlated over :attr:`airframe_noise_tau`.  The position and
+    velocity loops reject most of it; what they leave is a real vehicle's wander about its
+    target, a couple of centimetres each way, holding as much as moving, the wander itself
+    decorrelating within a second or two."""
     airframe_noise_z: float = 0.0
     """The same vertically (the thrust's), m/s²: the vertical loops are stiffer, so the
     same wander takes more of it."""

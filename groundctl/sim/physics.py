@@ -24,7 +24,10 @@ turbulence like SITL's SIM_WIND_TURB, slow seeded gusts (one field over the
 show, :class:`GustField`) and injected gusts.
 
 Around it: ground contact, spool-up before lift-off, a land detector timer,
-GPS error, motor failure (thrust gone: the vehicle falls) and battery drain.
+GPS error, the velocity estimate's slow bias and the airframe's own random
+acceleration (:class:`~groundctl.sim.config.Dynamics`: what a real vehicle's wander
+about its target comes from), motor failure (thrust gone: the vehicle falls) and
+battery drain.
 """
 
 from __future__ import annotations

@@ -272,6 +272,8 @@ class Vehicle:
             # A message that decodes but carries nonsense (NaN where an int is needed,
             # an out-of-range index) is ignored like a bad packet, never raised.
             pass
+        finally:
+            self.message_age = 0.0  # this message's: a setpoint re-flown later is not it
         return self._flush()
 
     def tick(self, now: float) -> list[Msg]:

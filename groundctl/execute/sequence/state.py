@@ -268,7 +268,10 @@ class SequenceState:
     def _send(self, v: VehicleRun, command: Command, now: float) -> Command:
         if command != v.pending:
             v.attempts = 0
-        if isinstance(command, Land) and v.land_from is None:
+        if not isinstance(command, Land):
+            v.land_from = None  # any other command ends a descent
+        elif (command != v.pending or v.land_from is None) \
+                and v.phase is not VehiclePhase.LOST:  # (a lost one's position is old)
             here = self._positions.get(v.sysid)
             if here is not None:
                 v.land_from = (float(here[0]), float(here[1]))

@@ -316,9 +316,10 @@ class VehicleRun:
     landing_point: tuple[float, float, float] | None = None
     """Where it descends from when not the plan's landing spot (a return re-assigned it)."""
     land_from: tuple[float, float] | None = None
-    """Where it was (show frame, east and north) when first told to land: its autopilot's
-    land mode descends over that point, so it is where it was sent (None: not told to, or
-    its position was unknown then)."""
+    """Where it was (show frame, east and north) when told to land, its position heard
+    then: its autopilot's land mode brakes and descends there (over where it stops: within
+    a metre at show speeds), so it is where the ground station sent it down.  None: not
+    landing, or its position was not known whenever it was told."""
     battery_low: bool = False
     """Its battery fell below the show's threshold (it has been told to land)."""
     leave_late: int = 0
