@@ -535,8 +535,10 @@ def test_threaded_fleet_at_speed_flies_and_reports() -> None:
         assert states[1].landed and not states[1].armed
         t0 = time.monotonic()
         sim0 = fleet.time
+        lag0 = fleet.clock.now() - fleet.boot_time - sim0  # how far the physics was behind
         wait_until(lambda: fleet.time > sim0 + 10, timeout=60)
-        # At x20, never faster than that, but for the catch-up of a lag of at most
-        # MAX_CATCHUP_TICKS physics steps (a busy machine may make it slower: the speed
-        # is a benchmark's figure, benchmarks/bench_sim.py).
-        assert fleet.time - sim0 <= 20.0 * (time.monotonic() - t0) + 0.6
+        # At x20, never faster than that, but for catching up the lag it had at the start
+        # (on a busy machine tens of milliseconds of a descheduled thread are a second of
+        # simulated time at x20: measured, not assumed; a busy machine may make it slower,
+        # and the speed is a benchmark's figure, benchmarks/bench_sim.py).
+        assert fleet.time - sim0 <= 20.0 * (time.monotonic() - t0) + lag0 + 1e-6
