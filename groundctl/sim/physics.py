@@ -154,6 +154,15 @@ class GustField:
         return np.asarray(self._amp * np.cos(phase).sum(axis=2))
 
 
+def _ou_step(x: np.ndarray, sigma: float | np.ndarray, tau: float, dt: float,
+             rng: np.random.Generator) -> np.ndarray:
+    """``x`` one step ``dt`` on of a stationary Ornstein-Uhlenbeck process of standard
+    deviation ``sigma`` and correlation time ``tau`` (the GPS error, the velocity
+    estimate's bias, the airframe's wander)."""
+    k = dt / tau
+    return x + (-x * k + sigma * np.sqrt(2 * k) * rng.standard_normal(x.shape))
+
+
 class FleetPhysics:
     """State and dynamics of ``n`` vehicles; mutate the targets, then :meth:`step`."""
 
@@ -350,15 +359,17 @@ class FleetPhysics:
         self.des_acc[:, :2] += _limit_norm(a_t[:, :2] - self.des_acc[:, :2], jerk * dt)
         self.des_acc[:, 2] += _clip(a_t[:, 2] - self.des_acc[:, 2], -jerk * dt, jerk * dt)
 
-    def _advance_targets(self, dt: float) -> None:
+    def _advance_targets(self, dt: float, rows: slice | list[int] = slice(None)) -> None:
         """GUIDED between messages: the position target moves with the velocity target,
-        the velocity target with the acceleration target."""
-        vel = self.use_vel[:, None]
-        acc = (self.use_vel & self.use_acc)[:, None]
-        move = (self.use_pos & self.use_vel)[:, None]
-        a = np.where(acc, self.tgt_acc, 0.0)
-        self.tgt_pos += np.where(move, self.tgt_vel * dt + 0.5 * a * dt * dt, 0.0)
-        self.tgt_vel += np.where(vel, a * dt, 0.0)
+        the velocity target with the acceleration target (``rows``: the whole fleet, or
+        the vehicles listed)."""
+        use_vel = self.use_vel[rows]
+        vel = use_vel[:, None]
+        acc = (use_vel & self.use_acc[rows])[:, None]
+        move = (self.use_pos[rows] & use_vel)[:, None]
+        a = np.where(acc, self.tgt_acc[rows], 0.0)
+        self.tgt_pos[rows] += np.where(move, self.tgt_vel[rows] * dt + 0.5 * a * dt * dt, 0.0)
+        self.tgt_vel[rows] += np.where(vel, a * dt, 0.0)
 
     def step(self, dt: float) -> None:
         """Advance the whole fleet by ``dt`` seconds."""
@@ -429,9 +440,8 @@ class FleetPhysics:
         drag = (d.drag + d.drag_quad * _norm(air)) * air
         total = acc + np.where(airborne[:, None], drag, 0.0)
         if self._airframe_rng is not None:
-            k = dt / d.airframe_noise_tau
-            self.airframe_acc += -self.airframe_acc * k + self._airframe_sigma * np.sqrt(
-                2 * k) * self._airframe_rng.standard_normal((n, 3))
+            self.airframe_acc = _ou_step(self.airframe_acc, self._airframe_sigma,
+                                         d.airframe_noise_tau, dt, self._airframe_rng)
             total += np.where((powered & ~self.on_ground)[:, None], self.airframe_acc, 0.0)
         self.vel = self.vel + total * dt
         self.pos = self.pos + (self.vel + self.carry) * dt
@@ -459,14 +469,12 @@ class FleetPhysics:
 
         # Estimate error: slow OU process, as an EKF fed by a GPS wanders.
         if self.gps_noise_m > 0:
-            k = dt / GPS_TAU
-            self.gps_err += -self.gps_err * k + (self.gps_noise_m * self.gps_noise_scale)[
-                :, None] * np.sqrt(2 * k) * self.rng.standard_normal((n, 3))
+            self.gps_err = _ou_step(self.gps_err, (self.gps_noise_m * self.gps_noise_scale)[
+                :, None], GPS_TAU, dt, self.rng)
 
         if d.velocity_bias > 0:
-            k = dt / d.velocity_bias_tau
-            self.vel_bias[:, :2] += -self.vel_bias[:, :2] * k + d.velocity_bias * np.sqrt(
-                2 * k) * self._bias_rng.standard_normal((n, 2))
+            self.vel_bias[:, :2] = _ou_step(self.vel_bias[:, :2], d.velocity_bias,
+                                            d.velocity_bias_tau, dt, self._bias_rng)
 
         # Battery: hover draw when flying, a tenth of it idling armed.
         draw = np.where(powered & ~self.on_ground, 1.0, np.where(self.mode > CTRL_OFF, 0.1, 0.0))
@@ -563,8 +571,5 @@ class FleetPhysics:
         self.use_vel[i] = vel is not None
         self.tgt_acc[i] = acc if acc is not None else 0.0
         self.use_acc[i] = acc is not None
-        if since > 0 and self.dyn.advance_target and vel is not None:
-            a = self.tgt_acc[i] if acc is not None else 0.0
-            if pos is not None:
-                self.tgt_pos[i] += self.tgt_vel[i] * since + 0.5 * a * since * since
-            self.tgt_vel[i] += a * since
+        if since > 0 and self.dyn.advance_target:
+            self._advance_targets(since, [i])
